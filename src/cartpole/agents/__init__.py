@@ -1,0 +1,1 @@
+"""Agents: one module per algorithm, plus the pieces they share."""

@@ -1,0 +1,1 @@
+"""The cartpole command line."""

@@ -1,0 +1,77 @@
+"""``cartpole eval``: judge a saved agent with Gymnasium's rule."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from typing import Any
+
+
+def add_parser(sub: Any) -> None:
+    parser = sub.add_parser(
+        "eval",
+        help="evaluate a checkpoint or run folder",
+        description=(
+            "Play greedy episodes of a saved agent (a checkpoint .pt file, or a run folder: its best "
+            "checkpoint) and judge them: solved means mean return >= the env's reward_threshold over "
+            ">= 100 episodes. By default on Gymnasium's own env, from fresh seeds never used in training."
+        ),
+    )
+    parser.add_argument("path", metavar="PATH", help="checkpoint file or run folder")
+    parser.add_argument("--episodes", type=int, default=100, metavar="N", help="episodes (default: 100)")
+    parser.add_argument(
+        "--seed",
+        type=int,
+        metavar="N",
+        help="episode i starts from reset(seed=N+i); default: a fresh random seed",
+    )
+    parser.add_argument("--env", metavar="ID", help="evaluate on another env id (default: the checkpoint's)")
+    parser.add_argument(
+        "--simulator",
+        choices=["gymnasium", "fast"],
+        default="gymnasium",
+        help="gymnasium (the reference, default) or fast (our simulator)",
+    )
+    parser.add_argument("--json", action="store_true", help="print the full report as JSON")
+    parser.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    from cartpole.agents.registry import agents, resolve_checkpoint_path
+    from cartpole.cli.main import UsageError
+    from cartpole.evaluation import evaluate
+    from cartpole.runs import CheckpointError, load_checkpoint
+
+    if args.episodes < 1:
+        raise UsageError(f"--episodes must be >= 1, got {args.episodes}")
+    if args.seed is not None and args.seed < 0:
+        raise UsageError(f"--seed must be >= 0, got {args.seed}")
+    path = resolve_checkpoint_path(args.path)
+    checkpoint = load_checkpoint(path)
+    table = agents()
+    if checkpoint.agent not in table:
+        raise CheckpointError(f"{path} names an unknown agent {checkpoint.agent!r}")
+    policy = table[checkpoint.agent].policy_from_checkpoint(checkpoint)
+    env_id = args.env or checkpoint.env_id
+    report = evaluate(policy, env_id, args.episodes, seed=args.seed, simulator=args.simulator)
+    if args.json:
+        print(json.dumps(report.to_dict() | {"checkpoint": str(path)}, indent=2))
+        return 0
+    console = Console()
+    summary = Table(title=f"{checkpoint.agent} on {env_id}: {path}", show_header=False)
+    rows = [
+        ("episodes", f"{report.episodes} (seeds {report.seeds[0]}..{report.seeds[-1]})"),
+        ("simulator", report.simulator),
+        ("mean ± std", f"{report.mean:.1f} ± {report.std:.1f}"),
+        ("min / max", f"{report.min:.0f} / {report.max:.0f}"),
+        ("threshold", "none registered" if report.threshold is None else f"{report.threshold:g}"),
+    ]
+    for key, value in rows:
+        summary.add_row(key, value)
+    console.print(summary)
+    color = "green" if report.solved else "red"
+    console.print(f"[bold {color}]{report.verdict}[/]", highlight=False)
+    return 0

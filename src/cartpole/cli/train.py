@@ -1,0 +1,144 @@
+"""``cartpole train``: train an agent in a new run folder, or resume one."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+from rich.console import Console
+
+DEFAULT_AGENT = "dqn"
+
+
+def parse_overrides(pairs: list[str]) -> dict[str, Any]:
+    from cartpole.cli.main import UsageError
+
+    overrides: dict[str, Any] = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key:
+            raise UsageError(f"--set expects KEY=VALUE, got {pair!r}")
+        overrides[key.strip().replace("-", "_")] = value.strip()
+    return overrides
+
+
+def add_parser(sub: Any) -> None:
+    from cartpole.agents.registry import agents
+
+    names = list(agents())
+    parser = sub.add_parser(
+        "train",
+        help="train an agent on an environment",
+        description=(
+            "Train AGENT on ENV in a new run folder (runs/<env>__<agent>__s<seed>__<time>/) and print "
+            "the verdict: the kept best policy judged on 100 fresh greedy episodes of Gymnasium's own "
+            "env. Ctrl-C stops cleanly; --resume RUN_DIR continues."
+        ),
+        epilog=f"agents: {', '.join(names)}. Presets: `cartpole presets AGENT`.",
+    )
+    parser.add_argument(
+        "agent",
+        nargs="?",
+        choices=names,
+        metavar="AGENT",
+        help=f"one of: {', '.join(names)} (default: {DEFAULT_AGENT})",
+    )
+    parser.add_argument(
+        "--env",
+        default="CartPole-v1",
+        metavar="ID",
+        help="Gymnasium env id with Box observations and Discrete actions (default: CartPole-v1)",
+    )
+    parser.add_argument("--seed", type=int, default=0, metavar="N", help="training seed (default: 0)")
+    parser.add_argument(
+        "--preset",
+        default="default",
+        metavar="NAME",
+        help="hyperparameter preset of the agent (default: default)",
+    )
+    parser.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override one preset setting, e.g. --set lr=0.001 (repeatable)",
+    )
+    parser.add_argument(
+        "--budget",
+        metavar="B",
+        help="stop at this budget: env steps (50000, 50k), episodes (300ep), "
+        "generations (20gen) or time (90s, 5min); default: the preset's",
+    )
+    parser.add_argument(
+        "--runs-dir", default="runs", metavar="DIR", help="where run folders go (default: runs)"
+    )
+    parser.add_argument(
+        "--device",
+        default="auto",
+        choices=["auto", "cpu", "cuda"],
+        help="torch device for neural agents (default: auto, CUDA when present)",
+    )
+    parser.add_argument(
+        "--no-stop-when-solved",
+        action="store_true",
+        help="keep training after the first verified solve, to the budget",
+    )
+    parser.add_argument("--resume", metavar="RUN_DIR", help="continue this run from checkpoints/latest.pt")
+    parser.add_argument("--quiet", action="store_true", help="no progress output")
+    parser.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from cartpole.cli.main import UsageError
+    from cartpole.training import AlreadyFinished, parse_budget, resume, train
+
+    console = Console()
+    if args.resume:
+        if args.agent or args.overrides or args.budget:
+            raise UsageError("--resume continues a run with its recorded config; drop AGENT/--set/--budget")
+        try:
+            outcome = resume(args.resume, quiet=args.quiet, device=args.device)
+        except AlreadyFinished as done:
+            console.print(str(done))
+            return 0
+    else:
+        try:
+            budget = parse_budget(args.budget) if args.budget else None
+        except ValueError as err:
+            raise UsageError(str(err)) from None
+        outcome = train(
+            args.agent or DEFAULT_AGENT,
+            args.env,
+            seed=args.seed,
+            preset=args.preset,
+            overrides=parse_overrides(args.overrides),
+            budget=budget,
+            runs_dir=args.runs_dir,
+            device=args.device,
+            stop_when_solved=False if args.no_stop_when_solved else None,
+            quiet=args.quiet,
+            command=["cartpole", *sys.argv[1:]],
+        )
+    state = outcome.state
+    console.print(f"run: {outcome.run.path}")
+    console.print(
+        f"trained {state.env_steps:,} env steps, {state.episodes:,} episodes in {state.elapsed:.1f} s "
+        f"({state.stop_reason})"
+    )
+    if outcome.signal is not None:
+        console.print(
+            "interrupted: checkpoints/latest.pt saved. Resume with:\n"
+            f"  cartpole train --resume {outcome.run.path}"
+        )
+        return 128 + outcome.signal
+    if state.solved_at_step is not None:
+        console.print(
+            f"first verified solve at {state.solved_at_step:,} env steps, {state.solved_at_seconds:.2f} s"
+        )
+    report = outcome.report
+    if report is not None:
+        color = "green" if report.solved else "red"
+        console.print(f"[bold {color}]{report.verdict}[/]", highlight=False)
+    return 0

@@ -1,0 +1,53 @@
+"""Environments: Gymnasium's registry, and our fast batched CartPole simulator.
+
+``make_vec_env`` is the one place that decides which simulator steps an env id:
+``simulator="gymnasium"`` always uses Gymnasium's own implementation (the reference, used for every
+"solved" verdict by default); ``simulator="fast"`` uses :mod:`cartpole.envs.fast` for CartPole ids and
+falls back to Gymnasium for any other env.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import gymnasium as gym
+
+from cartpole.envs.spec import EnvInfo, UnsupportedEnvError, env_info
+
+Simulator = Literal["fast", "gymnasium"]
+SIMULATORS: tuple[Simulator, ...] = ("fast", "gymnasium")
+
+
+def fast_env_id(env_id: str) -> str:
+    """The id under which our fast simulator registers the CartPole env ``env_id``."""
+    return "cartpole/" + env_id.removeprefix("cartpole/")
+
+
+def resolve_simulator(env_id: str, simulator: Simulator) -> Simulator:
+    """The simulator that will really run ``env_id``: "fast" only exists for CartPole."""
+    if simulator not in SIMULATORS:
+        raise ValueError(f"unknown simulator {simulator!r}; choose one of {', '.join(SIMULATORS)}")
+    return "fast" if simulator == "fast" and env_info(env_id).is_cartpole else "gymnasium"
+
+
+def make_vec_env(env_id: str, num_envs: int, *, simulator: Simulator = "gymnasium") -> gym.vector.VectorEnv:
+    """A vector env of ``num_envs`` copies of ``env_id`` with Gymnasium's next-step autoreset."""
+    env_info(env_id)  # validates the id and its spaces with a clear message
+    if resolve_simulator(env_id, simulator) == "fast":
+        from cartpole.envs.fast import register_fast_envs
+
+        register_fast_envs()
+        return gym.make_vec(fast_env_id(env_id), num_envs=num_envs, vectorization_mode="vector_entry_point")
+    return gym.make_vec(env_id, num_envs=num_envs)
+
+
+__all__ = [
+    "SIMULATORS",
+    "EnvInfo",
+    "Simulator",
+    "UnsupportedEnvError",
+    "env_info",
+    "fast_env_id",
+    "make_vec_env",
+    "resolve_simulator",
+]

@@ -1,0 +1,204 @@
+"""Honest evaluation: greedy actions, fresh seeds, one episode per env, Gymnasium's own rule.
+
+``evaluate`` runs ``episodes`` greedy episodes of a policy, each from the start state that
+Gymnasium's single env gives for ``reset(seed=seed + i)``, all stepped together in one vector env.
+Each vector env plays exactly one episode, so short episodes cannot be over-represented in the mean
+(the bias Stable-Baselines3's ``evaluate_policy`` guards against). The verdict follows Gymnasium's rule:
+solved means a mean return >= the registry's ``reward_threshold`` over at least 100 episodes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any, Protocol, runtime_checkable
+
+import gymnasium as gym
+import numpy as np
+
+from cartpole.envs import Simulator, env_info, make_vec_env, resolve_simulator
+
+MIN_EPISODES_FOR_SOLVED = 100
+"""Gymnasium's rule averages over 100 consecutive episodes; fewer cannot be called solved."""
+
+MAX_ENVS_PER_BATCH = 1000
+
+
+@runtime_checkable
+class Policy(Protocol):
+    """Anything that maps a batch of observations to a batch of greedy actions."""
+
+    def act(self, observations: np.ndarray) -> np.ndarray:
+        """Actions (ints, shape [N]) for observations of shape [N, obs_dim]."""
+        ...
+
+
+@runtime_checkable
+class ScoredPolicy(Policy, Protocol):
+    """A policy that can also show its preference per action (Q-values or a linear score)."""
+
+    def scores(self, observations: np.ndarray) -> np.ndarray:
+        """Preferences of shape [N, n_actions]; ``act`` is their argmax."""
+        ...
+
+
+@dataclass(frozen=True)
+class EvalReport:
+    """The outcome of ``evaluate``: every episode, the summary, and the verdict."""
+
+    env_id: str
+    simulator: str
+    returns: list[float]
+    lengths: list[int]
+    seeds: list[int]
+    threshold: float | None
+    max_episode_steps: int | None
+    mean: float = field(init=False)
+    std: float = field(init=False)
+    min: float = field(init=False)
+    max: float = field(init=False)
+    solved: bool = field(init=False)
+
+    def __post_init__(self) -> None:
+        returns = np.asarray(self.returns, dtype=np.float64)
+        object.__setattr__(self, "mean", float(returns.mean()))
+        object.__setattr__(self, "std", float(returns.std()))
+        object.__setattr__(self, "min", float(returns.min()))
+        object.__setattr__(self, "max", float(returns.max()))
+        solved = (
+            self.threshold is not None
+            and self.episodes >= MIN_EPISODES_FOR_SOLVED
+            and self.mean >= self.threshold
+        )
+        object.__setattr__(self, "solved", bool(solved))
+
+    @property
+    def episodes(self) -> int:
+        return len(self.returns)
+
+    @property
+    def verdict(self) -> str:
+        """One line: solved or not, by which rule, on which env and simulator."""
+        where = f"{self.env_id}, {self.simulator} simulator"
+        summary = f"mean {self.mean:.1f} ± {self.std:.1f} over {self.episodes} episodes"
+        if self.threshold is None:
+            return f"NO VERDICT: {summary}; {self.env_id} registers no reward_threshold ({where})"
+        rule = f"{self.threshold:g}"
+        if self.episodes < MIN_EPISODES_FOR_SOLVED:
+            return (
+                f"CANNOT CALL SOLVED: {summary}; the rule needs >= {MIN_EPISODES_FOR_SOLVED} "
+                f"episodes with mean >= {rule} ({where})"
+            )
+        if self.solved:
+            return f"SOLVED: {summary} >= {rule} ({where})"
+        return f"NOT SOLVED: {summary} < {rule} ({where})"
+
+    def to_dict(self) -> dict[str, Any]:
+        data = asdict(self)
+        data["episodes"] = self.episodes
+        data["verdict"] = self.verdict
+        return data
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> EvalReport:
+        keys = (
+            "env_id",
+            "simulator",
+            "returns",
+            "lengths",
+            "seeds",
+            "threshold",
+            "max_episode_steps",
+        )
+        return cls(**{k: data[k] for k in keys})
+
+
+def start_states(env_id: str, seeds: list[int]) -> np.ndarray:
+    """The exact start states Gymnasium's single CartPole env gives for ``reset(seed=s)``."""
+    env = gym.make(env_id.removeprefix("cartpole/"))
+    try:
+        states = []
+        for seed in seeds:
+            env.reset(seed=seed)
+            states.append(np.array(env.unwrapped.state, dtype=np.float64))
+        return np.stack(states)
+    finally:
+        env.close()
+
+
+def _reset_to_seeds(env: gym.vector.VectorEnv, env_id: str, seeds: list[int]) -> np.ndarray:
+    """Reset ``env`` so that env i starts where Gymnasium's single env does for ``seeds[i]``."""
+    if not env_info(env_id).is_cartpole:
+        observations, _ = env.reset(seed=seeds)  # sync vector env: env i seeded with seeds[i]
+        return observations
+    env.reset(seed=seeds[0])
+    states = start_states(env_id, seeds)
+    base = env.unwrapped
+    if hasattr(base, "set_state"):  # our fast simulator
+        base.set_state(states)
+    else:  # Gymnasium's CartPoleVectorEnv keeps its state as [4, num_envs] float64
+        base.state = states.T.copy()
+    return states.astype(np.float32)  # CartPole's observation is its state, as float32
+
+
+def _play_batch(
+    policy: Policy, env_id: str, seeds: list[int], simulator: Simulator
+) -> tuple[list[float], list[int]]:
+    """Play one greedy episode per seed, all at once; return their returns and lengths."""
+    n = len(seeds)
+    env = make_vec_env(env_id, n, simulator=simulator)
+    try:
+        observations = _reset_to_seeds(env, env_id, seeds)
+        returns = np.zeros(n, dtype=np.float64)
+        lengths = np.zeros(n, dtype=np.int64)
+        running = np.ones(n, dtype=bool)
+        while running.any():
+            actions = np.asarray(policy.act(observations), dtype=np.int64).reshape(n)
+            observations, rewards, terminated, truncated, _ = env.step(actions)
+            returns += np.where(running, rewards, 0.0)
+            lengths += running
+            running &= ~(terminated | truncated)
+        return returns.tolist(), lengths.tolist()
+    finally:
+        env.close()
+
+
+def evaluate(
+    policy: Policy,
+    env_id: str = "CartPole-v1",
+    episodes: int = MIN_EPISODES_FOR_SOLVED,
+    seed: int | None = None,
+    *,
+    simulator: Simulator = "gymnasium",
+) -> EvalReport:
+    """Play ``episodes`` greedy episodes from seeds ``seed, seed + 1, ...`` and judge them.
+
+    With ``seed=None`` a fresh seed is drawn from the OS, above every training seed.
+    ``simulator="gymnasium"`` (default) uses Gymnasium's own env, so the verdict does not rest on our
+    physics; ``"fast"`` uses our simulator for CartPole (same start states, same equations).
+    """
+    if episodes < 1:
+        raise ValueError(f"episodes must be >= 1, got {episodes}")
+    info = env_info(env_id)
+    if seed is None:
+        from cartpole.training.seeding import fresh_eval_seed
+
+        seed = fresh_eval_seed()
+    used = resolve_simulator(env_id, simulator)
+    seeds = [seed + i for i in range(episodes)]
+    returns: list[float] = []
+    lengths: list[int] = []
+    for start in range(0, episodes, MAX_ENVS_PER_BATCH):
+        batch_returns, batch_lengths = _play_batch(
+            policy, env_id, seeds[start : start + MAX_ENVS_PER_BATCH], used
+        )
+        returns += batch_returns
+        lengths += batch_lengths
+    return EvalReport(
+        env_id=env_id,
+        simulator=used,
+        returns=returns,
+        lengths=lengths,
+        seeds=seeds,
+        threshold=info.reward_threshold,
+        max_episode_steps=info.max_episode_steps,
+    )

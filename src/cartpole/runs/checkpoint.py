@@ -1,0 +1,90 @@
+"""Checkpoint files: tensors plus JSON metadata, never pickled objects.
+
+A checkpoint is ``torch.save({"meta": <JSON text>, "tensors": {name: Tensor}})`` and is read back with
+``torch.load(..., weights_only=True)``, which refuses to build arbitrary Python objects. Writes are
+atomic, so an interrupted save leaves the previous checkpoint intact.
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from cartpole import __version__
+from cartpole.runs.atomic import write_atomic
+
+FORMAT = "cartpole-checkpoint"
+FORMAT_VERSION = 1
+SUFFIX = ".pt"
+
+
+class CheckpointError(ValueError):
+    """A checkpoint file is missing, truncated, corrupt, foreign or from an unknown format version."""
+
+
+@dataclass
+class Checkpoint:
+    """What a checkpoint holds: named tensors and plain metadata."""
+
+    meta: dict[str, Any]
+    tensors: dict[str, torch.Tensor] = field(default_factory=dict)
+
+    @property
+    def agent(self) -> str:
+        return str(self.meta["agent"])
+
+    @property
+    def env_id(self) -> str:
+        return str(self.meta["env_id"])
+
+
+def save_checkpoint(path: Path, checkpoint: Checkpoint) -> None:
+    """Write ``checkpoint`` to ``path`` atomically, stamping format and package version."""
+    meta = {"format": FORMAT, "format_version": FORMAT_VERSION, "package_version": __version__}
+    meta.update(checkpoint.meta)
+    payload = {
+        "meta": json.dumps(meta, allow_nan=False),
+        "tensors": {k: v.detach().cpu().contiguous() for k, v in checkpoint.tensors.items()},
+    }
+    write_atomic(path, lambda handle: torch.save(payload, handle))
+
+
+def load_checkpoint(path: Path) -> Checkpoint:
+    """Read a checkpoint; raise CheckpointError with a one-line, actionable message if unusable."""
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"no checkpoint at {path}: check the path (see `cartpole runs`)")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except (RuntimeError, EOFError, zipfile.BadZipFile, OSError, ValueError) as err:
+        raise CheckpointError(
+            f"{path} is truncated or corrupt ({type(err).__name__}); use another checkpoint of the "
+            "run (checkpoints/latest.pt, best.pt) or train again"
+        ) from err
+    except Exception as err:  # weights_only refuses pickled objects with UnpicklingError
+        raise CheckpointError(
+            f"{path} is not a cartpole checkpoint (it holds objects we do not unpickle: {err!s:.80})"
+        ) from err
+    if not isinstance(payload, dict) or not isinstance(payload.get("meta"), str):
+        raise CheckpointError(f"{path} is not a cartpole checkpoint (no metadata found)")
+    try:
+        meta = json.loads(payload["meta"])
+    except json.JSONDecodeError as err:
+        raise CheckpointError(f"{path} has corrupt metadata: {err}") from err
+    if meta.get("format") != FORMAT:
+        raise CheckpointError(f"{path} is not a cartpole checkpoint (format {meta.get('format')!r})")
+    if meta.get("format_version") != FORMAT_VERSION:
+        raise CheckpointError(
+            f"{path} uses checkpoint format {meta.get('format_version')} (written by cartpole "
+            f"{meta.get('package_version')}); this is cartpole {__version__}, which reads format "
+            f"{FORMAT_VERSION}: use that version to load it"
+        )
+    tensors = payload.get("tensors", {})
+    if not isinstance(tensors, dict):
+        raise CheckpointError(f"{path} is corrupt (tensors are not a mapping)")
+    return Checkpoint(meta=meta, tensors=tensors)

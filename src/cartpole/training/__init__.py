@@ -1,0 +1,22 @@
+"""Training: one loop for every agent, its callbacks, budgets, configs and seeds."""
+
+from cartpole.training.budget import Budget, parse_budget
+from cartpole.training.config import ConfigError, TrainSettings
+from cartpole.training.loop import Callback, Learner, LearnResult, LoopState, TrainingLoop
+from cartpole.training.session import AlreadyFinished, TrainOutcome, resume, train
+
+__all__ = [
+    "AlreadyFinished",
+    "Budget",
+    "Callback",
+    "ConfigError",
+    "LearnResult",
+    "Learner",
+    "LoopState",
+    "TrainOutcome",
+    "TrainSettings",
+    "TrainingLoop",
+    "parse_budget",
+    "resume",
+    "train",
+]

@@ -1,0 +1,322 @@
+"""Callbacks of the shared training loop: budget, evaluation, checkpoints, metrics, progress."""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import Any, TextIO
+
+from cartpole.agents.registry import AgentSpec
+from cartpole.envs import EnvInfo
+from cartpole.evaluation import MIN_EPISODES_FOR_SOLVED, EvalReport, evaluate
+from cartpole.runs import Checkpoint, RunDir, save_checkpoint
+from cartpole.training.budget import Budget
+from cartpole.training.config import TrainSettings
+from cartpole.training.loop import Callback, LearnResult, TrainingLoop
+from cartpole.training.seeding import eval_seed
+
+
+class BudgetCallback(Callback):
+    """Stops training when any limit of the budget is reached."""
+
+    def __init__(self, budget: Budget):
+        self.budget = budget
+
+    def on_step(self, loop: TrainingLoop, result: LearnResult) -> bool:
+        state, budget = loop.state, self.budget
+        limits = (
+            (budget.env_steps, state.env_steps, "env steps"),
+            (budget.episodes, state.episodes, "episodes"),
+            (budget.iterations, state.iterations, "iterations"),
+            (budget.seconds, state.elapsed, "seconds"),
+        )
+        for limit, value, unit in limits:
+            if limit is not None and value >= limit:
+                state.stop_reason = f"budget reached ({limit:g} {unit})"
+                return False
+        return True
+
+
+def report_rank(report: EvalReport) -> tuple[bool, bool, float]:
+    """Order of merit: a verified solve, then a full-length evaluation, then the mean."""
+    return (report.solved, report.episodes >= MIN_EPISODES_FOR_SOLVED, report.mean)
+
+
+class EvalCallback(Callback):
+    """Periodic greedy evaluation: a quick screen, then the full evaluation when the screen passes.
+
+    The screen runs on the fast simulator (cheap); the full evaluation, whose verdict decides
+    "solved", runs on ``settings.eval_simulator`` (Gymnasium's own env by default). Seeds come from
+    :func:`eval_seed`, disjoint from training seeds and different at every evaluation.
+    """
+
+    def __init__(self, env: EnvInfo, seed: int, settings: TrainSettings):
+        self.env, self.seed, self.settings = env, seed, settings
+        self.last_eval_step = 0
+
+    def on_start(self, loop: TrainingLoop) -> None:
+        self.last_eval_step = loop.state.env_steps
+
+    def on_step(self, loop: TrainingLoop, result: LearnResult) -> bool:
+        if loop.state.env_steps - self.last_eval_step < self.settings.eval_every:
+            return True
+        self.last_eval_step = loop.state.env_steps
+        return loop.record_eval(self.evaluate(loop))
+
+    def evaluate(self, loop: TrainingLoop) -> EvalReport:
+        policy = loop.learner.policy()
+        index = loop.state.evaluations
+        screen = evaluate(
+            policy,
+            self.env.env_id,
+            self.settings.eval_screen_episodes,
+            seed=eval_seed(self.seed, 2 * index),
+            simulator="fast",
+        )
+        threshold = self.env.reward_threshold
+        if threshold is None or screen.mean < threshold:
+            return screen
+        return evaluate(
+            policy,
+            self.env.env_id,
+            self.settings.eval_episodes,
+            seed=eval_seed(self.seed, 2 * index + 1),
+            simulator=self.settings.eval_simulator,  # type: ignore[arg-type]
+        )
+
+
+class StopWhenSolved(Callback):
+    """Ends training at the first verified solve."""
+
+    def on_eval(self, loop: TrainingLoop, report: EvalReport) -> bool:
+        if report.solved:
+            loop.state.stop_reason = "solved"
+            return False
+        return True
+
+
+class CheckpointCallback(Callback):
+    """Keeps ``latest`` (periodic and at exit), ``best`` (best evaluation) and ``solved``."""
+
+    def __init__(self, run: RunDir, agent: AgentSpec, meta: dict[str, Any], every: int):
+        self.run, self.agent, self.meta, self.every = run, agent, meta, every
+        self.last_save_step = 0
+        self.best: EvalReport | None = None
+
+    def on_start(self, loop: TrainingLoop) -> None:
+        self.last_save_step = loop.state.env_steps
+        previous = self.run.eval_report() if loop.state.evaluations else None
+        if previous and "returns" in previous:
+            self.best = EvalReport.from_dict(previous)
+
+    def save(self, loop: TrainingLoop, name: str, resume: bool) -> None:
+        tensors, data = loop.learner.state_dict(resume=resume)
+        meta = {
+            **self.meta,
+            "step": loop.state.env_steps,
+            "learner": data,
+            "loop": loop.state.to_dict(),
+            "resumable": resume,
+        }
+        save_checkpoint(self.run.checkpoint_path(name), Checkpoint(meta=meta, tensors=tensors))
+
+    def on_step(self, loop: TrainingLoop, result: LearnResult) -> bool:
+        if loop.state.env_steps - self.last_save_step >= self.every:
+            self.last_save_step = loop.state.env_steps
+            self.save(loop, "latest", resume=True)
+        return True
+
+    def on_eval(self, loop: TrainingLoop, report: EvalReport) -> bool:
+        if self.best is None or report_rank(report) > report_rank(self.best):
+            self.best = report
+            self.save(loop, "best", resume=False)
+            self.run.write_eval(report.to_dict())
+        if report.solved and not self.run.checkpoint_path("solved").exists():
+            self.save(loop, "solved", resume=False)
+        return True
+
+    def on_end(self, loop: TrainingLoop) -> None:
+        self.save(loop, "latest", resume=True)
+
+
+class MetricsCallback(Callback):
+    """Appends metric rows to ``metrics.jsonl`` and refreshes ``status.json`` every few seconds."""
+
+    FLUSH_SECONDS = 1.0
+
+    def __init__(self, run: RunDir):
+        self.run = run
+        self.pending: list[dict[str, Any]] = []
+        self.last_flush = 0.0
+        self.last_sps_time = 0.0
+        self.last_sps_steps = 0
+
+    def base_row(self, loop: TrainingLoop) -> dict[str, Any]:
+        s = loop.state
+        return {"step": s.env_steps, "episode": s.episodes, "time": round(s.elapsed, 4)}
+
+    def on_start(self, loop: TrainingLoop) -> None:
+        self.last_sps_time, self.last_sps_steps = time.perf_counter(), loop.state.env_steps
+        self.write_status(loop, "running")
+
+    def on_episode(self, loop: TrainingLoop, episode_return: float, length: int) -> bool:
+        row = self.base_row(loop)
+        row["train/episode_return"] = float(episode_return)
+        row["train/episode_length"] = int(length)
+        row.update({k: float(v) for k, v in loop.state.scalars.items()})
+        self.pending.append(row)
+        return True
+
+    def on_step(self, loop: TrainingLoop, result: LearnResult) -> bool:
+        if result.log_scalars:
+            row = self.base_row(loop) | {"train/iteration": loop.state.iterations}
+            self.pending.append(row | {k: float(v) for k, v in result.scalars.items()})
+        now = time.perf_counter()
+        if now - self.last_flush >= self.FLUSH_SECONDS:
+            self.flush(loop, now)
+        return True
+
+    def flush(self, loop: TrainingLoop, now: float) -> None:
+        if self.pending:
+            seconds = max(now - self.last_sps_time, 1e-9)
+            self.pending[-1]["time/sps"] = (loop.state.env_steps - self.last_sps_steps) / seconds
+        self.last_sps_time, self.last_sps_steps = now, loop.state.env_steps
+        self.run.append_metrics(self.pending)
+        self.pending = []
+        self.last_flush = now
+        self.write_status(loop, "running")
+
+    def on_eval(self, loop: TrainingLoop, report: EvalReport) -> bool:
+        row = self.base_row(loop)
+        row.update(
+            {
+                "eval/mean_return": report.mean,
+                "eval/std_return": report.std,
+                "eval/min_return": report.min,
+                "eval/max_return": report.max,
+                "eval/episodes": report.episodes,
+                "eval/solved": report.solved,
+                "eval/simulator": report.simulator,
+            }
+        )
+        self.pending.append(row)
+        return True
+
+    def write_status(self, loop: TrainingLoop, state: str) -> None:
+        s = loop.state
+        self.run.write_status(
+            {
+                "state": state,
+                "env_steps": s.env_steps,
+                "episodes": s.episodes,
+                "iterations": s.iterations,
+                "elapsed": round(s.elapsed, 3),
+                "best_eval_mean": s.best_eval_mean,
+                "solved": s.solved,
+                "solved_at_step": s.solved_at_step,
+                "stop_reason": s.stop_reason,
+            }
+        )
+
+    def on_end(self, loop: TrainingLoop) -> None:
+        self.run.append_metrics(self.pending)
+        self.pending = []
+        reason = loop.state.stop_reason or ""
+        state = "interrupted" if reason.startswith("interrupted") else "finished"
+        self.write_status(loop, "failed" if reason == "failed" else state)
+
+
+class ProgressCallback(Callback):
+    """A rich progress bar on a terminal; a plain line every few seconds otherwise."""
+
+    PLAIN_SECONDS = 5.0
+
+    def __init__(self, budget: Budget, unit: str, stream: TextIO | None = None):
+        self.budget, self.unit = budget, unit
+        self.stream = stream or sys.stderr
+        self.progress: Any = None
+        self.task: Any = None
+        self.last_line = 0.0
+
+    def total_and_done(self, loop: TrainingLoop) -> tuple[float | None, float, str]:
+        s, b = loop.state, self.budget
+        if b.env_steps:
+            return b.env_steps, s.env_steps, "steps"
+        if b.episodes:
+            return b.episodes, s.episodes, "episodes"
+        if b.iterations:
+            return b.iterations, s.iterations, f"{self.unit}s"
+        if b.seconds:
+            return b.seconds, s.elapsed, "s"
+        return None, s.env_steps, "steps"
+
+    def describe(self, loop: TrainingLoop) -> str:
+        s = loop.state
+        parts = []
+        if s.recent_returns:
+            parts.append(f"return {s.recent_returns[-1]:.0f} (mean100 {s.mean_recent_return:.1f})")
+        if s.last_eval is not None:
+            parts.append(f"eval {s.last_eval.mean:.1f}/{s.last_eval.episodes}ep")
+        for key in ("train/epsilon", "train/loss"):
+            if key in s.scalars:
+                parts.append(f"{key.split('/')[1]} {s.scalars[key]:.3g}")
+        return "  ".join(parts)
+
+    def on_start(self, loop: TrainingLoop) -> None:
+        if not self.stream.isatty():
+            return
+        from rich.console import Console
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeElapsedColumn,
+            TimeRemainingColumn,
+        )
+
+        total, done, label = self.total_and_done(loop)
+        self.progress = Progress(
+            TextColumn("[bold]training"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn(label),
+            TextColumn("{task.fields[sps]} steps/s"),
+            TimeElapsedColumn(),
+            TimeRemainingColumn(),
+            TextColumn("{task.fields[info]}"),
+            console=Console(file=self.stream),
+            transient=False,
+        )
+        self.task = self.progress.add_task("train", total=total, completed=done, sps="-", info="")
+        self.progress.start()
+
+    def on_step(self, loop: TrainingLoop, result: LearnResult) -> bool:
+        now = time.perf_counter()
+        if self.progress is not None:
+            if now - self.last_line >= 0.2:
+                _, done, _ = self.total_and_done(loop)
+                sps = f"{loop.state.env_steps / max(loop.state.elapsed, 1e-9):,.0f}"
+                self.progress.update(self.task, completed=done, sps=sps, info=self.describe(loop))
+                self.last_line = now
+        elif now - self.last_line >= self.PLAIN_SECONDS:
+            self.last_line = now
+            self.print_line(loop)
+        return True
+
+    def print_line(self, loop: TrainingLoop) -> None:
+        s = loop.state
+        total, done, label = self.total_and_done(loop)
+        share = f"/{total:g}" if total else ""
+        sps = s.env_steps / max(s.elapsed, 1e-9)
+        print(
+            f"[{s.elapsed:7.1f}s] {done:g}{share} {label}  {sps:,.0f} steps/s  {self.describe(loop)}",
+            file=self.stream,
+            flush=True,
+        )
+
+    def on_end(self, loop: TrainingLoop) -> None:
+        if self.progress is not None:
+            _, done, _ = self.total_and_done(loop)
+            self.progress.update(self.task, completed=done, info=self.describe(loop))
+            self.progress.stop()

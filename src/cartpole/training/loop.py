@@ -1,0 +1,183 @@
+"""The one training loop. Agents expose a learning step; everything else is a callback.
+
+``TrainingLoop.run`` calls ``learner.learn()`` until a callback says stop, and tells its callbacks
+about every step, every finished episode and every evaluation. Progress, metrics, periodic evaluation,
+checkpoints, stop-when-solved and budgets are all callbacks (:mod:`cartpole.training.callbacks`), so
+no agent re-implements them.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+import torch
+
+from cartpole.evaluation import EvalReport, Policy
+
+
+@dataclass
+class LearnResult:
+    """What one ``learn()`` call did."""
+
+    env_steps: int
+    """Env transitions collected (summed over vector envs)."""
+    episode_returns: list[float] = field(default_factory=list)
+    """Returns of the training episodes that finished during this call."""
+    episode_lengths: list[int] = field(default_factory=list)
+    """Their lengths, in the same order."""
+    scalars: dict[str, float] = field(default_factory=dict)
+    """Namespaced training metrics, e.g. ``train/loss``, ``train/epsilon``."""
+    summarized_episodes: int = 0
+    """Episodes finished but summarized in ``scalars`` instead of listed one by one (a generation)."""
+    log_scalars: bool = False
+    """Write ``scalars`` as a metrics row for this step (population methods: one row per generation)."""
+
+
+class Learner(Protocol):
+    """What an agent gives the loop."""
+
+    def learn(self) -> LearnResult:
+        """Advance by one unit: a generation, or one batched env step and its gradient steps."""
+        ...
+
+    def policy(self) -> Policy:
+        """The current greedy policy (what evaluation and checkpoints judge)."""
+        ...
+
+    def state_dict(self, resume: bool) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+        """Tensors and JSON-able data; with ``resume`` everything needed to continue exactly."""
+        ...
+
+    def load_state_dict(self, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None:
+        """Restore what ``state_dict`` gave."""
+        ...
+
+
+@dataclass
+class LoopState:
+    """Counters the loop keeps and callbacks read; saved in checkpoints so a resume continues."""
+
+    env_steps: int = 0
+    episodes: int = 0
+    iterations: int = 0
+    elapsed: float = 0.0
+    """Seconds of training so far, summed over resumed sessions."""
+    evaluations: int = 0
+    best_eval_mean: float | None = None
+    solved: bool = False
+    solved_at_step: int | None = None
+    solved_at_seconds: float | None = None
+    recent_returns: deque[float] = field(default_factory=lambda: deque(maxlen=100))
+    scalars: dict[str, float] = field(default_factory=dict)
+    last_eval: EvalReport | None = None
+    stop_reason: str | None = None
+
+    @property
+    def mean_recent_return(self) -> float | None:
+        return float(np.mean(self.recent_returns)) if self.recent_returns else None
+
+    def to_dict(self) -> dict[str, Any]:
+        keys = (
+            "env_steps",
+            "episodes",
+            "iterations",
+            "elapsed",
+            "evaluations",
+            "best_eval_mean",
+            "solved",
+            "solved_at_step",
+            "solved_at_seconds",
+        )
+        return {k: getattr(self, k) for k in keys} | {"recent_returns": list(self.recent_returns)}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> LoopState:
+        state = cls(**{k: v for k, v in data.items() if k != "recent_returns"})
+        state.recent_returns.extend(data.get("recent_returns", []))
+        return state
+
+
+class Callback:
+    """Hooks of the loop. ``on_step``/``on_episode``/``on_eval`` return False to stop training."""
+
+    def on_start(self, loop: TrainingLoop) -> None:
+        """Training (or a resumed session) begins."""
+
+    def on_step(self, loop: TrainingLoop, result: LearnResult) -> bool:
+        """After each ``learn()``, once the counters are updated."""
+        return True
+
+    def on_episode(self, loop: TrainingLoop, episode_return: float, length: int) -> bool:
+        """For each finished training episode."""
+        return True
+
+    def on_eval(self, loop: TrainingLoop, report: EvalReport) -> bool:
+        """After each evaluation (see ``TrainingLoop.record_eval``)."""
+        return True
+
+    def on_end(self, loop: TrainingLoop) -> None:
+        """Training ends, whatever the reason (``loop.state.stop_reason``)."""
+
+
+class TrainingLoop:
+    """Drives a learner and its callbacks until one of them says stop."""
+
+    def __init__(self, learner: Learner, callbacks: list[Callback], state: LoopState | None = None):
+        self.learner = learner
+        self.callbacks = callbacks
+        self.state = state or LoopState()
+        self._stop_requested: str | None = None
+
+    def request_stop(self, reason: str) -> None:
+        """Stop after the current step (safe to call from a signal handler)."""
+        self._stop_requested = reason
+
+    def record_eval(self, report: EvalReport) -> bool:
+        """Note an evaluation in the counters and tell every callback; False if one says stop."""
+        state = self.state
+        state.evaluations += 1
+        state.last_eval = report
+        if state.best_eval_mean is None or report.mean > state.best_eval_mean:
+            state.best_eval_mean = report.mean
+        if report.solved and not state.solved:
+            state.solved = True
+            state.solved_at_step = state.env_steps
+            state.solved_at_seconds = state.elapsed
+        return all([cb.on_eval(self, report) for cb in self.callbacks])
+
+    def run(self) -> LoopState:
+        """Train until a callback stops it or a stop is requested; returns the final counters."""
+        state = self.state
+        for cb in self.callbacks:
+            cb.on_start(self)
+        started = time.perf_counter() - state.elapsed
+        try:
+            while state.stop_reason is None:
+                result = self.learner.learn()
+                state.env_steps += result.env_steps
+                state.iterations += 1
+                state.elapsed = time.perf_counter() - started
+                state.scalars.update(result.scalars)
+                state.episodes += result.summarized_episodes
+                keep_going = True
+                for ret, length in zip(result.episode_returns, result.episode_lengths, strict=True):
+                    state.episodes += 1
+                    state.recent_returns.append(ret)
+                    keep_going &= all([cb.on_episode(self, ret, length) for cb in self.callbacks])
+                keep_going &= all([cb.on_step(self, result) for cb in self.callbacks])
+                if self._stop_requested:
+                    state.stop_reason = self._stop_requested
+                elif not keep_going and state.stop_reason is None:
+                    state.stop_reason = "stopped by a callback"
+        except BaseException:
+            state.stop_reason = state.stop_reason or "failed"
+            raise
+        finally:
+            state.elapsed = time.perf_counter() - started
+            for cb in self.callbacks:
+                cb.on_end(self)
+        return state

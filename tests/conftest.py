@@ -1,0 +1,45 @@
+"""Shared fixtures: small policies with known behaviour and a ready-made trained run."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+
+class AlwaysLeft:
+    """Pushes left every step: the pole falls in about ten steps."""
+
+    def act(self, observations: np.ndarray) -> np.ndarray:
+        return np.zeros(len(observations), dtype=np.int64)
+
+
+class Balancer:
+    """A hand-written linear controller that balances CartPole for the full episode."""
+
+    weights = np.array([0.05, 0.3, 1.0, 0.3])
+
+    def act(self, observations: np.ndarray) -> np.ndarray:
+        return (np.asarray(observations) @ self.weights > 0).astype(np.int64)
+
+
+@pytest.fixture
+def always_left() -> AlwaysLeft:
+    return AlwaysLeft()
+
+
+@pytest.fixture
+def balancer() -> Balancer:
+    return Balancer()
+
+
+@pytest.fixture(scope="session")
+def cem_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A solved CEM run folder, trained once per test session (about a second)."""
+    from cartpole.training import train
+
+    runs_dir = tmp_path_factory.mktemp("runs")
+    outcome = train("cem", "CartPole-v1", seed=0, runs_dir=runs_dir, quiet=True)
+    assert outcome.report is not None and outcome.report.solved, outcome.report
+    return outcome.run.path

@@ -1,0 +1,74 @@
+"""Checkpoints hold tensors and JSON metadata only; bad files give one clear error."""
+
+from __future__ import annotations
+
+import pickle
+
+import pytest
+import torch
+
+from cartpole.runs import Checkpoint, CheckpointError, load_checkpoint, save_checkpoint
+
+
+def test_round_trip(tmp_path):
+    path = tmp_path / "c.pt"
+    save_checkpoint(path, Checkpoint(meta={"agent": "cem", "env_id": "CartPole-v1", "x": [1, 2]},
+                                     tensors={"w": torch.arange(4.0)}))  # fmt: skip
+    loaded = load_checkpoint(path)
+    assert loaded.agent == "cem" and loaded.meta["x"] == [1, 2]
+    assert loaded.meta["format_version"] == 1 and "package_version" in loaded.meta
+    assert torch.equal(loaded.tensors["w"], torch.arange(4.0))
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(CheckpointError, match="no checkpoint at"):
+        load_checkpoint(tmp_path / "nope.pt")
+
+
+def test_truncated_file(tmp_path):
+    path = tmp_path / "c.pt"
+    save_checkpoint(path, Checkpoint(meta={"agent": "cem", "env_id": "CartPole-v1"},
+                                     tensors={"w": torch.zeros(1000)}))  # fmt: skip
+    path.write_bytes(path.read_bytes()[:300])
+    with pytest.raises(CheckpointError, match="truncated or corrupt"):
+        load_checkpoint(path)
+
+
+def test_foreign_pickle_is_not_unpickled(tmp_path):
+    path = tmp_path / "evil.pt"
+
+    class Boom:
+        def __reduce__(self):
+            return (print, ("unpickled!",))
+
+    torch.save({"meta": Boom()}, path)
+    with pytest.raises(CheckpointError, match="not a cartpole checkpoint"):
+        load_checkpoint(path)
+    path.write_bytes(pickle.dumps({"a": 1}))
+    with pytest.raises(CheckpointError):
+        load_checkpoint(path)
+
+
+def test_other_torch_file_and_future_format(tmp_path):
+    path = tmp_path / "other.pt"
+    torch.save({"weights": torch.zeros(2)}, path)
+    with pytest.raises(CheckpointError, match="not a cartpole checkpoint"):
+        load_checkpoint(path)
+    torch.save({"meta": '{"format": "cartpole-checkpoint", "format_version": 99}', "tensors": {}}, path)
+    with pytest.raises(CheckpointError, match="format 99"):
+        load_checkpoint(path)
+
+
+def test_interrupted_save_keeps_the_previous_file(tmp_path, monkeypatch):
+    path = tmp_path / "c.pt"
+    save_checkpoint(path, Checkpoint(meta={"agent": "cem", "env_id": "CartPole-v1", "v": 1}))
+
+    def crash(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(torch, "save", crash)
+    with pytest.raises(KeyboardInterrupt):
+        save_checkpoint(path, Checkpoint(meta={"agent": "cem", "env_id": "CartPole-v1", "v": 2}))
+    monkeypatch.undo()
+    assert load_checkpoint(path).meta["v"] == 1
+    assert [p.name for p in tmp_path.iterdir()] == ["c.pt"]

@@ -1,0 +1,107 @@
+"""evaluate(): Gymnasium's rule, exact agreement with a plain Gymnasium loop, honest verdicts."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from cartpole import EvalReport, evaluate
+from cartpole.envs import UnsupportedEnvError, env_info
+
+
+def reference_returns(policy, env_id: str, seeds: list[int]) -> list[float]:
+    """One episode per seed with Gymnasium's single env in a plain Python loop."""
+    env = gym.make(env_id)
+    returns = []
+    for seed in seeds:
+        obs, _ = env.reset(seed=seed)
+        total, done = 0.0, False
+        while not done:
+            action = int(policy.act(obs[None])[0])
+            obs, reward, terminated, truncated, _ = env.step(action)
+            total += float(reward)
+            done = terminated or truncated
+        returns.append(total)
+    env.close()
+    return returns
+
+
+@pytest.mark.parametrize("env_id", ["CartPole-v1", "CartPole-v0"])
+@pytest.mark.parametrize("simulator", ["gymnasium", "fast"])
+def test_always_left_matches_a_plain_gymnasium_loop(always_left, env_id, simulator):
+    report = evaluate(always_left, env_id, episodes=100, seed=1234, simulator=simulator)
+    assert report.returns == reference_returns(always_left, env_id, report.seeds)
+    assert report.seeds == list(range(1234, 1334))
+    assert 8 <= report.min and report.max <= 12
+    assert not report.solved
+    assert report.verdict.startswith("NOT SOLVED")
+
+
+@pytest.mark.parametrize(("env_id", "limit", "threshold"), [("CartPole-v1", 500, 475), ("CartPole-v0", 200, 195)])
+def test_balancer_is_solved_with_the_registry_threshold(balancer, env_id, limit, threshold):
+    report = evaluate(balancer, env_id, episodes=100, seed=7)
+    assert report.returns == [float(limit)] * 100
+    assert report.lengths == [limit] * 100
+    assert report.threshold == threshold == gym.spec(env_id).reward_threshold
+    assert report.max_episode_steps == gym.spec(env_id).max_episode_steps
+    assert report.solved
+    assert report.verdict.startswith("SOLVED")
+    assert (report.mean, report.std, report.min, report.max) == (limit, 0.0, limit, limit)
+
+
+def test_fewer_than_100_episodes_cannot_be_called_solved(balancer):
+    report = evaluate(balancer, "CartPole-v1", episodes=20, seed=0)
+    assert report.mean == 500 and not report.solved
+    assert report.verdict.startswith("CANNOT CALL SOLVED")
+
+
+def test_episode_batches_beyond_the_batch_size(always_left, monkeypatch):
+    import cartpole.evaluation as evaluation
+
+    monkeypatch.setattr(evaluation, "MAX_ENVS_PER_BATCH", 7)
+    report = evaluate(always_left, "CartPole-v1", episodes=30, seed=5)
+    assert report.returns == reference_returns(always_left, "CartPole-v1", report.seeds)
+
+
+def test_default_seed_is_fresh_and_above_training_seeds(always_left):
+    from cartpole.training.seeding import EVAL_SEED_LOW
+
+    first = evaluate(always_left, episodes=3)
+    second = evaluate(always_left, episodes=3)
+    assert min(first.seeds[0], second.seeds[0]) >= EVAL_SEED_LOW
+    assert first.seeds != second.seeds
+
+
+def test_report_round_trips_through_json(balancer):
+    import json
+
+    report = evaluate(balancer, episodes=100, seed=3)
+    again = EvalReport.from_dict(json.loads(json.dumps(report.to_dict())))
+    assert again == report
+    assert report.to_dict()["verdict"] == report.verdict
+
+
+def test_other_envs_are_evaluated_with_gymnasium():
+    class Zero:
+        def act(self, observations: np.ndarray) -> np.ndarray:
+            return np.zeros(len(observations), dtype=np.int64)
+
+    report = evaluate(Zero(), "Acrobot-v1", episodes=2, seed=0, simulator="fast")
+    assert report.simulator == "gymnasium"
+    assert report.lengths == [500, 500]
+
+
+@pytest.mark.parametrize(
+    ("env_id", "message"),
+    [("NoSuchEnv-v0", "unknown environment"), ("Pendulum-v1", "Discrete actions"), ("CarRacing-v3", "CarRacing-v3")],
+)
+def test_unsupported_envs_get_a_clear_error(env_id, message):
+    with pytest.raises(UnsupportedEnvError, match=message):
+        env_info(env_id)
+
+
+def test_env_info_comes_from_the_registry():
+    info = env_info("CartPole-v1")
+    assert (info.obs_dim, info.n_actions, info.reward_threshold, info.max_episode_steps) == (4, 2, 475, 500)
+    assert env_info("CartPole-v0").reward_threshold == 195
