@@ -33,6 +33,15 @@ def add_parser(sub: Any) -> None:
         help="gymnasium (the reference, default) or fast (our simulator)",
     )
     parser.add_argument("--json", action="store_true", help="print the full report as JSON")
+    # --render (issue 5): a video of the evaluation's first episodes, made by cartpole.cli.record.
+    parser.add_argument(
+        "--render",
+        nargs="?",
+        const="",
+        metavar="FILE",
+        help="also write a video (.gif, or .mp4 with the video extra) of the first 3 episodes of "
+        "this evaluation, from the same seeds (default FILE: ./<run>-<checkpoint>-seed<S>.gif)",
+    )
     parser.set_defaults(run=run)
 
 
@@ -57,10 +66,16 @@ def run(args: argparse.Namespace) -> int:
     policy = table[checkpoint.agent].policy_from_checkpoint(checkpoint)
     env_id = args.env or checkpoint.env_id
     report = evaluate(policy, env_id, args.episodes, seed=args.seed, simulator=args.simulator)
+    video: dict[str, str] = {}
+    if args.render is not None:  # --render (issue 5)
+        from cartpole.cli.record import write_eval_video
+
+        out = write_eval_video(policy, path, env_id, report.seeds[0], report.episodes, args.render)
+        video = {"video": str(out)}
     if args.json:
-        print(json.dumps(report.to_dict() | {"checkpoint": str(path)}, indent=2))
+        print(json.dumps(report.to_dict() | {"checkpoint": str(path)} | video, indent=2))
         return 0
-    console = Console()
+    console = Console(soft_wrap=True)
     summary = Table(title=f"{checkpoint.agent} on {env_id}: {path}", show_header=False)
     rows = [
         ("episodes", f"{report.episodes} (seeds {report.seeds[0]}..{report.seeds[-1]})"),
@@ -74,4 +89,6 @@ def run(args: argparse.Namespace) -> int:
     console.print(summary)
     color = "green" if report.solved else "red"
     console.print(f"[bold {color}]{report.verdict}[/]", highlight=False)
+    if video:
+        console.print(f"video of the first episodes: {video['video']}", highlight=False)
     return 0

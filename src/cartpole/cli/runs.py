@@ -38,7 +38,7 @@ def list_runs_command(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps([asdict(r) for r in runs], indent=2))
         return 0
-    console = Console()
+    console = Console(soft_wrap=True)
     if not runs:
         console.print(f"no runs in {args.runs_dir}/ yet: make one with `cartpole train cem`")
         return 0
@@ -74,7 +74,7 @@ def presets_command(args: argparse.Namespace) -> int:
     names = list(agents())
     if args.agent and args.agent not in names:
         raise UsageError(f"unknown agent {args.agent!r}; choose one of: {', '.join(names)}")
-    console = Console()
+    console = Console(soft_wrap=True)
     for name in [args.agent] if args.agent else names:
         console.print(f"[bold]{name}[/]: {get_agent(name).summary}")
         for preset, values in preset_table(name).items():

@@ -87,6 +87,12 @@ def add_parser(sub: Any) -> None:
     )
     parser.add_argument("--resume", metavar="RUN_DIR", help="continue this run from checkpoints/latest.pt")
     parser.add_argument("--quiet", action="store_true", help="no progress output")
+    # --- issue 5: TensorBoard (also passed to train() below) ---
+    parser.add_argument(
+        "--tensorboard",
+        action="store_true",
+        help="also log metrics as TensorBoard events in RUN/tensorboard/ (needs the tensorboard extra)",
+    )
     parser.set_defaults(run=run)
 
 
@@ -94,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
     from cartpole.cli.main import UsageError
     from cartpole.training import AlreadyFinished, parse_budget, resume, train
 
-    console = Console()
+    console = Console(soft_wrap=True)
     if args.resume:
         if args.agent or args.overrides or args.budget:
             raise UsageError("--resume continues a run with its recorded config; drop AGENT/--set/--budget")
@@ -120,6 +126,7 @@ def run(args: argparse.Namespace) -> int:
             stop_when_solved=False if args.no_stop_when_solved else None,
             quiet=args.quiet,
             command=["cartpole", *sys.argv[1:]],
+            tensorboard=args.tensorboard,  # issue 5: --tensorboard
         )
     state = outcome.state
     console.print(f"run: {outcome.run.path}")

@@ -27,10 +27,17 @@ def write_atomic(path: Path, write: Callable[[IO[bytes]], None], durable: bool =
             handle.flush()
             if durable:
                 os.fsync(handle.fileno())
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600 files; give the usual mode
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
 
 
 def write_json_atomic(path: Path, data: Any, durable: bool = False) -> None:

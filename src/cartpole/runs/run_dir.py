@@ -137,11 +137,16 @@ class RunDir:
             handle.flush()
 
     def metrics(self, offset: int = 0) -> list[dict[str, Any]]:
-        """Complete rows from row ``offset`` on; a last line without its newline is not yet a row."""
+        """Complete rows from line ``offset`` on; a last line without its newline is not yet a row."""
+        return self.read_metrics(offset)[0]
+
+    def read_metrics(self, offset: int = 0) -> tuple[list[dict[str, Any]], int]:
+        """Rows from line ``offset`` on, and the offset to ask for next (counts lines, not rows,
+        so a corrupt line in the middle cannot make a follower see rows twice)."""
         try:
             text = self.metrics_path.read_text(encoding="utf-8")
         except FileNotFoundError:
-            return []
+            return [], offset
         lines = text.split("\n")[:-1]  # the part after the last newline is incomplete (or empty)
         rows = []
         for line in lines[offset:]:
@@ -149,7 +154,7 @@ class RunDir:
                 rows.append(json.loads(line))
             except json.JSONDecodeError:
                 continue
-        return rows
+        return rows, max(offset, len(lines))
 
     def truncate_metrics_after(self, step: int) -> None:
         """Drop rows logged after env step ``step`` (and any half-written line), for a resume."""
@@ -187,10 +192,20 @@ def summarize_run(path: Path) -> RunSummary:
         config = run.config()
     except RunError as err:
         return RunSummary(
-            path.name, str(path), None, None, None, None, None,
+            path.name,
+            str(path),
+            None,
+            None,
+            None,
+            None,
+            None,
             "corrupt" if (path / CONFIG).exists() else "incomplete",
-            None, None, None, False, None, problem=str(err) if (path / CONFIG).exists() else
-            f"{CONFIG} not written yet",
+            None,
+            None,
+            None,
+            False,
+            None,
+            problem=str(err) if (path / CONFIG).exists() else f"{CONFIG} not written yet",
         )
     status = run.status()
     report = run.eval_report()

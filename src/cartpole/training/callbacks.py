@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Callable
 from typing import Any, TextIO
 
 from cartpole.agents.registry import AgentSpec
@@ -63,6 +64,15 @@ class EvalCallback(Callback):
         self.last_eval_step = loop.state.env_steps
         return loop.record_eval(self.evaluate(loop))
 
+    def on_end(self, loop: TrainingLoop) -> None:
+        """Judge the final policy too, so every finished run has a best checkpoint and a verdict."""
+        reason = loop.state.stop_reason or ""
+        if reason == "failed" or reason.startswith("interrupted"):
+            return
+        if loop.state.evaluations == 0 or self.last_eval_step < loop.state.env_steps:
+            self.last_eval_step = loop.state.env_steps
+            loop.record_eval(self.evaluate(loop))
+
     def evaluate(self, loop: TrainingLoop) -> EvalReport:
         policy = loop.learner.policy()
         index = loop.state.evaluations
@@ -98,8 +108,17 @@ class StopWhenSolved(Callback):
 class CheckpointCallback(Callback):
     """Keeps ``latest`` (periodic and at exit), ``best`` (best evaluation) and ``solved``."""
 
-    def __init__(self, run: RunDir, agent: AgentSpec, meta: dict[str, Any], every: int):
+    def __init__(
+        self,
+        run: RunDir,
+        agent: AgentSpec,
+        meta: dict[str, Any],
+        every: int,
+        metrics: MetricsCallback | None = None,
+    ):
         self.run, self.agent, self.meta, self.every = run, agent, meta, every
+        self.metrics = metrics
+        """Flushed before each ``latest``, so a resume from it finds every metric row up to its step."""
         self.last_save_step = 0
         self.best: EvalReport | None = None
 
@@ -110,6 +129,10 @@ class CheckpointCallback(Callback):
             self.best = EvalReport.from_dict(previous)
 
     def save(self, loop: TrainingLoop, name: str, resume: bool) -> None:
+        if resume and self.metrics is not None:
+            # Rows still pending would be lost by a kill -9 after this save, and a resume from this
+            # checkpoint would not log them again: a gap. Write them first.
+            self.metrics.write_pending()
         tensors, data = loop.learner.state_dict(resume=resume)
         meta = {
             **self.meta,
@@ -147,6 +170,8 @@ class MetricsCallback(Callback):
     def __init__(self, run: RunDir):
         self.run = run
         self.pending: list[dict[str, Any]] = []
+        self.listeners: list[Callable[[list[dict[str, Any]]], None]] = []
+        """Also given every batch of rows written (e.g. :class:`TensorBoardCallback`)."""
         self.last_flush = 0.0
         self.last_sps_time = 0.0
         self.last_sps_steps = 0
@@ -181,8 +206,7 @@ class MetricsCallback(Callback):
             seconds = max(now - self.last_sps_time, 1e-9)
             self.pending[-1]["time/sps"] = (loop.state.env_steps - self.last_sps_steps) / seconds
         self.last_sps_time, self.last_sps_steps = now, loop.state.env_steps
-        self.run.append_metrics(self.pending)
-        self.pending = []
+        self.write_pending()
         self.last_flush = now
         self.write_status(loop, "running")
 
@@ -218,12 +242,71 @@ class MetricsCallback(Callback):
             }
         )
 
+    def write_pending(self) -> None:
+        """Append the pending rows to ``metrics.jsonl`` and pass them to the listeners."""
+        rows, self.pending = self.pending, []
+        self.run.append_metrics(rows)
+        for listener in self.listeners:
+            listener(rows)
+
     def on_end(self, loop: TrainingLoop) -> None:
-        self.run.append_metrics(self.pending)
-        self.pending = []
+        self.write_pending()
         reason = loop.state.stop_reason or ""
         state = "interrupted" if reason.startswith("interrupted") else "finished"
         self.write_status(loop, "failed" if reason == "failed" else state)
+
+
+class TensorBoardCallback(Callback):
+    """Mirrors the metric rows as TensorBoard scalars in ``<run>/tensorboard/``.
+
+    It writes exactly what :class:`MetricsCallback` writes (same keys, x = env steps), so the two
+    never disagree. Needs the ``tensorboard`` package (the ``tensorboard`` extra).
+    """
+
+    DIR = "tensorboard"
+    SKIP = ("step", "episode", "time")
+
+    def __init__(self, run: RunDir, metrics: MetricsCallback):
+        require_tensorboard()
+        self.log_dir = run.path / self.DIR
+        self.writer: Any = None
+        metrics.listeners.append(self.write_rows)
+
+    def on_start(self, loop: TrainingLoop) -> None:
+        from torch.utils.tensorboard import SummaryWriter
+
+        # On a resume, drop events logged after the checkpoint, as metrics.jsonl drops its rows.
+        purge = loop.state.env_steps + 1 if loop.state.env_steps else None
+        self.writer = SummaryWriter(log_dir=str(self.log_dir), purge_step=purge)
+
+    def write_rows(self, rows: list[dict[str, Any]]) -> None:
+        if self.writer is None:
+            return
+        for row in rows:
+            step = int(row.get("step", 0))
+            for key, value in row.items():
+                if key in self.SKIP or isinstance(value, str) or value is None:
+                    continue
+                self.writer.add_scalar(key, float(value), global_step=step)
+        self.writer.flush()
+
+    def on_end(self, loop: TrainingLoop) -> None:
+        if self.writer is not None:
+            self.writer.close()
+            self.writer = None
+
+
+TENSORBOARD_EXTRA = "pip install 'cartpole[tensorboard]'"
+
+
+def require_tensorboard() -> None:
+    """Raise ConfigError with the install line when the ``tensorboard`` package is missing."""
+    from cartpole.training.config import ConfigError
+
+    try:
+        import tensorboard  # noqa: F401
+    except ImportError:
+        raise ConfigError(f"--tensorboard needs the tensorboard package: {TENSORBOARD_EXTRA}") from None
 
 
 class ProgressCallback(Callback):
@@ -255,6 +338,8 @@ class ProgressCallback(Callback):
         parts = []
         if s.recent_returns:
             parts.append(f"return {s.recent_returns[-1]:.0f} (mean100 {s.mean_recent_return:.1f})")
+        elif "train/mean_return" in s.scalars:  # population methods report per generation
+            parts.append(f"generation mean return {s.scalars['train/mean_return']:.1f}")
         if s.last_eval is not None:
             parts.append(f"eval {s.last_eval.mean:.1f}/{s.last_eval.episodes}ep")
         for key in ("train/epsilon", "train/loss"):
@@ -274,17 +359,28 @@ class ProgressCallback(Callback):
             TimeElapsedColumn,
             TimeRemainingColumn,
         )
+        from rich.text import Text
+
+        class TwoLineProgress(Progress):
+            """The bar on one line, the returns/eval/epsilon/loss below it: on an 80-column
+            terminal one long line would make rich drop the bar and the ETA."""
+
+            def get_renderables(self) -> Any:
+                yield self.make_tasks_table(self.tasks)
+                for task in self.tasks:
+                    if task.fields.get("info"):
+                        yield Text("  " + task.fields["info"], overflow="ellipsis", no_wrap=True)
 
         total, done, label = self.total_and_done(loop)
-        self.progress = Progress(
+        self.progress = TwoLineProgress(
             TextColumn("[bold]training"),
             BarColumn(),
             MofNCompleteColumn(),
             TextColumn(label),
             TextColumn("{task.fields[sps]} steps/s"),
             TimeElapsedColumn(),
+            TextColumn("ETA"),
             TimeRemainingColumn(),
-            TextColumn("{task.fields[info]}"),
             console=Console(file=self.stream),
             transient=False,
         )
@@ -307,10 +403,12 @@ class ProgressCallback(Callback):
     def print_line(self, loop: TrainingLoop) -> None:
         s = loop.state
         total, done, label = self.total_and_done(loop)
-        share = f"/{total:g}" if total else ""
+        number = "{:,.1f}" if label == "s" else "{:,.0f}"
+        share = "/" + number.format(total) if total else ""
         sps = s.env_steps / max(s.elapsed, 1e-9)
+        progress = f"{number.format(done)}{share} {label}"
         print(
-            f"[{s.elapsed:7.1f}s] {done:g}{share} {label}  {sps:,.0f} steps/s  {self.describe(loop)}",
+            f"[{s.elapsed:7.1f}s] {progress}  {sps:,.0f} steps/s  {self.describe(loop)}",
             file=self.stream,
             flush=True,
         )

@@ -21,6 +21,15 @@ def eval_seed(run_seed: int, index: int) -> int:
     return EVAL_SEED_LOW + int(word) % (EVAL_SEED_SPAN - 10**6)
 
 
+FINAL_EVAL_INDEX = 2**31
+"""Index of a run's final verdict in ``eval_seed``: no in-training evaluation reaches it."""
+
+
+def final_eval_seed(run_seed: int) -> int:
+    """Base seed of a run's final verdict: never used in training or in-training evaluations."""
+    return eval_seed(run_seed, FINAL_EVAL_INDEX)
+
+
 def fresh_eval_seed() -> int:
     """A seed from OS entropy in the evaluation range, for verdicts on never-seen episodes."""
     return EVAL_SEED_LOW + random.SystemRandom().randrange(EVAL_SEED_SPAN - 10**6)

@@ -27,6 +27,8 @@ from cartpole.training.callbacks import (
     MetricsCallback,
     ProgressCallback,
     StopWhenSolved,
+    TensorBoardCallback,
+    require_tensorboard,
 )
 from cartpole.training.config import (
     ConfigError,
@@ -36,7 +38,7 @@ from cartpole.training.config import (
     resolve_config,
 )
 from cartpole.training.loop import Callback, LoopState, TrainingLoop
-from cartpole.training.seeding import MAX_TRAIN_SEED
+from cartpole.training.seeding import MAX_TRAIN_SEED, final_eval_seed
 
 
 @dataclass
@@ -90,27 +92,37 @@ def make_callbacks(
     budget: Budget,
     meta: dict[str, Any],
     quiet: bool,
+    tensorboard: bool = False,
 ) -> list[Callback]:
     """The standard callbacks, in the order they must see events."""
     callbacks: list[Callback] = [BudgetCallback(budget), EvalCallback(env, seed, settings)]
     if settings.stop_when_solved:
         callbacks.append(StopWhenSolved())
-    callbacks += [
-        CheckpointCallback(run, spec, meta, settings.checkpoint_every),
-        MetricsCallback(run),
-    ]
+    # Metrics before checkpoints: a step's rows are pending before ``latest`` is saved, which writes
+    # them first, so a resume from ``latest`` continues the rows without a gap even after a kill -9.
+    metrics = MetricsCallback(run)
+    callbacks += [metrics, CheckpointCallback(run, spec, meta, settings.checkpoint_every, metrics)]
+    if tensorboard:
+        callbacks.append(TensorBoardCallback(run, metrics))
     if not quiet:
         callbacks.append(ProgressCallback(budget, spec.iteration))
     return callbacks
 
 
-def final_verdict(run: RunDir, spec: AgentSpec, env: EnvInfo, settings: TrainSettings) -> EvalReport:
-    """Re-evaluate the kept best checkpoint on fresh seeds: the run's verdict, written to eval.json."""
+def final_verdict(
+    run: RunDir, spec: AgentSpec, env: EnvInfo, seed: int, settings: TrainSettings
+) -> EvalReport:
+    """Re-evaluate the kept best checkpoint on seeds no training or evaluation used: the verdict.
+
+    The seeds follow from the run's seed, so the same run gives the same verdict; ``cartpole eval``
+    judges it again on any other seeds.
+    """
     policy = spec.policy_from_checkpoint(load_checkpoint(run.checkpoint_path("best")))
     report = evaluate(
         policy,
         env.env_id,
         max(settings.eval_episodes, MIN_EPISODES_FOR_SOLVED),
+        seed=final_eval_seed(seed),
         simulator=settings.eval_simulator,  # type: ignore[arg-type]
     )
     run.write_eval(report.to_dict())
@@ -128,15 +140,16 @@ def run_loop(
     state: LoopState | None,
     quiet: bool,
     meta: dict[str, Any],
+    tensorboard: bool = False,
 ) -> TrainOutcome:
     """Drive the loop with the standard callbacks; compute the verdict unless interrupted."""
-    callbacks = make_callbacks(run, spec, env, seed, settings, budget, meta, quiet)
+    callbacks = make_callbacks(run, spec, env, seed, settings, budget, meta, quiet, tensorboard)
     loop = TrainingLoop(learner, callbacks, state)
     with stop_on_signals(loop) as received:
         loop.run()
     if received:
         return TrainOutcome(run, loop.state, None, signal=received[0])
-    report = final_verdict(run, spec, env, settings)
+    report = final_verdict(run, spec, env, seed, settings)
     return TrainOutcome(run, loop.state, report)
 
 
@@ -153,8 +166,14 @@ def train(
     stop_when_solved: bool | None = None,
     quiet: bool = True,
     command: list[str] | None = None,
+    tensorboard: bool = False,
 ) -> TrainOutcome:
-    """Train ``agent`` on ``env_id`` in a new run folder and return the outcome."""
+    """Train ``agent`` on ``env_id`` in a new run folder and return the outcome.
+
+    With ``tensorboard`` the metrics also go to ``<run>/tensorboard/`` (needs the tensorboard extra).
+    """
+    if tensorboard:
+        require_tensorboard()  # before a run folder is made
     spec = get_agent(agent)
     env = env_info(env_id)
     if not 0 <= seed <= MAX_TRAIN_SEED:
@@ -181,10 +200,11 @@ def train(
         "command": command or list(sys.argv),
         "package_version": __version__,
         "created": utc_now(),
+        "tensorboard": tensorboard,
     }
     run.write_config(record)
     meta = {k: record[k] for k in ("agent", "env_id", "seed", "preset", "config")}
-    return run_loop(run, spec, env, seed, settings, budget, learner, None, quiet, meta)
+    return run_loop(run, spec, env, seed, settings, budget, learner, None, quiet, meta, tensorboard)
 
 
 class AlreadyFinished(Exception):
@@ -216,4 +236,7 @@ def resume(run_path: Path | str, *, quiet: bool = True, device: str = "auto") ->
     state = LoopState.from_dict(checkpoint.meta["loop"])
     run.truncate_metrics_after(state.env_steps)
     meta = {k: record[k] for k in ("agent", "env_id", "seed", "preset", "config")}
-    return run_loop(run, spec, env, record["seed"], settings, budget, learner, state, quiet, meta)
+    tensorboard = bool(record.get("tensorboard", False))  # a resume logs where the run logged
+    return run_loop(
+        run, spec, env, record["seed"], settings, budget, learner, state, quiet, meta, tensorboard
+    )

@@ -1,0 +1,165 @@
+"""Web app latency on localhost: play round-trips and the episode API, printed as a table.
+
+    python benchmarks/web_latency.py [--steps 2000] [--sessions 1 20] [--episodes 30]
+
+Starts `cartpole serve` on 127.0.0.1 (a free port) in a subprocess, on a temporary runs folder with a
+small DQN run and a CEM run trained for the purpose. Play: each session resets, then sends a step
+message every --pace-ms (10 ms = a human playing at 2x speed), timing each from send to reply (the
+key message to new state round-trip), all sessions concurrently. Episode API: 500-step episodes
+(or as long as the policy lasts) of a DQN and a linear checkpoint, timed over HTTP. Targets from
+issue 6: play p99 <= 5 ms with 20 sessions, episode <= 50 ms. Everything is bounded: it stops by
+itself. Run it on an otherwise idle machine: the clients share its CPUs with the server.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import platform
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import httpx
+import numpy as np
+import websockets
+
+from cartpole.runs import RunDir
+from cartpole.training import train
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def start_server(runs_dir: Path) -> tuple[subprocess.Popen[bytes], str]:
+    """`cartpole serve` in its own process (so the clients here do not share its GIL)."""
+    port = free_port()
+    command = [sys.executable, "-m", "cartpole", "serve", "--runs-dir", str(runs_dir), "--port", str(port)]
+    server = subprocess.Popen(command, stdout=subprocess.DEVNULL)
+    address = f"127.0.0.1:{port}"
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        try:
+            httpx.get(f"http://{address}/api/info", timeout=1).raise_for_status()
+            time.sleep(3)  # let the app's warm-up (imports, compiled kernels) finish
+            return server, address
+        except httpx.HTTPError:
+            time.sleep(0.2)
+    server.kill()
+    raise RuntimeError("cartpole serve did not answer within 60 s")
+
+
+def percentile(values: list[float], q: float) -> float:
+    return float(np.percentile(np.asarray(values), q))
+
+
+async def play_session(address: str, steps: int, seed: int, pace_ms: float) -> list[float]:
+    """Round-trip times (ms) of ``steps`` step messages, one every ``pace_ms`` (0: back to back),
+    resetting whenever an episode ends."""
+    times: list[float] = []
+    next_at = time.perf_counter()
+    async with websockets.connect(f"ws://{address}/ws/play") as ws:
+        await ws.send(json.dumps({"type": "reset", "seed": seed}))
+        await ws.recv()
+        action = 0
+        for _ in range(steps):
+            next_at += pace_ms / 1000
+            start = time.perf_counter()
+            await ws.send(json.dumps({"type": "step", "action": action}))
+            reply = json.loads(await ws.recv())
+            times.append((time.perf_counter() - start) * 1000)
+            action = 1 - action  # alternate: long episodes, like a human wiggling
+            if reply["terminated"] or reply["truncated"]:
+                await ws.send(json.dumps({"type": "reset"}))
+                await ws.recv()
+            await asyncio.sleep(max(0.0, next_at - time.perf_counter()))
+    return times
+
+
+async def play_benchmark(address: str, sessions: int, steps: int, pace_ms: float) -> list[float]:
+    plays = (play_session(address, steps, seed, pace_ms) for seed in range(sessions))
+    results = await asyncio.gather(*plays)
+    return [t for r in results for t in r]
+
+
+def episode_benchmark(address: str, run: str, checkpoint: str, episodes: int) -> tuple[list[float], int]:
+    """Milliseconds per 500-step episode request (after one warm-up), and the episode length seen."""
+    url = f"http://{address}/api/runs/{run}/checkpoints/{checkpoint}/episode"
+    times, length = [], 0
+    with httpx.Client(timeout=30) as client:
+        client.get(url, params={"seed": 0}).raise_for_status()  # load and cache the policy
+        for seed in range(episodes):
+            start = time.perf_counter()
+            response = client.get(url, params={"seed": seed})
+            response.raise_for_status()
+            times.append((time.perf_counter() - start) * 1000)
+            length = max(length, response.json()["length"])
+    return times, length
+
+
+def make_runs(runs_dir: Path) -> tuple[str, str]:
+    """A small DQN run and a solved CEM run (about 10 s together)."""
+    dqn = train("dqn", "CartPole-v1", seed=0, budget="3000", runs_dir=runs_dir, quiet=True).run.name
+    cem = train("cem", "CartPole-v1", seed=0, runs_dir=runs_dir, quiet=True).run.name
+    return dqn, cem
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=2000, help="step messages per play session")
+    parser.add_argument("--sessions", type=int, nargs="+", default=[1, 20], help="concurrent sessions")
+    parser.add_argument("--episodes", type=int, default=30, help="episode requests per checkpoint")
+    parser.add_argument(
+        "--pace-ms",
+        type=float,
+        default=10.0,
+        help="ms between a session's steps: 20 is real time, 10 (default) is 2x, 0 is back to back",
+    )
+    args = parser.parse_args()
+
+    with tempfile.TemporaryDirectory() as tmp:
+        runs_dir = Path(tmp)
+        dqn, cem = make_runs(runs_dir)
+        server, address = start_server(runs_dir)
+        try:
+            rows = []
+            asyncio.run(play_benchmark(address, 1, 200, 0.0))  # warm-up
+            for n in args.sessions:
+                times = asyncio.run(play_benchmark(address, n, args.steps, args.pace_ms))
+                name = f"play round-trip, {n} session(s)"
+                rows.append((name, len(times), times, 5.0 if n >= 20 else None))
+            for run, label in ((dqn, "dqn"), (cem, "cem (linear)")):
+                checkpoint = RunDir(runs_dir / run).checkpoints()[0]
+                times, length = episode_benchmark(address, run, checkpoint, args.episodes)
+                rows.append((f"episode API, {label}, {length} steps", len(times), times, 50.0))
+        finally:
+            server.terminate()
+            server.wait(timeout=10)
+    print_table(rows, args.pace_ms)
+
+
+def print_table(rows: list[tuple[str, int, list[float], float | None]], pace_ms: float) -> None:
+    machine = platform.processor() or platform.machine()
+    print(f"cartpole web latency on {platform.node()} ({machine}, {os.cpu_count()} CPUs), localhost")
+    header = f"{'measure':<38} {'n':>6} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} {'target':>10}"
+    print(header)
+    print("-" * len(header))
+    for name, n, times, target in rows:
+        p50, p99 = percentile(times, 50), percentile(times, 99)
+        verdict = "" if target is None else f"{'ok' if p99 <= target else 'MISS'} <={target:g}"
+        print(f"{name:<38} {n:>6} {p50:>8.2f} {p99:>8.2f} {max(times):>8.2f} {verdict:>10}")
+    pace = f"one step every {pace_ms:g} ms per session" if pace_ms else "steps sent back to back"
+    print(f"(play: {pace}; mean round-trip of 1 session {statistics.mean(rows[0][2]):.2f} ms)")
+
+
+if __name__ == "__main__":
+    main()

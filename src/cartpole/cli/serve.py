@@ -1,0 +1,50 @@
+"""``cartpole serve``: the local web app (runs, live learning curves, watch agents, play yourself)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+INSTALL_HINT = "the web app needs FastAPI and uvicorn: pip install fastapi uvicorn websockets"
+
+
+def add_parser(sub: Any) -> None:
+    parser = sub.add_parser(
+        "serve",
+        help="start the local web app",
+        description=(
+            "Serve the web app for the runs under --runs-dir: a runs table, live learning curves, "
+            "agents played on a canvas, and CartPole to play yourself. It only reads run folders."
+        ),
+    )
+    parser.add_argument("--runs-dir", default="runs", metavar="DIR", help="(default: runs)")
+    parser.add_argument(
+        "--host", default="127.0.0.1", help="address to bind (default: 127.0.0.1, this machine only)"
+    )
+    parser.add_argument("--port", type=int, default=8000, help="(default: 8000)")
+    parser.set_defaults(run=serve)
+
+
+def serve(args: argparse.Namespace) -> int:
+    from cartpole.cli.main import UsageError
+
+    try:
+        import uvicorn
+
+        from cartpole.web.app import create_app
+    except ImportError as err:
+        raise UsageError(f"{INSTALL_HINT} ({err})") from err
+    if not 0 < args.port < 65536:
+        raise UsageError(f"--port must be between 1 and 65535, got {args.port}")
+    runs_dir = Path(args.runs_dir)
+    app = create_app(runs_dir)
+    host = f"[{args.host}]" if ":" in args.host else args.host
+    print(f"cartpole web app for {runs_dir.resolve()}/ at http://{host}:{args.port}/  (Ctrl+C to stop)")
+    if args.host not in ("127.0.0.1", "localhost", "::1"):
+        print(f"warning: bound to {args.host}: other machines can reach this app")
+    try:
+        uvicorn.run(app, host=args.host, port=args.port, log_level="warning")
+    except OSError as err:
+        raise UsageError(f"cannot listen on {args.host}:{args.port}: {err}") from err
+    return 0

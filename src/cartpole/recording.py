@@ -1,0 +1,237 @@
+"""Videos of a saved agent: greedy episodes rendered with Gymnasium's ``rgb_array`` mode.
+
+``render_episodes`` plays episode ``i`` from ``reset(seed=seed + i)`` of Gymnasium's own env, exactly
+the start states ``cartpole.evaluation.evaluate`` uses for the same seed, so a video shows the episodes
+of the evaluation report with that seed. Rendering draws off-screen (pygame surfaces, no window), so it
+works on a machine without a display. ``write_video`` writes a GIF with Pillow, or an MP4 with
+imageio-ffmpeg (the optional ``video`` extra). Files are written to a temp file and moved into place.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cartpole.evaluation import Policy
+
+VIDEO_SUFFIXES = (".gif", ".mp4")
+VIDEO_EXTRA = "pip install 'cartpole[video]'"
+DEFAULT_FPS = 50
+"""CartPole's ``metadata["render_fps"]``; used when an env does not say."""
+
+
+class RecordingError(ValueError):
+    """A video cannot be made: unknown format, missing optional dependency, or no rgb_array mode."""
+
+
+@dataclass
+class Recording:
+    """Frames of consecutive greedy episodes, and what happened in each."""
+
+    env_id: str
+    fps: int
+    frames: list[np.ndarray] = field(default_factory=list)
+    """RGB uint8 frames [H, W, 3]: each episode's start state, then one frame per step."""
+    seeds: list[int] = field(default_factory=list)
+    returns: list[float] = field(default_factory=list)
+    lengths: list[int] = field(default_factory=list)
+
+
+def _headless() -> None:
+    """Keep pygame from looking for a display or a sound card, and from greeting on stdout."""
+    os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
+    os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
+    os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
+
+
+def render_episodes(
+    policy: Policy,
+    env_id: str,
+    episodes: int,
+    seed: int,
+    *,
+    caption: bool = True,
+    max_steps: int | None = None,
+) -> Recording:
+    """Play ``episodes`` greedy episodes from seeds ``seed, seed + 1, ...`` and keep every frame.
+
+    With ``caption`` each frame carries a line: episode, seed, step and return so far.
+    ``max_steps`` cuts each episode short (for previews); by default it runs to its end.
+    """
+    if episodes < 1:
+        raise RecordingError(f"episodes must be >= 1, got {episodes}")
+    _headless()
+    import gymnasium as gym
+
+    gym_id = env_id.removeprefix("cartpole/")
+    try:
+        env = gym.make(gym_id, render_mode="rgb_array")
+    except gym.error.DependencyNotInstalled as err:
+        raise RecordingError(f"rendering {gym_id} needs pygame: pip install pygame ({err})") from err
+    except (gym.error.Error, TypeError, ValueError) as err:
+        raise RecordingError(f"{gym_id} cannot render rgb_array frames: {err}") from err
+    fps = int(env.metadata.get("render_fps") or DEFAULT_FPS)
+    recording = Recording(env_id=gym_id, fps=fps)
+    try:
+        for i in range(episodes):
+            episode_seed = seed + i
+            observation, _ = env.reset(seed=episode_seed)
+            total, steps = 0.0, 0
+            label = f"episode {i + 1}/{episodes}  seed {episode_seed}"
+            recording.frames.append(_frame(env, f"{label}  step 0  return 0" if caption else None))
+            while max_steps is None or steps < max_steps:
+                action = int(np.asarray(policy.act(np.asarray(observation)[None])).reshape(-1)[0])
+                observation, reward, terminated, truncated, _ = env.step(action)
+                total += float(reward)
+                steps += 1
+                text = f"{label}  step {steps}  return {total:g}" if caption else None
+                recording.frames.append(_frame(env, text))
+                if terminated or truncated:
+                    break
+            recording.seeds.append(episode_seed)
+            recording.returns.append(total)
+            recording.lengths.append(steps)
+    except gym.error.DependencyNotInstalled as err:
+        raise RecordingError(f"rendering {gym_id} needs pygame: pip install pygame ({err})") from err
+    finally:
+        env.close()
+    return recording
+
+
+def _frame(env: Any, caption: str | None) -> np.ndarray:
+    image = np.asarray(env.render(), dtype=np.uint8)
+    return image if caption is None else draw_caption(image, caption)
+
+
+@functools.lru_cache(maxsize=4)
+def _font(size: int) -> Any:
+    """Pillow's bundled font at ``size`` pixels (loading it costs more than drawing a frame)."""
+    from PIL import ImageFont
+
+    try:
+        return ImageFont.load_default(size=size)
+    except TypeError:  # Pillow < 10.1 has one bitmap size only
+        return ImageFont.load_default()
+
+
+def draw_caption(image: np.ndarray, text: str) -> np.ndarray:
+    """``image`` with ``text`` in a white band along its top edge."""
+    from PIL import Image, ImageDraw
+
+    picture = Image.fromarray(image)
+    draw = ImageDraw.Draw(picture)
+    size = max(10, image.shape[0] // 25)
+    font = _font(size)
+    left, top, _, bottom = draw.textbbox((0, 0), text, font=font)
+    pad = max(3, size // 3)
+    draw.rectangle((0, 0, image.shape[1], bottom - top + 2 * pad), fill=(255, 255, 255))
+    draw.text((pad - left, pad - top), text, fill=(40, 40, 40), font=font)
+    return np.asarray(picture)
+
+
+def _write_replacing(path: Path, write: Callable[[Path], None]) -> None:
+    """Call ``write`` on a temp path beside ``path`` (same suffix), then move it over ``path``."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        write(Path(tmp))
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; a video is an ordinary file
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def check_video_path(path: Path) -> None:
+    """Raise RecordingError now (before any episode is played) if ``path`` cannot be written."""
+    suffix = path.suffix.lower()
+    if suffix not in VIDEO_SUFFIXES:
+        raise RecordingError(f"cannot write {path}: use a .gif or .mp4 file name")
+    if suffix == ".mp4":
+        try:
+            import imageio_ffmpeg  # noqa: F401
+        except ImportError:
+            raise RecordingError(
+                f"writing MP4 needs imageio and imageio-ffmpeg: {VIDEO_EXTRA} (or write a .gif)"
+            ) from None
+
+
+def write_video(frames: list[np.ndarray], path: Path | str, fps: int = DEFAULT_FPS) -> Path:
+    """Write ``frames`` as a looping GIF (Pillow) or an MP4 (imageio-ffmpeg), atomically."""
+    path = Path(path)
+    check_video_path(path)
+    if not frames:
+        raise RecordingError("no frames to write")
+    if path.suffix.lower() == ".gif":
+        _write_replacing(path, lambda tmp: _write_gif(frames, tmp, fps))
+    else:
+        _write_replacing(path, lambda tmp: _write_mp4(frames, tmp, fps))
+    return path
+
+
+def _write_gif(frames: list[np.ndarray], path: Path, fps: int) -> None:
+    from PIL import Image
+
+    # One shared palette: the frames are a few flat colours, and a per-frame palette would flicker.
+    first = Image.fromarray(frames[0]).quantize(colors=64, method=Image.Quantize.MEDIANCUT)
+    images = [first] + [
+        Image.fromarray(f).quantize(palette=first, dither=Image.Dither.NONE) for f in frames[1:]
+    ]
+    # GIF delays are in 1/100 s; keep every frame (no merging of equal ones) so the count is exact.
+    duration = max(2, round(100 / fps)) * 10
+    images[0].save(
+        path,
+        format="GIF",
+        save_all=True,
+        append_images=images[1:],
+        duration=duration,
+        loop=0,
+        optimize=False,
+        disposal=1,
+    )
+
+
+def _write_mp4(frames: list[np.ndarray], path: Path, fps: int) -> None:
+    import imageio.v2 as imageio
+
+    # H.264 in yuv420p (what browsers and phones play) needs even sizes; 8-pixel blocks keep 600x400.
+    writer = imageio.get_writer(
+        path, format="FFMPEG", fps=fps, codec="libx264", quality=7, macro_block_size=8
+    )
+    try:
+        for frame in frames:
+            writer.append_data(frame)
+    finally:
+        writer.close()
+
+
+def default_video_path(checkpoint: Path, seed: int, suffix: str = ".gif") -> Path:
+    """``<run name>-<checkpoint>-seed<S>.gif`` in the current folder (run folders are only read)."""
+    checkpoint = Path(checkpoint)
+    name = f"{checkpoint.stem}-seed{seed}{suffix}"
+    if checkpoint.parent.name == "checkpoints" and (checkpoint.parent.parent / "config.json").is_file():
+        name = f"{checkpoint.parent.parent.name}-{name}"
+    return Path(name)
+
+
+__all__ = [
+    "VIDEO_EXTRA",
+    "VIDEO_SUFFIXES",
+    "Recording",
+    "RecordingError",
+    "check_video_path",
+    "default_video_path",
+    "draw_caption",
+    "render_episodes",
+    "write_video",
+]

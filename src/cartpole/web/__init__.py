@@ -1,0 +1,1 @@
+"""The local web app: watch agents, follow training live, play CartPole yourself (``cartpole serve``)."""

@@ -1,0 +1,194 @@
+"""WebSockets: a running training's metrics as they are appended, and play sessions.
+
+Metrics (``/ws/runs/{name}/metrics?offset=N``): the server sends ``{"type": "metrics", "offset",
+"rows"}`` whenever ``metrics.jsonl`` grows and ``{"type": "status", "status"}`` whenever
+``status.json`` changes; once the run has stopped and every row is sent it sends ``{"type": "end"}``
+and closes. The client sends nothing (anything it sends closes the socket with a reason).
+
+Play (``/ws/play?env=CartPole-v1``): one simulated cart-pole per connection. Client messages:
+``{"type": "reset", "seed"?: int, "physics"?: {...}}``, ``{"type": "step", "action": 0|1}``;
+each is answered by ``{"type": "state", "seed", "step", "state": [x, x_dot, theta, theta_dot],
+"reward", "return", "terminated", "truncated"}``. The pace of steps is the client's (that is how
+slow motion works); physics always runs here. A message that is not one of these closes the
+socket with code 1008 and a reason; other connections are not affected.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import random
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, Query, WebSocket, WebSocketDisconnect
+from pydantic import BaseModel, Field, TypeAdapter, ValidationError
+
+from cartpole.runs import RunDir
+from cartpole.web.api import MAX_SEED
+from cartpole.web.physics import CartPoleSim, PhysicsError, is_cartpole, start_state
+from cartpole.web.runs_folder import NotFound, RunsFolder
+
+router = APIRouter()
+
+POLL_SECONDS = 0.4
+STOPPED = ("finished", "interrupted", "failed")
+POLICY_VIOLATION = 1008
+
+
+# ---------------------------------------------------------------------------------------------------
+# Live metrics
+# ---------------------------------------------------------------------------------------------------
+
+
+def _stamp(path: Path) -> tuple[int, int] | None:
+    try:
+        stat = path.stat()
+    except OSError:
+        return None
+    return stat.st_size, stat.st_mtime_ns
+
+
+@router.websocket("/ws/runs/{name}/metrics")
+async def live_metrics(websocket: WebSocket, name: str, offset: int = 0) -> None:
+    """Push new metric rows and status changes of a run until it stops."""
+    folder: RunsFolder = websocket.app.state.runs
+    try:
+        run = folder.run(name)
+    except NotFound as err:
+        await websocket.close(code=POLICY_VIOLATION, reason=str(err)[:120])
+        return
+    await websocket.accept()
+    offset = max(0, offset)
+    reader = asyncio.ensure_future(receive_text(websocket))
+    try:
+        await _follow(websocket, run, offset, reader)
+    except WebSocketDisconnect:
+        pass
+    finally:
+        reader.cancel()
+
+
+async def _follow(websocket: WebSocket, run: RunDir, offset: int, reader: asyncio.Future[str]) -> None:
+    seen_metrics = seen_status = None
+    while True:
+        stamp = _stamp(run.path / "status.json")
+        status = None
+        if stamp != seen_status:
+            seen_status, status = stamp, run.status()
+            await websocket.send_json({"type": "status", "status": status})
+        stamp = _stamp(run.metrics_path)
+        if stamp != seen_metrics:
+            seen_metrics = stamp
+            rows, next_offset = await asyncio.to_thread(run.read_metrics, offset)
+            if rows:
+                await websocket.send_json({"type": "metrics", "offset": offset, "rows": rows})
+            offset = next_offset
+        if status is not None and status.get("state") in STOPPED and stamp == _stamp(run.metrics_path):
+            await websocket.send_json({"type": "end", "state": status.get("state")})
+            await websocket.close(code=1000, reason="run stopped")
+            return
+        done, _ = await asyncio.wait({reader}, timeout=POLL_SECONDS)
+        if done:
+            reader.result()  # raises WebSocketDisconnect if the client left
+            await websocket.close(code=POLICY_VIOLATION, reason="this socket only sends; send nothing")
+            return
+
+
+# ---------------------------------------------------------------------------------------------------
+# Play
+# ---------------------------------------------------------------------------------------------------
+
+
+class Reset(BaseModel):
+    type: Literal["reset"]
+    seed: int | None = Field(default=None, ge=0, le=MAX_SEED)
+    physics: dict[str, float] | None = None
+
+
+class Step(BaseModel):
+    type: Literal["step"]
+    action: Literal[0, 1]
+
+
+PlayMessage = TypeAdapter(Annotated[Reset | Step, Field(discriminator="type")])
+
+
+class PlaySession:
+    """One human's game: a server-side cart-pole and the running score."""
+
+    def __init__(self, env_id: str):
+        self.sim = CartPoleSim(env_id)
+        self.seed: int | None = None
+        self.total = 0.0
+
+    def handle(self, message: Reset | Step) -> dict[str, Any]:
+        if isinstance(message, Reset):
+            return self.reset(message)
+        if self.seed is None or self.sim.done:
+            raise PhysicsError("no episode in progress: send a reset first")
+        result = self.sim.step(message.action)
+        self.total += result.reward
+        return self.reply(result.reward, result.terminated, result.truncated)
+
+    def reset(self, message: Reset) -> dict[str, Any]:
+        if message.physics is not None:
+            self.sim.set_physics(message.physics)
+        self.seed = random.randrange(2**31) if message.seed is None else message.seed
+        self.sim.reset(start_state(self.sim.env_id, self.seed))
+        self.total = 0.0
+        return {**self.reply(0.0, False, False), "physics": self.sim.physics()}
+
+    def reply(self, reward: float, terminated: bool, truncated: bool) -> dict[str, Any]:
+        return {
+            "type": "state",
+            "seed": self.seed,
+            "step": self.sim.steps,
+            "state": self.sim.state.tolist(),
+            "reward": reward,
+            "return": self.total,
+            "terminated": terminated,
+            "truncated": truncated,
+        }
+
+
+@router.websocket("/ws/play")
+async def play(
+    websocket: WebSocket,
+    env: Annotated[str, Query(max_length=64)] = "CartPole-v1",
+) -> None:
+    """A live game: reset, then one step message per action; every reply is the new state."""
+    if not is_cartpole(env):
+        await websocket.close(code=POLICY_VIOLATION, reason=f"{env[:40]!r} is not CartPole; play CartPole")
+        return
+    await websocket.accept()
+    session = PlaySession(env)
+    with contextlib.suppress(WebSocketDisconnect):
+        while True:
+            text = await receive_text(websocket)
+            try:
+                reply = session.handle(PlayMessage.validate_json(text or ""))
+            except ValidationError as err:
+                await websocket.close(code=POLICY_VIOLATION, reason=_reason(err))
+                return
+            except PhysicsError as err:
+                await websocket.send_json({"type": "error", "message": str(err)})
+                continue
+            await websocket.send_text(json.dumps(reply))
+
+
+async def receive_text(websocket: WebSocket) -> str | None:
+    """The next text message; None for a binary one; WebSocketDisconnect when the client leaves."""
+    message = await websocket.receive()
+    if message["type"] == "websocket.disconnect":
+        raise WebSocketDisconnect(message.get("code", 1000))
+    return message.get("text")
+
+
+def _reason(err: ValidationError) -> str:
+    """A close reason (at most 123 bytes) saying what was wrong with the message."""
+    first = err.errors()[0]
+    where = ".".join(str(p) for p in first.get("loc", ())) or "message"
+    text = f"bad message ({where}: {first.get('msg', 'invalid')}); see /ws/play in the docs"
+    return text.encode()[:120].decode(errors="ignore")

@@ -1,0 +1,138 @@
+"""One cart-pole simulated on the server, a step at a time, for the Watch and Play pages.
+
+The browser only draws: every state it shows comes from here. ``CartPoleSim`` wraps our fast
+simulator's single env (``cartpole.envs.fast.CartPoleEnv``, Gymnasium's equations bit for bit).
+Physics overrides use the field names of ``CartPoleParams`` (``length`` is the pole's *half* length,
+as in Gymnasium).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from functools import lru_cache
+from typing import Any
+
+import numpy as np
+
+from cartpole.envs import env_info
+from cartpole.envs.fast import CartPoleEnv, CartPoleParams
+from cartpole.evaluation import start_states
+
+PHYSICS_LIMITS: dict[str, tuple[float, float]] = {
+    "gravity": (0.0, 100.0),
+    "length": (0.05, 5.0),
+    "masspole": (0.01, 10.0),
+    "masscart": (0.01, 50.0),
+    "force_mag": (0.0, 100.0),
+}
+"""The physics a page may change, and the range each must stay in (inclusive)."""
+
+PHYSICS_LABELS = {
+    "gravity": "gravity (m/s²)",
+    "length": "pole half-length (m)",
+    "masspole": "pole mass (kg)",
+    "masscart": "cart mass (kg)",
+    "force_mag": "push force (N)",
+}
+
+
+class PhysicsError(ValueError):
+    """A physics override is unknown or out of range."""
+
+
+def check_overrides(overrides: dict[str, Any]) -> dict[str, float]:
+    """Validated overrides (floats in range); PhysicsError with one clear line otherwise."""
+    checked: dict[str, float] = {}
+    for name, value in overrides.items():
+        if name not in PHYSICS_LIMITS:
+            raise PhysicsError(f"unknown physics field {name!r}; use {', '.join(PHYSICS_LIMITS)}")
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise PhysicsError(f"{name} must be a number, got {value!r}")
+        low, high = PHYSICS_LIMITS[name]
+        if not low <= float(value) <= high:  # also rejects NaN
+            raise PhysicsError(f"{name} must be between {low:g} and {high:g}, got {value!r}")
+        checked[name] = float(value)
+    return checked
+
+
+def is_cartpole(env_id: str) -> bool:
+    """Watch and Play simulate CartPole only."""
+    try:
+        return env_info(env_id).is_cartpole
+    except ValueError:
+        return False
+
+
+@lru_cache(maxsize=4096)
+def _start_state(env_id: str, seed: int) -> tuple[float, ...]:
+    return tuple(float(v) for v in start_states(env_id, [seed])[0])
+
+
+def start_state(env_id: str, seed: int) -> np.ndarray:
+    """Gymnasium's exact start state for ``reset(seed=seed)``, as ``evaluate()`` plays it."""
+    return np.array(_start_state(env_id, seed), dtype=np.float64)
+
+
+def default_physics(env_id: str) -> dict[str, float]:
+    """The env's own physics constants (``CartPoleParams``' defaults, never written here)."""
+    params = CartPoleParams()
+    return {name: float(getattr(params, name)) for name in PHYSICS_LIMITS}
+
+
+@dataclass
+class StepResult:
+    state: np.ndarray
+    reward: float
+    terminated: bool
+    truncated: bool
+
+
+class CartPoleSim:
+    """A cart-pole whose state and physics can be set, stepped one action at a time."""
+
+    def __init__(self, env_id: str, overrides: dict[str, float] | None = None):
+        info = env_info(env_id)
+        if not info.is_cartpole:
+            raise PhysicsError(f"{env_id} is not CartPole: only CartPole can be watched or played")
+        self.env_id = env_id
+        self.max_steps = info.max_episode_steps
+        self.env = CartPoleEnv()
+        params = self.env.params
+        self.x_threshold, self.theta_threshold = params.x_threshold, params.theta_threshold_radians
+        self.tau = params.tau
+        self.overrides: dict[str, float] = {}
+        self.set_physics(overrides or {})
+        self.state = np.zeros(4)
+        self.steps = 0
+        self.done = True
+
+    def set_physics(self, overrides: dict[str, Any]) -> None:
+        """Apply validated overrides on top of the env's defaults (an empty dict restores them)."""
+        checked = check_overrides(overrides)
+        self.env.set_params(replace(CartPoleParams(), **checked))
+        self.overrides = checked
+
+    def physics(self) -> dict[str, float]:
+        return {**default_physics(self.env_id), **self.overrides}
+
+    def reset(self, state: np.ndarray) -> np.ndarray:
+        self.state = np.asarray(state, dtype=np.float64).copy()
+        self.steps, self.done = 0, False
+        return self.state
+
+    def nudge(self, theta_dot_change: float) -> None:
+        """A push on the pole: add ``theta_dot_change`` (rad/s) to its angular velocity."""
+        self.state[3] += theta_dot_change
+
+    def step(self, action: int) -> StepResult:
+        if self.done:
+            raise PhysicsError("the episode is over: reset first")
+        if action not in (0, 1):
+            raise PhysicsError(f"action must be 0 (push left) or 1 (push right), got {action!r}")
+        self.env.state = self.state
+        _, _, terminated, _, _ = self.env.step(action)
+        self.state = np.array(self.env.state, dtype=np.float64)
+        self.steps += 1
+        truncated = self.max_steps is not None and self.steps >= self.max_steps  # as TimeLimit
+        self.done = terminated or truncated
+        return StepResult(self.state, 1.0, bool(terminated), truncated)

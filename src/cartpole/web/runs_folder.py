@@ -1,0 +1,121 @@
+"""The runs folder as the web app sees it: read-only, and only through validated names.
+
+A run name from a URL must name a folder directly inside the runs folder, and a checkpoint name a
+``.pt`` file directly inside that run's ``checkpoints/``. Anything else (``..``, absolute paths,
+separators, hidden names, symlinks that lead outside) is reported as "not found", never opened.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import asdict
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from cartpole.envs import env_info
+from cartpole.runs import RunDir, RunError, list_runs, summarize_run
+from cartpole.web.physics import is_cartpole
+
+SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,199}$")
+
+
+class NotFound(LookupError):
+    """No such run or checkpoint (or a name that is not allowed)."""
+
+
+def _inside(path: Path, parent: Path) -> bool:
+    try:
+        path.resolve(strict=True).relative_to(parent.resolve())
+    except (OSError, ValueError):
+        return False
+    return True
+
+
+class RunsFolder:
+    """Read access to ``root`` for the API."""
+
+    def __init__(self, root: Path):
+        self.root = Path(root)
+
+    def run(self, name: str) -> RunDir:
+        """The run folder called ``name``; NotFound if there is none (or the name is unsafe)."""
+        if not SAFE_NAME.match(name) or ".." in name:
+            raise NotFound(f"no run named {name!r}")
+        path = self.root / name
+        if not path.is_dir() or not _inside(path, self.root):
+            raise NotFound(f"no run named {name!r} in {self.root}")
+        return RunDir(path)
+
+    def checkpoint(self, run: RunDir, name: str) -> Path:
+        """The checkpoint file ``name`` of ``run``; NotFound if absent or unsafe."""
+        if not SAFE_NAME.match(name) or "." in name:
+            raise NotFound(f"no checkpoint named {name!r}")
+        path = run.checkpoint_path(name)
+        if not path.is_file() or not _inside(path, run.path):
+            raise NotFound(f"run {run.name} has no checkpoint {name!r}; it has: {run.checkpoints()}")
+        return path
+
+    def summaries(self) -> list[dict[str, Any]]:
+        """Every run, newest first, each with a one-line rule for its badge."""
+        rows = []
+        for summary in list_runs(self.root):
+            path = Path(summary.path)
+            if path.is_symlink() and not _inside(path, self.root):
+                continue  # a link to elsewhere is not one of our runs
+            row = asdict(summary)
+            row.pop("path")
+            row["rule"] = solved_rule(RunDir(path).eval_report())
+            row["watchable"] = bool(summary.env_id and is_cartpole(summary.env_id))
+            rows.append(row)
+        return rows
+
+    def detail(self, run: RunDir) -> dict[str, Any]:
+        """Everything the Run page shows except the metrics."""
+        summary = asdict(summarize_run(run.path))
+        summary.pop("path")
+        try:
+            config = run.config()
+        except RunError:
+            config = None
+        report = run.eval_report()
+        env_id = summary.get("env_id")
+        threshold = max_steps = None
+        if env_id:
+            try:
+                info = env_info(env_id)
+                threshold, max_steps = info.reward_threshold, info.max_episode_steps
+            except ValueError:
+                pass
+        return {
+            **summary,
+            "config": config,
+            "status": run.status(),
+            "eval": report,
+            "rule": solved_rule(report),
+            "threshold": threshold,
+            "max_episode_steps": max_steps,
+            "watchable": bool(env_id and is_cartpole(env_id)),
+            "checkpoints": [self._checkpoint_info(run, name) for name in run.checkpoints()],
+        }
+
+    @staticmethod
+    def _checkpoint_info(run: RunDir, name: str) -> dict[str, Any]:
+        stat = run.checkpoint_path(name).stat()
+        modified = datetime.fromtimestamp(stat.st_mtime, UTC).isoformat(timespec="seconds")
+        return {"name": name, "bytes": stat.st_size, "modified": modified}
+
+
+def solved_rule(report: dict[str, Any] | None) -> str | None:
+    """The rule behind the verdict in a few words, e.g. "mean 498.2 >= 475 over 100 episodes, CartPole-v1"."""
+    if not report:
+        return None
+    try:
+        mean, episodes, env_id = float(report["mean"]), int(report["episodes"]), report["env_id"]
+    except (KeyError, TypeError, ValueError):
+        return report.get("verdict")
+    threshold = report.get("threshold")
+    if threshold is None:
+        return f"mean {mean:.1f} over {episodes} episodes, {env_id} (no threshold registered)"
+    sign = ">=" if mean >= threshold else "<"
+    return f"mean {mean:.1f} {sign} {threshold:g} over {episodes} episodes, {env_id}"

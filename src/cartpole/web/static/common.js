@@ -1,0 +1,84 @@
+// Shared by every page: the header, fetching JSON, formatting, and the empty state.
+"use strict";
+
+const NAV = [
+  ["/", "Runs"],
+  ["/play", "Play"],
+];
+
+function renderHeader(active) {
+  const header = document.createElement("header");
+  header.className = "top";
+  const links = NAV.map(
+    ([href, label]) => `<a href="${href}" class="${label === active ? "active" : ""}">${label}</a>`
+  ).join("");
+  header.innerHTML = `<a class="brand" href="/">${POLE_ICON} CartPole</a><nav>${links}</nav>`;
+  document.body.prepend(header);
+}
+
+const POLE_ICON =
+  '<svg width="22" height="22" viewBox="0 0 22 22" aria-hidden="true"><rect x="3" y="14" width="16" height="6" rx="2" fill="#7f9cff"/>' +
+  '<line x1="11" y1="15" x2="15" y2="2" stroke="#ffb347" stroke-width="3" stroke-linecap="round"/></svg>';
+
+async function getJSON(url) {
+  const response = await fetch(url, { headers: { Accept: "application/json" } });
+  let body = null;
+  try {
+    body = await response.json();
+  } catch (_) {
+    body = null;
+  }
+  if (!response.ok) {
+    const detail = body && body.detail ? body.detail : response.statusText;
+    const message = typeof detail === "string" ? detail : detail.map((d) => d.msg).join("; ");
+    const error = new Error(message);
+    error.status = response.status;
+    throw error;
+  }
+  return body;
+}
+
+function escapeHTML(text) {
+  return String(text ?? "").replace(/[&<>"']/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;" })[c]);
+}
+
+function fmtInt(n) {
+  return n === null || n === undefined ? "–" : Number(n).toLocaleString("en-US");
+}
+
+function fmtNum(n, digits = 1) {
+  return n === null || n === undefined || Number.isNaN(n) ? "–" : Number(n).toFixed(digits);
+}
+
+function fmtDate(iso) {
+  if (!iso) return "–";
+  const d = new Date(iso);
+  return Number.isNaN(d.getTime()) ? iso : d.toLocaleString("en-GB", { dateStyle: "medium", timeStyle: "short" });
+}
+
+function stateBadge(state, problem) {
+  const title = problem ? ` title="${escapeHTML(problem)}"` : "";
+  return `<span class="badge ${escapeHTML(state)}"${title}>${escapeHTML(state)}</span>`;
+}
+
+function solvedBadge(run) {
+  if (run.solved) {
+    return `<span class="badge solved">✓ solved</span><span class="rule">${escapeHTML(run.rule || run.verdict || "")}</span>`;
+  }
+  if (run.rule) return `<span class="badge not-solved">not solved</span><span class="rule">${escapeHTML(run.rule)}</span>`;
+  return '<span class="muted small">not evaluated yet</span>';
+}
+
+function emptyState(runsDir) {
+  const dir = runsDir && runsDir !== "runs" ? ` --runs-dir ${escapeHTML(runsDir)}` : "";
+  return `<div class="empty"><h2>No runs yet</h2>
+    <p>Nothing has been trained in <code>${escapeHTML(runsDir || "runs")}</code>. Train an agent in a second terminal (about two seconds):</p>
+    <pre>cartpole train cem${dir}</pre>
+    <p>It appears here by itself. Meanwhile, <a href="/play">play CartPole yourself</a>.</p></div>`;
+}
+
+function param(name) {
+  return new URLSearchParams(window.location.search).get(name);
+}
+
+window.CP = { renderHeader, getJSON, escapeHTML, fmtInt, fmtNum, fmtDate, stateBadge, solvedBadge, emptyState, param };

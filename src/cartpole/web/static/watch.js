@@ -1,0 +1,228 @@
+// Watch page: an episode of a checkpoint's greedy policy, replayed at 50 frames per second.
+"use strict";
+
+CP.renderHeader("Runs");
+const runName = CP.param("run") || "";
+const checkpoint = CP.param("checkpoint") || "best";
+const canvas = document.getElementById("stage");
+const el = (id) => document.getElementById(id);
+
+const watch = {
+  info: null, // /api/info physics
+  episode: null,
+  frame: 0, // fractional step index into episode.states
+  playing: true,
+  speed: 1,
+  last: null, // timestamp of the previous animation frame
+  nudges: [], // [{step, change}]
+  physics: {},
+  seed: Number(CP.param("seed") || 0),
+};
+
+function episodeURL() {
+  const q = new URLSearchParams({ seed: String(watch.seed) });
+  for (const [k, v] of Object.entries(watch.physics)) q.set(k, String(v));
+  for (const n of watch.nudges) {
+    q.append("nudge_at", String(n.step));
+    q.append("nudge", String(n.change));
+  }
+  return `/api/runs/${encodeURIComponent(runName)}/checkpoints/${encodeURIComponent(checkpoint)}/episode?${q}`;
+}
+
+function syncAddress() {
+  const q = new URLSearchParams({ run: runName, checkpoint, seed: String(watch.seed) });
+  for (const [k, v] of Object.entries(watch.physics)) q.set(k, String(v));
+  history.replaceState(null, "", `/watch?${q}`);
+}
+
+async function load(keepFrame) {
+  el("loading").hidden = false;
+  try {
+    const episode = await CP.getJSON(episodeURL());
+    watch.episode = episode;
+    el("message").innerHTML = "";
+    el("timeline").max = String(episode.length);
+    if (!keepFrame) watch.frame = 0;
+    watch.frame = Math.min(watch.frame, episode.length);
+    syncAddress();
+    describeOutcome();
+  } catch (err) {
+    el("message").innerHTML = `<div class="error">${CP.escapeHTML(err.message)}</div>`;
+  } finally {
+    el("loading").hidden = true;
+  }
+  render();
+}
+
+function describeOutcome() {
+  const e = watch.episode;
+  const nudged = e.nudges.length ? ` with ${e.nudges.length} nudge${e.nudges.length > 1 ? "s" : ""}` : "";
+  const changed = Object.keys(watch.physics).length ? " under changed physics" : "";
+  let text;
+  if (e.terminated) {
+    const x = e.states[e.states.length - 1][0];
+    const why = Math.abs(x) > e.limits.x_threshold ? "the cart left the track" : "the pole tipped past the limit";
+    text = `Episode ended at step ${e.length}: ${why}${nudged}${changed}.`;
+  } else {
+    text = `Balanced for all ${e.length} steps (the time limit)${nudged}${changed}.`;
+  }
+  el("outcome").textContent = `This episode: ${text}`;
+}
+
+function render() {
+  const e = watch.episode;
+  if (!e) return;
+  const i = Math.min(Math.floor(watch.frame), e.length);
+  const state = e.states[i];
+  const action = i < e.length ? e.actions[i] : null;
+  const recentNudge = e.nudges.find((n) => i >= n.step && i < n.step + 12);
+  CartPoleDraw.draw(canvas, state, {
+    xThreshold: e.limits.x_threshold,
+    thetaThreshold: e.limits.theta_threshold,
+    length: e.physics.length,
+    action,
+    nudge: recentNudge ? recentNudge.theta_dot_change : 0,
+    caption: `${e.agent ?? "agent"} · ${checkpoint} · seed ${e.seed}`,
+  });
+  el("step").textContent = `${i} / ${e.length}`;
+  el("timeline").value = String(i);
+  el("action").textContent = action === null ? "–" : action === 1 ? "push →" : "← push";
+  el("action").style.color = action === null ? "" : action === 1 ? CartPoleDraw.COLORS.right : CartPoleDraw.COLORS.left;
+  el("angle").textContent = `${((state[2] * 180) / Math.PI).toFixed(1)}°`;
+  el("position").textContent = `${state[0].toFixed(2)} m`;
+  renderPrefs(i);
+}
+
+function renderPrefs(i) {
+  const e = watch.episode;
+  const box = el("prefs");
+  if (!e.scores) {
+    box.innerHTML = '<p class="small muted">This policy does not report its preferences.</p>';
+    return;
+  }
+  if (i >= e.length) {
+    box.innerHTML = `<p class="small muted">${CP.escapeHTML(e.score_label)}: episode over.</p>`;
+    return;
+  }
+  const row = e.scores[i];
+  const scale = watch.maxScore || 1;
+  const signed = row.some((v) => v < 0);
+  const bars = ["← left", "right →"].map((label, a) => {
+    const v = row[a];
+    const w = Math.min(50, (Math.abs(v) / scale) * 50) * (signed ? 1 : 2);
+    const left = signed ? (v >= 0 ? 50 : 50 - w) : 0;
+    const color = a === 1 ? CartPoleDraw.COLORS.right : CartPoleDraw.COLORS.left;
+    return `<div class="pref ${e.actions[i] === a ? "chosen" : ""}"><span>${label}</span>
+      <div class="track"><div class="fill" style="left:${left}%;width:${w}%;background:${color}"></div></div>
+      <span class="val">${v.toFixed(2)}</span></div>`;
+  });
+  box.innerHTML = `<div class="small muted">${CP.escapeHTML(e.score_label)} (the agent picks the larger)</div>${bars.join("")}`;
+}
+
+function tick(now) {
+  const e = watch.episode;
+  if (watch.playing && e && watch.last !== null) {
+    const fps = e.limits.fps || 50;
+    watch.frame += ((now - watch.last) / 1000) * fps * watch.speed;
+    if (watch.frame >= e.length) {
+      watch.frame = e.length;
+      setPlaying(false);
+    }
+    render();
+  }
+  watch.last = now;
+  requestAnimationFrame(tick);
+}
+
+function setPlaying(playing) {
+  watch.playing = playing;
+  el("play-pause").textContent = playing ? "❚❚ Pause" : "▶ Play";
+}
+
+function scoreScale() {
+  const e = watch.episode;
+  watch.maxScore = e && e.scores ? Math.max(1e-9, ...e.scores.flat().map(Math.abs)) : 1;
+}
+
+async function reload(keepFrame) {
+  await load(keepFrame);
+  scoreScale();
+  render();
+}
+
+function nudge(direction) {
+  const e = watch.episode;
+  if (!e) return;
+  const step = Math.min(Math.floor(watch.frame), e.limits.max_steps - 1);
+  const change = direction * Number(el("nudge-size").value);
+  watch.nudges = watch.nudges.filter((n) => n.step < step);
+  watch.nudges.push({ step, change });
+  reload(true).then(() => setPlaying(true));
+}
+
+function wire() {
+  el("play-pause").addEventListener("click", () => {
+    if (!watch.playing && watch.episode && watch.frame >= watch.episode.length) watch.frame = 0;
+    setPlaying(!watch.playing);
+  });
+  el("restart").addEventListener("click", () => {
+    watch.frame = 0;
+    setPlaying(true);
+    render();
+  });
+  el("speed").addEventListener("change", (ev) => (watch.speed = Number(ev.target.value)));
+  el("timeline").addEventListener("input", (ev) => {
+    watch.frame = Number(ev.target.value);
+    render();
+  });
+  el("nudge-left").addEventListener("click", () => nudge(-1));
+  el("nudge-right").addEventListener("click", () => nudge(1));
+  el("clear-nudges").addEventListener("click", () => {
+    watch.nudges = [];
+    reload(true);
+  });
+  el("nudge-size").addEventListener("input", (ev) => (el("nudge-size-out").textContent = ev.target.value));
+  el("seed-go").addEventListener("click", () => {
+    watch.seed = Math.max(0, Math.floor(Number(el("seed").value) || 0));
+    watch.nudges = [];
+    reload(false).then(() => setPlaying(true));
+  });
+  el("seed-random").addEventListener("click", () => {
+    watch.seed = Math.floor(Math.random() * 2 ** 31);
+    el("seed").value = String(watch.seed);
+    watch.nudges = [];
+    reload(false).then(() => setPlaying(true));
+  });
+  el("physics-apply").addEventListener("click", () => {
+    watch.physics = PhysicsPanel.overrides(el("physics"), watch.info);
+    reload(false).then(() => setPlaying(true));
+  });
+  el("physics-reset").addEventListener("click", () => {
+    watch.physics = {};
+    PhysicsPanel.render(el("physics"), watch.info, {});
+    reload(false).then(() => setPlaying(true));
+  });
+  document.addEventListener("keydown", (ev) => {
+    if (ev.target.tagName === "INPUT" || ev.target.tagName === "SELECT") return;
+    if (ev.key === " ") {
+      ev.preventDefault();
+      el("play-pause").click();
+    }
+  });
+  window.addEventListener("resize", render);
+}
+
+async function start() {
+  el("back").href = `/run?name=${encodeURIComponent(runName)}`;
+  el("title").textContent = `Watch ${checkpoint} of ${runName}`;
+  el("seed").value = String(watch.seed);
+  const info = await CP.getJSON("/api/info");
+  watch.info = info.physics;
+  watch.physics = PhysicsPanel.fromQuery(watch.info);
+  PhysicsPanel.render(el("physics"), watch.info, watch.physics);
+  wire();
+  await reload(false);
+  requestAnimationFrame(tick);
+}
+
+start();

@@ -1,0 +1,370 @@
+"""Every callback of the shared loop in isolation, driven by a scripted fake learner."""
+
+from __future__ import annotations
+
+import io
+import json
+from typing import Any
+
+import numpy as np
+import pytest
+import torch
+
+from cartpole.agents.registry import get_agent
+from cartpole.envs import env_info
+from cartpole.evaluation import EvalReport
+from cartpole.runs import RunDir, load_checkpoint
+from cartpole.training import Budget, Callback, LearnResult, LoopState, TrainingLoop, TrainSettings
+from cartpole.training.callbacks import (
+    BudgetCallback,
+    CheckpointCallback,
+    EvalCallback,
+    MetricsCallback,
+    ProgressCallback,
+    StopWhenSolved,
+    TensorBoardCallback,
+)
+
+
+class Constant:
+    """A policy that always pushes one way."""
+
+    def __init__(self, action: int):
+        self.action = action
+
+    def act(self, observations: np.ndarray) -> np.ndarray:
+        return np.full(len(observations), self.action, dtype=np.int64)
+
+
+class FakeLearner:
+    """Each learn() is 10 env steps and finishes one episode of return 10 * call number."""
+
+    def __init__(self, steps: int = 10, per_generation: bool = False):
+        self.calls, self.steps, self.per_generation = 0, steps, per_generation
+
+    def learn(self) -> LearnResult:
+        self.calls += 1
+        scalars = {"train/loss": 1.0 / self.calls, "train/epsilon": 0.5}
+        if self.per_generation:
+            return LearnResult(
+                self.steps,
+                scalars={"train/mean_return": float(self.calls)},
+                summarized_episodes=2,
+                log_scalars=True,
+            )
+        return LearnResult(self.steps, [10.0 * self.calls], [self.steps], scalars)
+
+    def policy(self) -> Constant:
+        return Constant(0)
+
+    def state_dict(self, resume: bool) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+        return {"w": torch.tensor([float(self.calls)])}, {"calls": self.calls, "resume": resume}
+
+    def load_state_dict(self, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None:
+        self.calls = int(data["calls"])
+
+
+class InterruptedAt(FakeLearner):
+    """Asks its loop to stop (as the SIGINT handler does) during its ``at``-th learn()."""
+
+    def __init__(self, at: int, per_generation: bool = False):
+        super().__init__(per_generation=per_generation)
+        self.at = at
+        self.loop: TrainingLoop | None = None
+
+    def learn(self) -> LearnResult:
+        if self.calls + 1 == self.at and self.loop is not None:
+            self.loop.request_stop("interrupted (SIGINT)")
+        return super().learn()
+
+
+class StopAfter(Callback):
+    def __init__(self, steps: int):
+        self.steps = steps
+
+    def on_step(self, loop: TrainingLoop, result: LearnResult) -> bool:
+        return loop.state.iterations < self.steps
+
+
+def report(mean: float, episodes: int = 100) -> EvalReport:
+    return EvalReport(
+        env_id="CartPole-v1",
+        simulator="gymnasium",
+        returns=[mean] * episodes,
+        lengths=[int(mean)] * episodes,
+        seeds=list(range(episodes)),
+        threshold=475.0,
+        max_episode_steps=500,
+    )
+
+
+@pytest.fixture
+def run(tmp_path) -> RunDir:
+    return RunDir.create(tmp_path, "CartPole-v1", "cem", 0)
+
+
+# --- the loop itself ------------------------------------------------------------------------------
+
+
+def test_loop_counts_and_stops_when_a_callback_says_so():
+    state = TrainingLoop(FakeLearner(), [StopAfter(3)]).run()
+    assert (state.env_steps, state.episodes, state.iterations) == (30, 3, 3)
+    assert list(state.recent_returns) == [10.0, 20.0, 30.0]
+    assert state.stop_reason == "stopped by a callback"
+
+
+def test_request_stop_finishes_the_step_and_failure_is_recorded():
+    learner = InterruptedAt(2)
+    loop = learner.loop = TrainingLoop(learner, [StopAfter(100)])
+    assert loop.run().stop_reason == "interrupted (SIGINT)"
+    assert loop.state.env_steps == 20  # the step in progress is finished, then it stops
+
+    broken = TrainingLoop(FakeLearner(), [])
+    broken.learner.learn = lambda: 1 / 0  # type: ignore[method-assign]
+    with pytest.raises(ZeroDivisionError):
+        broken.run()
+    assert broken.state.stop_reason == "failed"
+
+
+# --- budget ---------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("budget", "iterations", "unit"),
+    [
+        (Budget(env_steps=45), 5, "env steps"),
+        (Budget(episodes=2), 2, "episodes"),
+        (Budget(iterations=4), 4, "iterations"),
+    ],
+)
+def test_budget_stops_at_the_first_limit_reached(budget, iterations, unit):
+    state = TrainingLoop(FakeLearner(), [BudgetCallback(budget)]).run()
+    assert state.iterations == iterations
+    assert state.stop_reason is not None and unit in state.stop_reason
+
+
+def test_budget_in_seconds():
+    loop = TrainingLoop(FakeLearner(), [BudgetCallback(Budget(seconds=0.05))])
+    state = loop.run()
+    assert state.elapsed >= 0.05 and "seconds" in (state.stop_reason or "")
+
+
+def test_budget_counts_sessions_before_a_resume():
+    state = LoopState(env_steps=40, iterations=4)
+    assert TrainingLoop(FakeLearner(), [BudgetCallback(Budget(env_steps=50))], state).run().iterations == 5
+
+
+# --- evaluation -----------------------------------------------------------------------------------
+
+
+def test_eval_runs_every_n_steps_and_at_the_end():
+    settings = TrainSettings(eval_every=25, eval_screen_episodes=3)
+    evaluations: list[EvalReport] = []
+
+    class Spy(Callback):
+        def on_eval(self, loop: TrainingLoop, report: EvalReport) -> bool:
+            evaluations.append(report)
+            return True
+
+    callbacks = [
+        BudgetCallback(Budget(env_steps=60)),
+        EvalCallback(env_info("CartPole-v1"), 0, settings),
+        Spy(),
+    ]
+    state = TrainingLoop(FakeLearner(), callbacks).run()
+    # at 30 and 60 steps (every >= 25 steps); nothing new to judge at the end
+    assert state.evaluations == len(evaluations) >= 2
+    assert all(r.episodes == 3 and r.mean < 20 for r in evaluations)  # always-left falls fast
+    assert len({r.seeds[0] for r in evaluations}) == len(evaluations)  # fresh seeds each time
+    assert all(r.seeds[0] >= 2**32 for r in evaluations)  # never a training seed
+    assert state.best_eval_mean == max(r.mean for r in evaluations)
+
+
+def test_eval_screen_below_threshold_skips_the_full_evaluation(monkeypatch):
+    calls: list[tuple[int, str]] = []
+    screen_mean = 100.0
+
+    def fake_evaluate(policy, env_id, episodes, seed=None, *, simulator="gymnasium"):
+        calls.append((episodes, simulator))
+        return report(screen_mean if simulator == "fast" else 500.0, episodes)
+
+    monkeypatch.setattr("cartpole.training.callbacks.evaluate", fake_evaluate)
+    callback = EvalCallback(env_info("CartPole-v1"), 0, TrainSettings(eval_screen_episodes=7))
+    loop = TrainingLoop(FakeLearner(), [callback])
+    assert callback.evaluate(loop).episodes == 7  # screen at 100 < 475: no full evaluation
+    assert calls == [(7, "fast")]
+    screen_mean = 480.0
+    final = callback.evaluate(loop)  # the screen passes: the full evaluation decides
+    assert final.solved and calls[1:] == [(7, "fast"), (100, "gymnasium")]
+
+
+def test_stop_when_solved():
+    loop = TrainingLoop(FakeLearner(), [StopWhenSolved()])
+    assert loop.record_eval(report(300.0)) is True
+    assert loop.record_eval(report(480.0, episodes=20)) is True  # 20 episodes cannot solve
+    assert loop.record_eval(report(480.0)) is False
+    assert loop.state.stop_reason == "solved" and loop.state.solved
+    assert loop.state.evaluations == 3 and loop.state.best_eval_mean == 480.0
+
+
+# --- checkpoints ----------------------------------------------------------------------------------
+
+
+def test_checkpoints_latest_every_k_best_and_solved(run):
+    spec = get_agent("cem")
+    meta = {"agent": "cem", "env_id": "CartPole-v1", "seed": 0, "preset": "default", "config": {}}
+    saves: list[tuple[str, int]] = []
+
+    class Recorded(CheckpointCallback):
+        def save(self, loop: TrainingLoop, name: str, resume: bool) -> None:
+            saves.append((name, loop.state.env_steps))
+            super().save(loop, name, resume)
+
+    checkpoints = Recorded(run, spec, meta, every=30)
+    loop = TrainingLoop(FakeLearner(), [StopAfter(7), checkpoints])
+    loop.run()
+    assert [s for s in saves if s[0] == "latest"] == [("latest", 30), ("latest", 60), ("latest", 70)]
+    latest = load_checkpoint(run.checkpoint_path("latest"))
+    assert latest.meta["step"] == 70 and latest.meta["resumable"] is True
+    assert latest.meta["loop"]["iterations"] == 7 and latest.meta["learner"]["calls"] == 7
+
+    assert not run.checkpoint_path("best").exists()
+    loop.record_eval(report(200.0))
+    loop.record_eval(report(100.0))  # worse: best stays
+    best = load_checkpoint(run.checkpoint_path("best"))
+    assert best.meta["resumable"] is False and json.loads((run.path / "eval.json").read_text())["mean"] == 200
+    assert not run.checkpoint_path("solved").exists()
+    loop.learner.calls = 99
+    loop.record_eval(report(490.0))
+    loop.learner.calls = 100
+    loop.record_eval(report(500.0))  # a later solve does not replace the first
+    assert load_checkpoint(run.checkpoint_path("solved")).meta["learner"]["calls"] == 99
+    assert load_checkpoint(run.checkpoint_path("best")).meta["learner"]["calls"] == 100
+
+
+def test_latest_checkpoint_writes_pending_metric_rows_first(run):
+    """A kill -9 right after ``latest`` is saved finds every metric row up to its step on disk."""
+    metrics = MetricsCallback(run)
+    metrics.FLUSH_SECONDS = 1e12  # never flush on time: only the checkpoint makes it write
+    checkpoints = CheckpointCallback(run, get_agent("cem"), {"agent": "cem"}, every=20, metrics=metrics)
+    seen: list[tuple[int, list[int]]] = []
+
+    class KillAfterLatest(Callback):
+        def on_step(self, loop: TrainingLoop, result: LearnResult) -> bool:
+            if not run.checkpoint_path("latest").exists():
+                return True
+            step = load_checkpoint(run.checkpoint_path("latest")).meta["step"]
+            seen.append((step, [r["step"] for r in run.metrics()]))
+            raise KeyboardInterrupt  # as abrupt as it gets in-process: on_end still runs, but too late
+
+    loop = TrainingLoop(FakeLearner(per_generation=True), [metrics, checkpoints, KillAfterLatest()])
+    with pytest.raises(KeyboardInterrupt):
+        loop.run()
+    assert seen == [(20, [10, 20])]
+
+
+# --- metrics --------------------------------------------------------------------------------------
+
+
+def test_metrics_rows_status_and_sps(run):
+    metrics = MetricsCallback(run)
+    loop = TrainingLoop(FakeLearner(), [StopAfter(3), metrics])
+    loop.run()
+    rows = run.metrics()
+    assert [r["train/episode_return"] for r in rows] == [10.0, 20.0, 30.0]
+    assert [(r["step"], r["episode"]) for r in rows] == [(10, 1), (20, 2), (30, 3)]
+    assert rows[0]["train/episode_length"] == 10 and rows[0]["train/epsilon"] == 0.5
+    assert rows[-1]["train/loss"] == pytest.approx(1 / 3)
+    assert all("time" in r for r in rows) and any("time/sps" in r for r in rows)
+    status = run.status()
+    assert status["state"] == "finished" and status["env_steps"] == 30
+
+    metrics.on_eval(loop, report(480.0))
+    metrics.on_end(loop)
+    eval_row = run.metrics()[-1]
+    assert eval_row["eval/mean_return"] == 480 and eval_row["eval/solved"] is True
+    assert eval_row["eval/episodes"] == 100 and eval_row["eval/std_return"] == 0
+
+
+def test_metrics_per_generation_rows_and_interrupted_status(run):
+    learner = InterruptedAt(1, per_generation=True)
+    loop = learner.loop = TrainingLoop(learner, [StopAfter(2), MetricsCallback(run)])
+    loop.run()
+    rows = run.metrics()
+    assert [(r["train/iteration"], r["train/mean_return"], r["episode"]) for r in rows] == [(1, 1.0, 2)]
+    assert run.status()["state"] == "interrupted"
+
+
+# --- progress -------------------------------------------------------------------------------------
+
+
+class FakeTerminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_progress_plain_lines_when_not_a_terminal():
+    stream = io.StringIO()
+    progress = ProgressCallback(Budget(env_steps=50), "step", stream)
+    progress.PLAIN_SECONDS = 0.0
+    loop = TrainingLoop(FakeLearner(), [BudgetCallback(Budget(env_steps=50)), progress])
+    loop.record_eval(report(123.0, episodes=10))
+    loop.run()
+    lines = stream.getvalue().splitlines()
+    assert len(lines) == 5 and "\x1b" not in stream.getvalue()
+    assert "50/50 steps" in lines[-1] and "steps/s" in lines[-1]
+    assert "return 50 (mean100 30.0)" in lines[-1] and "eval 123.0/10ep" in lines[-1]
+    assert "epsilon 0.5" in lines[-1] and "loss 0.2" in lines[-1]
+
+
+def test_progress_generations_and_time_budgets_label_their_unit():
+    loop = TrainingLoop(FakeLearner(per_generation=True), [])
+    loop.state.scalars["train/mean_return"] = 42.0
+    progress = ProgressCallback(Budget(iterations=9), "generation")
+    assert progress.total_and_done(loop)[2] == "generations"
+    assert "generation mean return 42.0" in progress.describe(loop)
+    assert ProgressCallback(Budget(seconds=9), "step").total_and_done(loop)[2] == "s"
+
+
+def test_progress_bar_on_a_terminal():
+    stream = FakeTerminal()
+    progress = ProgressCallback(Budget(env_steps=50), "step", stream)
+    TrainingLoop(FakeLearner(), [BudgetCallback(Budget(env_steps=50)), progress]).run()
+    final = stream.getvalue().split("\r")[-1]  # what the terminal shows at the end
+    assert "training" in final and "50/50" in final and "steps/s" in final
+    assert "return 50 (mean100 30.0)" in final  # on its own line, so the bar keeps its room
+
+
+# --- tensorboard ----------------------------------------------------------------------------------
+
+
+def test_tensorboard_mirrors_the_metric_rows(run):
+    pytest.importorskip("tensorboard")
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    metrics = MetricsCallback(run)
+    board = TensorBoardCallback(run, metrics)
+    loop = TrainingLoop(FakeLearner(), [StopAfter(3), metrics, board])
+    loop.run()
+    events = EventAccumulator(str(run.path / "tensorboard"))
+    events.Reload()
+    returns = events.Scalars("train/episode_return")
+    assert [(e.step, e.value) for e in returns] == [(10, 10.0), (20, 20.0), (30, 30.0)]
+    assert "train/loss" in events.Tags()["scalars"]
+
+
+def test_tensorboard_missing_gives_the_install_line(monkeypatch, run):
+    import builtins
+
+    real_import = builtins.__import__
+
+    def no_tensorboard(name, *args, **kwargs):
+        if name == "tensorboard":
+            raise ImportError(name)
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_tensorboard)
+    from cartpole.training import ConfigError
+
+    with pytest.raises(ConfigError, match=r"cartpole\[tensorboard\]"):
+        TensorBoardCallback(run, MetricsCallback(run))

@@ -1,0 +1,367 @@
+"""The web app's JSON API and WebSockets, through FastAPI's test client (no browser, no network)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("fastapi", reason="the web app needs fastapi (a dependency of cartpole: reinstall it)")
+pytest.importorskip("httpx", reason="FastAPI's test client needs httpx")
+
+from fastapi.testclient import TestClient
+from starlette.websockets import WebSocketDisconnect
+
+from cartpole.agents.registry import load_policy
+from cartpole.evaluation import evaluate, start_states
+from cartpole.runs import RunDir
+from cartpole.web.app import create_app
+
+sys.path.insert(0, str(Path(__file__).parent))
+from conftest_web import WebRuns, make_dqn_run, make_web_runs
+
+
+@pytest.fixture(scope="module")
+def web_runs(tmp_path_factory: pytest.TempPathFactory) -> WebRuns:
+    return make_web_runs(tmp_path_factory.mktemp("web"))
+
+
+@pytest.fixture(scope="module")
+def client(web_runs: WebRuns) -> TestClient:
+    return TestClient(create_app(web_runs.root))
+
+
+def episode_url(run: str, checkpoint: str = "best") -> str:
+    return f"/api/runs/{run}/checkpoints/{checkpoint}/episode"
+
+
+# ---------------------------------------------------------------------------------------------------
+# Runs
+# ---------------------------------------------------------------------------------------------------
+
+
+def test_runs_lists_every_run_newest_first_and_survives_bad_folders(client: TestClient, web_runs: WebRuns):
+    body = client.get("/api/runs").json()
+    by_name = {row["name"]: row for row in body["runs"]}
+    assert body["runs"][0]["name"] == web_runs.cem  # created now; the others are dated 2000 and 2020
+    cem = by_name[web_runs.cem]
+    assert cem["agent"] == "cem" and cem["state"] == "finished" and cem["solved"] is True
+    assert cem["rule"].startswith("mean ") and ">= 475 over 100 episodes, CartPole-v1" in cem["rule"]
+    assert cem["watchable"] is True
+    assert by_name[web_runs.acrobot]["watchable"] is False
+    assert by_name[web_runs.corrupt]["state"] == "corrupt" and by_name[web_runs.corrupt]["problem"]
+    assert by_name[web_runs.incomplete]["state"] == "incomplete"
+    assert "CartPole-v1__cem__s9__20200101-000000" not in by_name  # the symlink out is not listed
+
+
+def test_runs_made_after_start_are_noticed(tmp_path: Path):
+    client = TestClient(create_app(tmp_path / "not-yet"))
+    assert client.get("/api/runs").json()["runs"] == []
+    run = RunDir.create(tmp_path / "not-yet", "CartPole-v1", "cem", 1)
+    run.write_config({"agent": "cem", "env_id": "CartPole-v1", "seed": 1, "created": "2030-01-01"})
+    assert [r["name"] for r in client.get("/api/runs").json()["runs"]] == [run.name]
+
+
+def test_run_detail_has_config_status_eval_and_checkpoints(client: TestClient, web_runs: WebRuns):
+    body = client.get(f"/api/runs/{web_runs.cem}").json()
+    assert body["config"]["agent"] == "cem"
+    assert body["status"]["state"] == "finished"
+    assert body["eval"]["solved"] is True and body["eval"]["episodes"] >= 100
+    assert body["threshold"] == 475 and body["max_episode_steps"] == 500
+    assert [c["name"] for c in body["checkpoints"]][:2] == ["latest", "best"]
+
+
+def test_corrupt_and_half_written_runs_are_described(client: TestClient, web_runs: WebRuns):
+    corrupt = client.get(f"/api/runs/{web_runs.corrupt}")
+    assert corrupt.status_code == 200 and corrupt.json()["state"] == "corrupt"
+    assert corrupt.json()["config"] is None
+    incomplete = client.get(f"/api/runs/{web_runs.incomplete}/metrics")
+    assert incomplete.json()["rows"] == [{"step": 1, "episode": 0, "time": 0.1}]  # half line left out
+
+
+def test_metrics_offset_returns_only_newer_rows(client: TestClient, web_runs: WebRuns):
+    everything = client.get(f"/api/runs/{web_runs.cem}/metrics").json()
+    assert everything["offset"] == 0 and everything["next_offset"] == len(everything["rows"]) > 2
+    rest = client.get(f"/api/runs/{web_runs.cem}/metrics", params={"offset": 2}).json()
+    assert rest["rows"] == everything["rows"][2:]
+    done = client.get(f"/api/runs/{web_runs.cem}/metrics", params={"offset": everything["next_offset"]})
+    assert done.json()["rows"] == []
+
+
+def test_openapi_schema_documents_the_api(client: TestClient):
+    paths = client.get("/openapi.json").json()["paths"]
+    assert {"/api/runs", "/api/runs/{name}", "/api/runs/{name}/metrics"} <= set(paths)
+    assert "/api/runs/{name}/checkpoints/{checkpoint}/episode" in paths
+
+
+# ---------------------------------------------------------------------------------------------------
+# Episodes
+# ---------------------------------------------------------------------------------------------------
+
+
+def test_episode_matches_what_evaluate_played(client: TestClient, web_runs: WebRuns):
+    report = RunDir(web_runs.root / web_runs.cem).eval_report()
+    assert report is not None
+    seed, expected = report["seeds"][0], report["lengths"][0]
+    body = client.get(episode_url(web_runs.cem), params={"seed": seed}).json()
+    assert body["length"] == expected == len(body["actions"]) == len(body["rewards"])
+    assert len(body["states"]) == body["length"] + 1
+    np.testing.assert_array_equal(body["states"][0], start_states("CartPole-v1", [seed])[0])
+    assert body["score_label"] == "linear score" and len(body["scores"]) == body["length"]
+    assert all(np.argmax(s) == a for s, a in zip(body["scores"], body["actions"], strict=True))
+    assert body["limits"]["fps"] == 50
+
+
+def test_episode_agrees_with_evaluate_under_gymnasium(web_runs: WebRuns):
+    """The server's simulator and Gymnasium's give the same episode length for the same policy."""
+    from cartpole.web.episodes import play_episode
+
+    policy = load_policy(web_runs.root / web_runs.cem / "checkpoints" / "best.pt")
+    report = evaluate(policy, "CartPole-v1", episodes=5, seed=123)
+    for seed, length in zip(report.seeds, report.lengths, strict=True):
+        episode, _ = play_episode(policy, "CartPole-v1", seed)
+        assert len(episode.actions) == length
+
+
+def test_physics_overrides_and_nudges_change_the_trajectory(client: TestClient, web_runs: WebRuns):
+    plain = client.get(episode_url(web_runs.cem), params={"seed": 5}).json()
+    heavy = client.get(episode_url(web_runs.cem), params={"seed": 5, "gravity": 30, "length": 2}).json()
+    assert heavy["physics"]["gravity"] == 30 and heavy["physics"]["length"] == 2
+    assert heavy["states"][5] != plain["states"][5]
+    nudged = client.get(episode_url(web_runs.cem), params={"seed": 5, "nudge_at": 20, "nudge": 1.5}).json()
+    assert nudged["states"][:20] == plain["states"][:20]
+    assert nudged["states"][20][3] == pytest.approx(plain["states"][20][3] + 1.5)
+    assert nudged["nudges"] == [{"step": 20, "theta_dot_change": 1.5}]
+    two = client.get(
+        episode_url(web_runs.cem), params=[("nudge_at", 5), ("nudge", 1), ("nudge_at", 9), ("nudge", -1)]
+    )
+    assert len(two.json()["nudges"]) == 2
+
+
+def test_dqn_episode_shows_q_values(tmp_path: Path):
+    name = make_dqn_run(tmp_path)
+    body = TestClient(create_app(tmp_path)).get(episode_url(name, "latest"), params={"seed": 1}).json()
+    assert body["agent"] == "dqn" and body["score_label"] == "Q-values"
+    assert len(body["scores"]) == body["length"] and len(body["scores"][0]) == 2
+
+
+def test_non_cartpole_runs_cannot_be_watched(client: TestClient, web_runs: WebRuns):
+    response = client.get(episode_url(web_runs.acrobot))
+    assert response.status_code == 409 and "CartPole" in response.json()["detail"]
+    assert client.get(f"/api/runs/{web_runs.acrobot}/metrics").json()["rows"]  # curves still show
+
+
+# ---------------------------------------------------------------------------------------------------
+# Bad input
+# ---------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "path",
+    [
+        "/api/runs/..",
+        "/api/runs/..%2Fruns",
+        "/api/runs/%2e%2e",
+        "/api/runs/..%2F..%2Fetc",
+        "/api/runs/%2Fetc%2Fpasswd",
+        "/api/runs/.hidden",
+        "/api/runs/no-such-run",
+        "/api/runs/CartPole-v1__cem__s9__20200101-000000",  # symlink out of the folder
+        "/api/runs/CartPole-v1__cem__s9__20200101-000000/metrics",
+    ],
+)
+def test_unsafe_or_unknown_run_names_are_404(client: TestClient, path: str):
+    assert client.get(path).status_code == 404
+
+
+@pytest.mark.parametrize("checkpoint", ["nope", "..", "best.pt", "%2E%2E%2Fconfig", "..%2F..%2Fconfig"])
+def test_unsafe_or_unknown_checkpoints_are_404(client: TestClient, web_runs: WebRuns, checkpoint: str):
+    assert client.get(episode_url(web_runs.cem, checkpoint)).status_code == 404
+
+
+def test_checkpoint_symlinked_out_of_the_run_is_404(tmp_path: Path, web_runs: WebRuns):
+    root = tmp_path / "runs"
+    shutil_copy = __import__("shutil").copytree
+    shutil_copy(web_runs.root / web_runs.cem, root / web_runs.cem)
+    (root / web_runs.cem / "checkpoints" / "evil.pt").symlink_to(web_runs.root / web_runs.cem / "config.json")
+    assert TestClient(create_app(root)).get(episode_url(web_runs.cem, "evil")).status_code == 404
+
+
+@pytest.mark.parametrize(
+    "params",
+    [
+        {"seed": -1},
+        {"seed": "abc"},
+        {"seed": 2**60},
+        {"gravity": -1},
+        {"gravity": "nan"},
+        {"gravity": "inf"},
+        {"length": 0},
+        {"masspole": 1000},
+        {"masscart": "heavy"},
+        {"force_mag": 1e9},
+        {"nudge_at": 3},  # no nudge value
+        {"nudge_at": 10_000, "nudge": 1},
+        {"nudge_at": 3, "nudge": 99},
+    ],
+)
+def test_bad_episode_queries_are_422_with_a_message(client: TestClient, web_runs: WebRuns, params: dict):
+    response = client.get(episode_url(web_runs.cem), params=params)
+    assert response.status_code == 422
+    assert response.json()["detail"]
+
+
+@pytest.mark.parametrize("offset", [-1, "x", 10**12])
+def test_bad_metrics_offset_is_422(client: TestClient, web_runs: WebRuns, offset: object):
+    response = client.get(f"/api/runs/{web_runs.cem}/metrics", params={"offset": offset})
+    assert response.status_code == 422 and response.json()["detail"]
+
+
+# ---------------------------------------------------------------------------------------------------
+# WebSockets
+# ---------------------------------------------------------------------------------------------------
+
+
+def test_play_session_steps_on_the_server(client: TestClient):
+    with client.websocket_connect("/ws/play") as ws:
+        ws.send_text(json.dumps({"type": "reset", "seed": 42}))
+        first = ws.receive_json()
+        assert first["step"] == 0 and first["seed"] == 42 and first["physics"]["gravity"] == 9.8
+        np.testing.assert_array_equal(first["state"], start_states("CartPole-v1", [42])[0])
+        for _ in range(10):
+            ws.send_text(json.dumps({"type": "step", "action": 1}))
+            reply = ws.receive_json()
+        assert reply["step"] == 10 and reply["return"] == 10 and reply["state"][1] > first["state"][1]
+        while not (reply["terminated"] or reply["truncated"]):
+            ws.send_text(json.dumps({"type": "step", "action": 1}))
+            reply = ws.receive_json()
+        assert reply["terminated"] and reply["step"] < 100  # always pushing right: the pole falls
+        ws.send_text(json.dumps({"type": "step", "action": 1}))
+        assert ws.receive_json()["type"] == "error"  # an ended episode needs a reset; socket stays open
+        ws.send_text(json.dumps({"type": "reset", "physics": {"gravity": 1.0}}))
+        again = ws.receive_json()
+        assert again["step"] == 0 and again["physics"]["gravity"] == 1.0 and isinstance(again["seed"], int)
+
+
+@pytest.mark.parametrize(
+    "message",
+    [
+        "not json",
+        "{}",
+        '{"type": "step", "action": 2}',
+        '{"type": "step", "action": "left"}',
+        '{"type": "teleport"}',
+        '{"type": "reset", "seed": -5}',
+        "[1, 2, 3]",
+        b"\x00\x01binary",
+    ],
+)
+def test_play_garbage_closes_with_a_reason_and_the_server_carries_on(client: TestClient, message):
+    with client.websocket_connect("/ws/play") as ws:
+        if isinstance(message, bytes):
+            ws.send_bytes(message)
+        else:
+            ws.send_text(message)
+        with pytest.raises(WebSocketDisconnect) as closed:
+            ws.receive_json()
+    assert closed.value.code == 1008 and closed.value.reason
+    with client.websocket_connect("/ws/play") as ws:  # the server is fine
+        ws.send_text('{"type": "reset", "seed": 1}')
+        assert ws.receive_json()["step"] == 0
+
+
+def test_play_rejects_bad_physics_with_an_error_message(client: TestClient):
+    with client.websocket_connect("/ws/play") as ws:
+        ws.send_text(json.dumps({"type": "reset", "physics": {"gravity": -3}}))
+        reply = ws.receive_json()
+        assert reply["type"] == "error" and "gravity" in reply["message"]
+
+
+def test_play_refuses_other_envs(client: TestClient):
+    with (
+        pytest.raises(WebSocketDisconnect) as closed,
+        client.websocket_connect("/ws/play?env=Acrobot-v1") as ws,
+    ):
+        ws.receive_json()
+    assert "not CartPole" in closed.value.reason
+
+
+def test_live_metrics_of_a_finished_run_sends_rows_then_ends(client: TestClient, web_runs: WebRuns):
+    total = len(client.get(f"/api/runs/{web_runs.cem}/metrics").json()["rows"])
+    with client.websocket_connect(f"/ws/runs/{web_runs.cem}/metrics?offset=1") as ws:
+        messages = []
+        while not messages or messages[-1]["type"] != "end":
+            messages.append(ws.receive_json())
+    rows = [row for m in messages if m["type"] == "metrics" for row in m["rows"]]
+    assert len(rows) == total - 1
+    assert any(m["type"] == "status" and m["status"]["state"] == "finished" for m in messages)
+
+
+def test_live_metrics_pushes_rows_as_they_are_appended(tmp_path: Path):
+    run = RunDir.create(tmp_path, "CartPole-v1", "dqn", 0)
+    run.write_config({"agent": "dqn", "env_id": "CartPole-v1", "seed": 0})
+    run.write_status({"state": "running", "env_steps": 0})
+    client = TestClient(create_app(tmp_path))
+    with client.websocket_connect(f"/ws/runs/{run.name}/metrics") as ws:
+        assert ws.receive_json()["type"] == "status"
+        run.append_metrics([{"step": 10, "episode": 1, "time": 0.1, "train/episode_return": 10.0}])
+        message = ws.receive_json()
+        assert message["type"] == "metrics" and message["rows"][0]["step"] == 10
+        run.write_status({"state": "finished", "env_steps": 10})
+        types = []
+        while not types or types[-1] != "end":
+            types.append(ws.receive_json()["type"])
+        assert "status" in types
+
+
+def test_live_metrics_garbage_and_unknown_runs_close_with_a_reason(client: TestClient, web_runs: WebRuns):
+    with pytest.raises(WebSocketDisconnect) as closed, client.websocket_connect("/ws/runs/../metrics") as ws:
+        ws.receive_json()
+    with (
+        pytest.raises(WebSocketDisconnect) as closed,
+        client.websocket_connect("/ws/runs/nope/metrics") as ws,
+    ):
+        ws.receive_json()
+    assert closed.value.code == 1008 and "no run" in closed.value.reason
+    run = RunDir(web_runs.root / web_runs.acrobot)
+    run.write_status({"state": "running"})  # keep it open
+    try:
+        with client.websocket_connect(f"/ws/runs/{web_runs.acrobot}/metrics") as ws:
+            ws.send_text("garbage")
+            with pytest.raises(WebSocketDisconnect) as closed:
+                while True:
+                    ws.receive_json()
+        assert closed.value.code == 1008 and closed.value.reason
+    finally:
+        run.write_status({"state": "finished"})
+
+
+# ---------------------------------------------------------------------------------------------------
+# Pages and CLI
+# ---------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("page", ["/", "/run", "/watch", "/play"])
+def test_pages_are_served_without_any_cdn(client: TestClient, page: str):
+    response = client.get(page)
+    assert response.status_code == 200 and "<html" in response.text
+    assert "http://" not in response.text and "https://" not in response.text
+
+
+def test_static_files_need_no_internet():
+    static = Path(__file__).parents[1] / "src" / "cartpole" / "web" / "static"
+    for path in static.rglob("*"):
+        if path.suffix in (".html", ".css") or (path.suffix == ".js" and "vendor" not in path.parts):
+            text = path.read_text(encoding="utf-8")
+            assert "https://" not in text and "http://" not in text, path
+    assert (static / "vendor" / "uPlot.LICENSE").is_file()
+
+
+def test_serve_command_defaults_to_localhost():
+    from cartpole.cli.main import build_parser
+
+    args = build_parser().parse_args(["serve"])
+    assert args.host == "127.0.0.1" and args.port == 8000 and args.runs_dir == "runs"

@@ -1,0 +1,247 @@
+"""The web app in a real headless Chromium (Playwright), served by uvicorn on 127.0.0.1.
+
+Set CARTPOLE_WEB_SCREENSHOTS=DIR to keep screenshots of every page at 1280x800 and 390x844.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import socket
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+CHROMIUM = "/usr/bin/chromium"
+pytestmark = [
+    pytest.mark.browser,
+    pytest.mark.skipif(not Path(CHROMIUM).exists(), reason=f"browser tests need Chromium at {CHROMIUM}"),
+]
+playwright_api = pytest.importorskip("playwright.sync_api", reason="browser tests need playwright (pip)")
+uvicorn = pytest.importorskip("uvicorn", reason="the web app needs uvicorn (a dependency of cartpole: reinstall it)")
+
+from cartpole.web.app import create_app  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).parent))
+from conftest_web import WebRuns, make_web_runs  # noqa: E402
+
+DESKTOP = {"width": 1280, "height": 800}
+PHONE = {"width": 390, "height": 844}
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def web_runs(tmp_path_factory: pytest.TempPathFactory) -> WebRuns:
+    return make_web_runs(tmp_path_factory.mktemp("browser"))
+
+
+@pytest.fixture(scope="module")
+def server(web_runs: WebRuns) -> Iterator[str]:
+    """uvicorn serving the app on a free port, in a background thread."""
+    port = free_port()
+    config = uvicorn.Config(create_app(web_runs.root), host="127.0.0.1", port=port, log_level="warning")
+    srv = uvicorn.Server(config)
+    thread = threading.Thread(target=srv.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 20
+    while not srv.started:
+        assert time.monotonic() < deadline, "uvicorn did not start"
+        time.sleep(0.05)
+    yield f"http://127.0.0.1:{port}"
+    srv.should_exit = True
+    thread.join(timeout=10)
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[object]:
+    with playwright_api.sync_playwright() as p:
+        chromium = p.chromium.launch(
+            executable_path=CHROMIUM,
+            args=["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking"],
+        )
+        yield chromium
+        chromium.close()
+
+
+@pytest.fixture(scope="module")
+def shots(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    where = os.environ.get("CARTPOLE_WEB_SCREENSHOTS")
+    path = Path(where) if where else tmp_path_factory.mktemp("screenshots")
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+class Page:
+    """A browser page that records console errors and uncaught exceptions."""
+
+    def __init__(self, browser: object, base: str, viewport: dict[str, int]):
+        self.context = browser.new_context(viewport=viewport)  # type: ignore[attr-defined]
+        self.page = self.context.new_page()
+        self.base = base
+        self.errors: list[str] = []
+        self.page.on("console", lambda m: self.errors.append(m.text) if m.type == "error" else None)
+        self.page.on("pageerror", lambda e: self.errors.append(str(e)))
+
+    def goto(self, path: str) -> object:
+        self.page.goto(self.base + path)
+        return self.page
+
+    def close(self) -> None:
+        self.context.close()
+
+
+@pytest.fixture
+def desktop(browser: object, server: str) -> Iterator[Page]:
+    page = Page(browser, server, DESKTOP)
+    yield page
+    errors = page.errors
+    page.close()
+    assert errors == [], f"console errors: {errors}"
+
+
+def watch_path(run: str, seed: int = 3) -> str:
+    return f"/watch?run={run}&checkpoint=best&seed={seed}"
+
+
+def test_runs_page_lists_the_run(desktop: Page, web_runs: WebRuns):
+    page = desktop.goto("/")
+    row = page.locator(f'tr[data-run="{web_runs.cem}"]')
+    row.wait_for()
+    assert "cem" in row.inner_text() and "solved" in row.inner_text()
+    assert re.search(r"mean \d+\.\d >= 475 over 100 episodes, CartPole-v1", row.inner_text())
+    corrupt = page.locator(f'tr[data-run="{web_runs.corrupt}"]').inner_text()
+    assert "corrupt" in corrupt
+
+
+def test_runs_page_says_how_to_make_a_run_when_there_is_none(desktop: Page):
+    desktop.page.route(
+        "**/api/runs", lambda route: route.fulfill(json={"runs_dir": "runs", "runs": []}, status=200)
+    )
+    page = desktop.goto("/")
+    page.get_by_text("No runs yet").wait_for()
+    assert "cartpole train cem" in page.inner_text("main")
+
+
+def test_run_page_shows_curve_checkpoints_and_config(desktop: Page, web_runs: WebRuns):
+    page = desktop.goto(f"/run?name={web_runs.cem}")
+    page.locator(".uplot canvas").first.wait_for()
+    page.get_by_text("SOLVED: mean").wait_for()
+    assert page.locator("#checkpoint-list a", has_text="Watch").count() >= 2
+    assert "population" in page.inner_text("#config")
+
+
+def test_run_page_of_another_env_says_watch_is_cartpole_only(desktop: Page, web_runs: WebRuns):
+    page = desktop.goto(f"/run?name={web_runs.acrobot}")
+    page.get_by_text("Watching and playing are for CartPole only").wait_for()
+    assert page.locator("#checkpoint-list a", has_text="Watch").count() == 0
+
+
+def step_counter(page: object) -> tuple[int, int]:
+    done, total = page.inner_text("#step").split("/")  # type: ignore[attr-defined]
+    return int(done), int(total)
+
+
+def test_watch_page_animates_to_the_episode_end(desktop: Page, web_runs: WebRuns):
+    page = desktop.goto(watch_path(web_runs.cem))
+    page.wait_for_function(
+        "() => document.querySelector('#step').textContent.trim().startsWith('0 /') === false"
+    )
+    page.select_option("#speed", "4")
+    first = page.locator("#stage").screenshot()
+    page.wait_for_timeout(300)
+    second = page.locator("#stage").screenshot()
+    assert first != second  # the cart and pole move
+    total = step_counter(page)[1]
+    assert total > 50
+    page.wait_for_function(
+        f"() => document.querySelector('#step').textContent.trim() === '{total} / {total}'", timeout=15_000
+    )
+    assert page.inner_text("#play-pause").endswith("Play")  # stops at the end
+
+
+def test_nudging_changes_the_trajectory(desktop: Page, web_runs: WebRuns):
+    page = desktop.goto(watch_path(web_runs.cem))
+    page.wait_for_function("() => watch.episode !== null && watch.frame > 30")
+    page.click("#play-pause")  # pause, so the nudge lands at a known step
+    before = page.evaluate("() => watch.episode.states")
+    step = page.evaluate("() => Math.floor(watch.frame)")
+    page.fill("#nudge-size", "3")
+    page.click("#nudge-right")
+    page.wait_for_function("() => watch.episode.nudges.length === 1")
+    after = page.evaluate("() => watch.episode.states")
+    assert after[:step] == before[:step]
+    assert after[step + 1] != before[step + 1]
+    assert page.evaluate("() => watch.episode.nudges[0].step") == step
+
+
+def test_play_page_moves_the_cart_the_way_pressed_and_ends_when_the_pole_falls(desktop: Page):
+    page = desktop.goto("/play")
+    page.get_by_text("Press ← or → to start").wait_for()
+    page.select_option("#speed", "2")
+    for key, sign in (("ArrowRight", 1), ("ArrowLeft", -1)):
+        start = page.evaluate("() => game.state[0]")
+        page.keyboard.down(key)
+        page.wait_for_function(f"() => ({sign}) * (game.state[0] - ({start})) > 0.02")
+        page.wait_for_function("() => game.phase === 'over'", timeout=10_000)
+        page.keyboard.up(key)
+        title = page.inner_text("#overlay-title")
+        assert "pole fell" in title or "off the track" in title
+        assert int(page.inner_text("#score")) > 0
+        assert int(page.inner_text("#best")) > 0
+        link = page.get_attribute("#compare-link", "href")
+        assert link and f"seed={page.evaluate('() => game.seed')}" in link
+        page.click("#again")
+        page.get_by_text("Press ← or → to start").wait_for()
+
+
+def test_compare_link_watches_the_agent_from_the_humans_start(desktop: Page):
+    page = desktop.goto("/play")
+    page.get_by_text("Press ← or → to start").wait_for()
+    seed = page.evaluate("() => game.seed")
+    page.select_option("#speed", "2")
+    page.keyboard.down("ArrowRight")
+    page.wait_for_function("() => game.phase === 'over'", timeout=10_000)
+    page.keyboard.up("ArrowRight")
+    human_start = page.evaluate("() => game.seed")
+    assert human_start == seed
+    page.click("#compare-link")
+    page.wait_for_url(re.compile(rf".*/watch\?.*seed={seed}"))
+    page.wait_for_function("() => watch.episode !== null")
+    assert page.evaluate("() => watch.episode.seed") == seed
+
+
+@pytest.mark.parametrize("viewport", [DESKTOP, PHONE], ids=["1280x800", "390x844"])
+def test_every_page_renders_without_console_errors(
+    browser: object, server: str, web_runs: WebRuns, shots: Path, viewport: dict[str, int]
+):
+    page = Page(browser, server, viewport)
+    pages = {
+        "runs": "/",
+        "run": f"/run?name={web_runs.cem}",
+        "watch": watch_path(web_runs.cem),
+        "play": "/play",
+        "run-acrobot": f"/run?name={web_runs.acrobot}",
+    }
+    try:
+        for name, path in pages.items():
+            p = page.goto(path)
+            p.wait_for_load_state("networkidle")  # type: ignore[attr-defined]
+            p.wait_for_timeout(400)  # type: ignore[attr-defined]
+            width = p.evaluate("() => document.documentElement.scrollWidth")  # type: ignore[attr-defined]
+            assert width <= viewport["width"], f"{name} scrolls sideways at {viewport}"
+            p.screenshot(
+                path=str(shots / f"{name}_{viewport['width']}x{viewport['height']}.png"), full_page=True
+            )  # type: ignore[attr-defined]
+    finally:
+        errors = page.errors
+        page.close()
+    assert errors == [], f"console errors: {errors}"
