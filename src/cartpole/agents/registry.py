@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,19 +31,31 @@ class AgentSpec:
     """What one ``learn()`` call is, in words: "generation" or "step"."""
 
 
-def agents() -> dict[str, AgentSpec]:
-    """Every agent by name (imported lazily so the CLI starts fast)."""
-    from cartpole.agents import dqn, linear
+AGENT_MODULES = {
+    "random-search": "cartpole.agents.linear",
+    "hill-climbing": "cartpole.agents.linear",
+    "cem": "cartpole.agents.linear",
+    "dqn": "cartpole.agents.dqn",
+}
+"""Agent name -> the module that defines it (imported only when the agent is used: torch is slow)."""
 
-    specs = [*linear.AGENTS, dqn.AGENT]
-    return {spec.name: spec for spec in specs}
+
+def agent_names() -> list[str]:
+    return list(AGENT_MODULES)
 
 
 def get_agent(name: str) -> AgentSpec:
-    table = agents()
-    if name not in table:
-        raise ValueError(f"unknown agent {name!r}; choose one of: {', '.join(table)}")
-    return table[name]
+    """The spec of agent ``name``, importing its module on first use."""
+    if name not in AGENT_MODULES:
+        raise ValueError(f"unknown agent {name!r}; choose one of: {', '.join(AGENT_MODULES)}")
+    module = importlib.import_module(AGENT_MODULES[name])
+    specs = getattr(module, "AGENTS", None) or [module.AGENT]
+    return next(spec for spec in specs if spec.name == name)
+
+
+def agents() -> dict[str, AgentSpec]:
+    """Every agent by name (imports every agent module)."""
+    return {name: get_agent(name) for name in AGENT_MODULES}
 
 
 def resolve_checkpoint_path(path: str | Path) -> Path:
@@ -59,9 +72,19 @@ def resolve_checkpoint_path(path: str | Path) -> Path:
 
 def load_policy(path: str | Path) -> Policy:
     """Load any saved agent of ours as a greedy Policy."""
-    checkpoint = load_checkpoint(resolve_checkpoint_path(path))
+    return open_policy(path)[2]
+
+
+def open_policy(path: str | Path) -> tuple[Path, Checkpoint, Policy]:
+    """(checkpoint file, checkpoint, greedy policy) of a checkpoint file or run folder."""
+    file = resolve_checkpoint_path(path)
+    checkpoint = load_checkpoint(file)
+    return file, checkpoint, spec_of(checkpoint).policy_from_checkpoint(checkpoint)
+
+
+def spec_of(checkpoint: Checkpoint) -> AgentSpec:
+    """The agent that wrote ``checkpoint``; CheckpointError if we do not know it."""
     agent = checkpoint.meta.get("agent")
-    table = agents()
-    if agent not in table:
+    if agent not in AGENT_MODULES:
         raise CheckpointError(f"checkpoint names an unknown agent {agent!r}")
-    return table[agent].policy_from_checkpoint(checkpoint)
+    return get_agent(str(agent))

@@ -49,21 +49,15 @@ def run(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.table import Table
 
-    from cartpole.agents.registry import agents, resolve_checkpoint_path
+    from cartpole.agents.registry import open_policy
     from cartpole.cli.main import UsageError
     from cartpole.evaluation import evaluate
-    from cartpole.runs import CheckpointError, load_checkpoint
 
     if args.episodes < 1:
         raise UsageError(f"--episodes must be >= 1, got {args.episodes}")
     if args.seed is not None and args.seed < 0:
         raise UsageError(f"--seed must be >= 0, got {args.seed}")
-    path = resolve_checkpoint_path(args.path)
-    checkpoint = load_checkpoint(path)
-    table = agents()
-    if checkpoint.agent not in table:
-        raise CheckpointError(f"{path} names an unknown agent {checkpoint.agent!r}")
-    policy = table[checkpoint.agent].policy_from_checkpoint(checkpoint)
+    path, checkpoint, policy = open_policy(args.path)
     env_id = args.env or checkpoint.env_id
     report = evaluate(policy, env_id, args.episodes, seed=args.seed, simulator=args.simulator)
     video: dict[str, str] = {}

@@ -38,15 +38,10 @@ def add_parser(sub: Any) -> None:
 
 def load_saved_policy(path_text: str) -> tuple[Path, Any, str]:
     """(checkpoint path, greedy policy, env id) of a run folder or checkpoint file."""
-    from cartpole.agents.registry import agents, resolve_checkpoint_path
-    from cartpole.runs import CheckpointError, load_checkpoint
+    from cartpole.agents.registry import open_policy
 
-    path = resolve_checkpoint_path(path_text)
-    checkpoint = load_checkpoint(path)
-    table = agents()
-    if checkpoint.agent not in table:
-        raise CheckpointError(f"{path} names an unknown agent {checkpoint.agent!r}")
-    return path, table[checkpoint.agent].policy_from_checkpoint(checkpoint), checkpoint.env_id
+    path, checkpoint, policy = open_policy(path_text)
+    return path, policy, checkpoint.env_id
 
 
 def run(args: argparse.Namespace) -> int:

@@ -67,11 +67,11 @@ def list_runs_command(args: argparse.Namespace) -> int:
 def presets_command(args: argparse.Namespace) -> int:
     from rich.console import Console
 
-    from cartpole.agents.registry import agents, get_agent
+    from cartpole.agents.registry import agent_names, get_agent
     from cartpole.cli.main import UsageError
     from cartpole.training.config import preset_table
 
-    names = list(agents())
+    names = agent_names()
     if args.agent and args.agent not in names:
         raise UsageError(f"unknown agent {args.agent!r}; choose one of: {', '.join(names)}")
     console = Console(soft_wrap=True)

@@ -24,9 +24,9 @@ def parse_overrides(pairs: list[str]) -> dict[str, Any]:
 
 
 def add_parser(sub: Any) -> None:
-    from cartpole.agents.registry import agents
+    from cartpole.agents.registry import agent_names
 
-    names = list(agents())
+    names = agent_names()
     parser = sub.add_parser(
         "train",
         help="train an agent on an environment",

@@ -11,12 +11,13 @@ import json
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
-
-import torch
+from typing import TYPE_CHECKING, Any
 
 from cartpole import __version__
 from cartpole.runs.atomic import write_atomic
+
+if TYPE_CHECKING:
+    import torch
 
 FORMAT = "cartpole-checkpoint"
 FORMAT_VERSION = 1
@@ -45,6 +46,8 @@ class Checkpoint:
 
 def save_checkpoint(path: Path, checkpoint: Checkpoint) -> None:
     """Write ``checkpoint`` to ``path`` atomically, stamping format and package version."""
+    import torch  # imported here: torch takes ~1.5 s to import and most commands never need it
+
     meta = {"format": FORMAT, "format_version": FORMAT_VERSION, "package_version": __version__}
     meta.update(checkpoint.meta)
     payload = {
@@ -56,6 +59,8 @@ def save_checkpoint(path: Path, checkpoint: Checkpoint) -> None:
 
 def load_checkpoint(path: Path) -> Checkpoint:
     """Read a checkpoint; raise CheckpointError with a one-line, actionable message if unusable."""
+    import torch
+
     path = Path(path)
     if not path.is_file():
         raise CheckpointError(f"no checkpoint at {path}: check the path (see `cartpole runs`)")
