@@ -1,0 +1,538 @@
+"""Deep Q-Network (DQN) in PyTorch, readable top to bottom.
+
+What it does, in order:
+
+1. ``DQNConfig``: every knob, with a one-line docstring each (presets in ``presets/dqn.toml``).
+2. ``QNetwork``: an MLP Q-network (optional dropout, optional dueling head).
+3. ``td_targets``: the one place the Bellman target is computed (double DQN, and no bootstrap at
+   termination; truncation by the time limit does bootstrap).
+4. ``DQNLearner``: collects one batched step from ``num_envs`` vector envs per ``learn()`` call with a
+   single forward pass, stores it in the shared :class:`~cartpole.agents.replay_buffer.ReplayBuffer`,
+   and runs ``gradient_steps`` updates every ``train_freq`` calls. The shared training loop does the
+   rest (evaluation, best checkpoint, stop when solved, budget).
+5. ``QNetworkPolicy``: the greedy policy, from a learner or a checkpoint.
+
+The three exploration schedules are the ones the tutorials used: linear (ours), exponential per env
+step (the PyTorch tutorial), and multiplicative per gradient step (the Keras tutorial).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from cartpole.agents.registry import AgentSpec
+from cartpole.agents.replay_buffer import ReplayBuffer
+from cartpole.envs import EnvInfo, make_vec_env
+from cartpole.runs import Checkpoint, CheckpointError
+from cartpole.training.config import build_config, require
+from cartpole.training.loop import LearnResult
+from cartpole.training.seeding import seed_everything
+
+ACTIVATIONS: dict[str, type[nn.Module]] = {"relu": nn.ReLU, "tanh": nn.Tanh, "elu": nn.ELU, "gelu": nn.GELU}
+SCHEDULES = ("linear", "exponential", "multiplicative")
+LOSSES = ("huber", "mse")
+
+
+# ----------------------------------------------------------------------------------------------
+# 1. Configuration
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class DQNConfig:
+    """Hyperparameters of DQN. Defaults are the ``default`` preset's values for CartPole-v1."""
+
+    # network
+    hidden_sizes: tuple[int, ...] = (64, 64)
+    """Widths of the hidden layers of the Q-network MLP."""
+    activation: str = "relu"
+    """Hidden-layer activation: relu, tanh, elu or gelu."""
+    dropout: float = 0.0
+    """Dropout after each hidden layer while training (0 = none); acting and targets run without it."""
+    dueling: bool = False
+    """Dueling head: Q = V + A - mean(A)."""
+    # learning
+    lr: float = 1e-3
+    """Adam learning rate."""
+    gamma: float = 0.99
+    """Discount factor."""
+    loss: str = "huber"
+    """TD loss: huber (smooth L1) or mse."""
+    max_grad_norm: float | None = None
+    """Clip the gradient's global norm to this (none: no clipping)."""
+    double_dqn: bool = True
+    """Double DQN: the online net picks the next action, the target net values it."""
+    target_network: bool = True
+    """Use a separate target network (false: targets from the online net, as both tutorials do)."""
+    target_update_interval: int = 1
+    """Gradient steps between target-network updates (SB3 counts env steps instead)."""
+    tau: float = 0.02
+    """Target update: Polyak weight of the online net (1.0 = hard copy)."""
+    # replay and updates
+    buffer_size: int = 50_000
+    """Replay memory capacity (transitions)."""
+    batch_size: int = 256
+    """Minibatch size of a gradient step (smaller while the memory holds fewer rows)."""
+    learning_starts: int = 1000
+    """Env steps collected before the first gradient step."""
+    num_envs: int = 4
+    """Vector envs stepped together; one learn() call collects one transition from each."""
+    train_freq: int = 1
+    """learn() calls (batched env steps) between training rounds."""
+    gradient_steps: int = 1
+    """Gradient steps per training round."""
+    # exploration
+    epsilon_schedule: str = "linear"
+    """linear (over epsilon_decay_steps), exponential (time constant epsilon_decay_steps, per env
+    step) or multiplicative (x epsilon_decay_rate per gradient step)."""
+    epsilon_start: float = 1.0
+    """Initial probability of a random action."""
+    epsilon_end: float = 0.01
+    """Final (minimum) probability of a random action."""
+    epsilon_decay_steps: int = 6000
+    """Env steps of the linear decay, or the time constant of the exponential one."""
+    epsilon_decay_rate: float = 0.999
+    """Factor applied per gradient step by the multiplicative schedule."""
+    # reward shaping (off by default; the tutorials used them)
+    termination_reward: float | None = None
+    """Replace the reward of a terminating transition by this value (Keras tutorial: -10)."""
+    short_episode_reward: float | None = None
+    """Replace the reward of the last transition of an episode shorter than short_episode_length."""
+    short_episode_length: int = 0
+    """Length below which an ending episode gets short_episode_reward (PyTorch tutorial: 195)."""
+    # runtime
+    simulator: str = "fast"
+    """Training simulator: fast (our batched CartPole; other envs use Gymnasium) or gymnasium."""
+    torch_threads: int = 1
+    """CPU threads for torch (0: leave torch's default); 1 is fastest for small nets on CPU."""
+
+    def validate(self) -> None:
+        """Reject bad values with one clear line each."""
+        require(len(self.hidden_sizes) >= 1, "hidden_sizes needs at least one layer, e.g. 128,128")
+        require(all(h >= 1 for h in self.hidden_sizes), "hidden_sizes must all be >= 1")
+        require(self.activation in ACTIVATIONS, f"activation must be one of {', '.join(ACTIVATIONS)}")
+        require(0.0 <= self.dropout < 1.0, "dropout must be in [0, 1)")
+        require(self.lr > 0, f"lr must be > 0, got {self.lr}")
+        require(0.0 <= self.gamma <= 1.0, f"gamma must be in [0, 1], got {self.gamma}")
+        require(self.loss in LOSSES, f"loss must be one of {', '.join(LOSSES)}, got {self.loss!r}")
+        require(self.max_grad_norm is None or self.max_grad_norm > 0, "max_grad_norm must be > 0 or none")
+        require(self.target_update_interval >= 1, "target_update_interval must be >= 1")
+        require(0.0 < self.tau <= 1.0, f"tau must be in (0, 1], got {self.tau}")
+        require(self.buffer_size >= 1, f"buffer_size must be >= 1, got {self.buffer_size}")
+        require(self.batch_size >= 1, f"batch_size must be >= 1, got {self.batch_size}")
+        require(self.learning_starts >= 0, "learning_starts must be >= 0")
+        require(self.num_envs >= 1, f"num_envs must be >= 1, got {self.num_envs}")
+        require(self.train_freq >= 1, f"train_freq must be >= 1, got {self.train_freq}")
+        require(self.gradient_steps >= 0, f"gradient_steps must be >= 0, got {self.gradient_steps}")
+        require(self.epsilon_schedule in SCHEDULES, f"epsilon_schedule must be one of {', '.join(SCHEDULES)}")
+        require(
+            0.0 <= self.epsilon_end <= self.epsilon_start <= 1.0,
+            "need 0 <= epsilon_end <= epsilon_start <= 1",
+        )
+        require(self.epsilon_decay_steps >= 1, "epsilon_decay_steps must be >= 1")
+        require(0.0 < self.epsilon_decay_rate <= 1.0, "epsilon_decay_rate must be in (0, 1]")
+        require(self.short_episode_length >= 0, "short_episode_length must be >= 0")
+        require(self.simulator in ("fast", "gymnasium"), "simulator must be fast or gymnasium")
+        require(self.torch_threads >= 0, "torch_threads must be >= 0")
+
+
+# ----------------------------------------------------------------------------------------------
+# 2. The Q-network
+# ----------------------------------------------------------------------------------------------
+
+
+class QNetwork(nn.Module):
+    """MLP from observations to one Q-value per action."""
+
+    def __init__(self, obs_dim: int, n_actions: int, config: DQNConfig):
+        super().__init__()
+        layers: list[nn.Module] = []
+        width = obs_dim
+        for hidden in config.hidden_sizes:
+            layers += [nn.Linear(width, hidden), ACTIVATIONS[config.activation]()]
+            if config.dropout > 0:
+                layers.append(nn.Dropout(config.dropout))
+            width = hidden
+        self.body = nn.Sequential(*layers)
+        self.dueling = config.dueling
+        self.head = nn.Linear(width, n_actions)
+        self.value = nn.Linear(width, 1) if config.dueling else None
+
+    def forward(self, observations: torch.Tensor) -> torch.Tensor:
+        features = self.body(observations)
+        q = self.head(features)
+        if self.value is not None:  # dueling: the head gives advantages
+            q = self.value(features) + q - q.mean(dim=1, keepdim=True)
+        return q
+
+
+# ----------------------------------------------------------------------------------------------
+# 3. The Bellman target
+# ----------------------------------------------------------------------------------------------
+
+
+def td_targets(
+    rewards: torch.Tensor,
+    terminated: torch.Tensor,
+    next_q_target: torch.Tensor,
+    next_q_online: torch.Tensor | None,
+    gamma: float,
+) -> torch.Tensor:
+    """``r + gamma * (1 - terminated) * Q_target(s', a*)``.
+
+    ``a*`` is argmax of the online net's values (double DQN) when ``next_q_online`` is given, else of
+    the target net's own. Only *termination* stops the bootstrap: a transition cut by the time limit
+    (truncated, e.g. step 500 of CartPole-v1) was stored with ``terminated=0``, because the pole was
+    still up and the state still had value. Treating truncation as termination teaches the agent that
+    step 500 is a cliff, which is the classic reason a DQN "solves" CartPole and then collapses.
+    """
+    chooser = next_q_target if next_q_online is None else next_q_online
+    next_actions = chooser.argmax(dim=1, keepdim=True)
+    next_values = next_q_target.gather(1, next_actions).squeeze(1)
+    return rewards + gamma * (1.0 - terminated) * next_values
+
+
+# ----------------------------------------------------------------------------------------------
+# 4. The learner
+# ----------------------------------------------------------------------------------------------
+
+
+def epsilon_at(config: DQNConfig, env_steps: int, multiplied: float) -> float:
+    """Exploration rate after ``env_steps`` (``multiplied`` is the multiplicative schedule's value)."""
+    start, end = config.epsilon_start, config.epsilon_end
+    if config.epsilon_schedule == "linear":
+        return end + (start - end) * max(0.0, 1.0 - env_steps / config.epsilon_decay_steps)
+    if config.epsilon_schedule == "exponential":
+        return end + (start - end) * math.exp(-env_steps / config.epsilon_decay_steps)
+    return multiplied
+
+
+class DQNLearner:
+    """DQN as a Learner of the shared loop: one ``learn()`` = one batched env step + due updates."""
+
+    def __init__(self, config: DQNConfig, env: EnvInfo, seed: int, device: str = "cpu"):
+        config.validate()
+        self.config, self.env_info, self.seed = config, env, seed
+        self.device = torch.device(device)
+        if config.torch_threads:
+            torch.set_num_threads(config.torch_threads)
+        self.rng = seed_everything(seed)
+        self.q_net = QNetwork(env.obs_dim, env.n_actions, config).to(self.device).eval()
+        self.target_net = copy.deepcopy(self.q_net) if config.target_network else None
+        self.parameters = list(self.q_net.parameters())
+        # The fused kernel is the fastest Adam on CPU and GPU for small nets.
+        self.optimizer = torch.optim.Adam(self.parameters, lr=config.lr, fused=True)
+        self.buffer = ReplayBuffer(config.buffer_size, env.obs_dim, self.device)
+        self.envs = make_training_envs(env.env_id, config.num_envs, config.simulator)
+        self.observations, _ = self.envs.reset(seed=seed)
+        n = config.num_envs
+        self.autoreset = np.zeros(n, dtype=bool)
+        """Envs whose last step ended an episode: their next step is a reset, not a transition."""
+        self.episode_returns = np.zeros(n, dtype=np.float64)
+        self.episode_lengths = np.zeros(n, dtype=np.int64)
+        self.env_steps = 0
+        self.calls = 0
+        self.gradient_steps = 0
+        self.epsilon_multiplied = config.epsilon_start
+        self.last_loss = float("nan")
+        self.last_q_mean = float("nan")
+        self.use_dropout = config.dropout > 0
+
+    # -- acting ----------------------------------------------------------------------------
+
+    @property
+    def epsilon(self) -> float:
+        return epsilon_at(self.config, self.env_steps, self.epsilon_multiplied)
+
+    def select_actions(self, observations: np.ndarray, epsilon: float) -> np.ndarray:
+        """Epsilon-greedy actions for all envs with a single forward pass (skipped if all explore)."""
+        n = len(observations)
+        explore = self.rng.random(n) < epsilon
+        actions = self.rng.integers(0, self.env_info.n_actions, size=n)
+        if not explore.all():
+            with torch.inference_mode():
+                q = self.q_net(torch.from_numpy(observations).to(self.device))
+                greedy = q.argmax(dim=1).cpu().numpy()
+            actions = np.where(explore, actions, greedy)
+        return actions
+
+    # -- one learn() call --------------------------------------------------------------------
+
+    def learn(self) -> LearnResult:
+        config = self.config
+        epsilon = self.epsilon
+        observations = self.observations
+        actions = self.select_actions(observations, epsilon)
+        next_observations, rewards, terminated, truncated, _ = self.envs.step(actions)
+
+        # Gymnasium's next-step autoreset: an env that ended an episode at the last call has just
+        # been reset (its action was ignored). That row is not a transition; drop it.
+        valid = ~self.autoreset
+        self.episode_returns += np.where(valid, rewards, 0.0)
+        self.episode_lengths += valid
+        done = (terminated | truncated) & valid
+        stored_rewards = self.shape_rewards(rewards, terminated & valid, done)
+        # Only `terminated` is stored as the no-bootstrap flag. At truncation (the time limit) the
+        # step returns the real final observation (the reset comes on the next call), so the target
+        # bootstraps from that state's value: the pole was still up.
+        self.buffer.add(
+            observations[valid],
+            actions[valid],
+            stored_rewards[valid],
+            next_observations[valid],
+            terminated[valid].astype(np.float32),
+        )
+        collected = int(valid.sum())
+        self.env_steps += collected
+        result = LearnResult(env_steps=collected)
+        for i in np.flatnonzero(done):  # raw env returns, before any reward shaping
+            result.episode_returns.append(float(self.episode_returns[i]))
+            result.episode_lengths.append(int(self.episode_lengths[i]))
+            self.episode_returns[i] = 0.0
+            self.episode_lengths[i] = 0
+        self.autoreset = done
+        self.observations = next_observations
+
+        self.calls += 1
+        if self.calls % config.train_freq == 0 and self.env_steps >= config.learning_starts:
+            loss = q = None
+            for _ in range(config.gradient_steps):
+                loss, q = self.gradient_step()
+            if loss is not None and q is not None:  # one device sync per training round, not per step
+                self.last_loss, self.last_q_mean = float(loss), float(q.mean())
+        result.scalars = {"train/epsilon": epsilon, "train/gradient_steps": float(self.gradient_steps)}
+        if self.gradient_steps:  # no loss before the first update (and metrics hold no NaN)
+            result.scalars |= {"train/loss": self.last_loss, "train/q_mean": self.last_q_mean}
+        return result
+
+    def shape_rewards(self, rewards: np.ndarray, terminated: np.ndarray, done: np.ndarray) -> np.ndarray:
+        """The tutorials' reward shaping, where configured; the raw rewards otherwise."""
+        config = self.config
+        if config.termination_reward is None and config.short_episode_reward is None:
+            return rewards
+        shaped = rewards.astype(np.float32, copy=True)
+        if config.termination_reward is not None:
+            shaped[terminated] = config.termination_reward
+        if config.short_episode_reward is not None:
+            short = done & (self.episode_lengths < config.short_episode_length)
+            shaped[short] = config.short_episode_reward
+        return shaped
+
+    # -- one gradient step -----------------------------------------------------------------------
+
+    def gradient_step(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """One update of the online net; returns its loss and Q-values (tensors: no sync here)."""
+        config = self.config
+        batch = self.buffer.sample(min(config.batch_size, len(self.buffer)), self.rng)
+        if self.use_dropout:
+            self.q_net.train()
+        q_all = self.q_net(batch.observations)
+        if self.use_dropout:
+            self.q_net.eval()
+        with torch.no_grad():
+            # Without a target network the online net (without dropout) values s', as the tutorials do.
+            target_net = self.target_net if self.target_net is not None else self.q_net
+            next_q_target = target_net(batch.next_observations)
+            next_q_online = None
+            if config.double_dqn:
+                same = self.target_net is None
+                next_q_online = next_q_target if same else self.q_net(batch.next_observations)
+            targets = td_targets(batch.rewards, batch.terminated, next_q_target, next_q_online, config.gamma)
+        q = q_all.gather(1, batch.actions.unsqueeze(1)).squeeze(1)
+        loss = F.smooth_l1_loss(q, targets) if config.loss == "huber" else F.mse_loss(q, targets)
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        if config.max_grad_norm is not None:
+            nn.utils.clip_grad_norm_(self.parameters, config.max_grad_norm)
+        self.optimizer.step()
+        self.gradient_steps += 1
+        if self.target_net is not None and self.gradient_steps % config.target_update_interval == 0:
+            self.update_target()
+        if config.epsilon_schedule == "multiplicative" and self.epsilon_multiplied > config.epsilon_end:
+            self.epsilon_multiplied = max(
+                config.epsilon_end, self.epsilon_multiplied * config.epsilon_decay_rate
+            )
+        return loss.detach(), q.detach()
+
+    @torch.no_grad()
+    def update_target(self) -> None:
+        assert self.target_net is not None
+        online, target = self.parameters, list(self.target_net.parameters())
+        if self.config.tau >= 1.0:
+            torch._foreach_copy_(target, online)
+        else:
+            torch._foreach_lerp_(target, online, self.config.tau)
+
+    # -- policy and checkpoints ---------------------------------------------------------------
+
+    def policy(self) -> QNetworkPolicy:
+        """A frozen copy of the current greedy policy."""
+        return QNetworkPolicy(copy.deepcopy(self.q_net), self.device)
+
+    def state_dict(self, resume: bool) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+        tensors = {f"q_net.{k}": v for k, v in self.q_net.state_dict().items()}
+        data: dict[str, Any] = {"obs_dim": self.env_info.obs_dim, "n_actions": self.env_info.n_actions}
+        if not resume:
+            return tensors, data
+        if self.target_net is not None:
+            tensors |= {f"target_net.{k}": v for k, v in self.target_net.state_dict().items()}
+        optim = self.optimizer.state_dict()
+        for index, state in optim["state"].items():
+            tensors |= {f"optim.{index}.{k}": v for k, v in state.items()}
+        replay_tensors, replay_data = self.buffer.state_dict()
+        tensors |= {f"replay.{k}": v for k, v in replay_tensors.items()}
+        tensors["rng.torch"] = torch.get_rng_state()
+        tensors["envs.observations"] = torch.from_numpy(np.asarray(self.observations, dtype=np.float32))
+        data |= {
+            "optim_param_groups": optim["param_groups"],
+            "replay": replay_data,
+            "rng_numpy": self.rng.bit_generator.state,
+            "env_steps": self.env_steps,
+            "calls": self.calls,
+            "gradient_steps": self.gradient_steps,
+            "epsilon_multiplied": self.epsilon_multiplied,
+            "autoreset": self.autoreset.tolist(),
+            "episode_returns": self.episode_returns.tolist(),
+            "episode_lengths": self.episode_lengths.tolist(),
+            "env_state": _vector_env_state(self.envs),
+        }
+        return tensors, data
+
+    def load_state_dict(self, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None:
+        self.q_net.load_state_dict(_with_prefix(tensors, "q_net."))
+        if "env_steps" not in data:  # a policy-only checkpoint: weights only
+            if self.target_net is not None:
+                self.target_net.load_state_dict(self.q_net.state_dict())
+            return
+        if self.target_net is not None:
+            self.target_net.load_state_dict(_with_prefix(tensors, "target_net."))
+        state: dict[int, dict[str, torch.Tensor]] = {}
+        for key, value in _with_prefix(tensors, "optim.").items():
+            index, name = key.split(".", 1)
+            state.setdefault(int(index), {})[name] = value
+        self.optimizer.load_state_dict({"state": state, "param_groups": data["optim_param_groups"]})
+        self.buffer.load_state_dict(_with_prefix(tensors, "replay."), data["replay"])
+        torch.set_rng_state(tensors["rng.torch"])
+        self.rng.bit_generator.state = data["rng_numpy"]
+        self.env_steps, self.calls = int(data["env_steps"]), int(data["calls"])
+        self.gradient_steps = int(data["gradient_steps"])
+        self.epsilon_multiplied = float(data["epsilon_multiplied"])
+        self.autoreset = np.asarray(data["autoreset"], dtype=bool)
+        self.episode_returns = np.asarray(data["episode_returns"], dtype=np.float64)
+        self.episode_lengths = np.asarray(data["episode_lengths"], dtype=np.int64)
+        if _restore_vector_env_state(self.envs, data.get("env_state")):
+            self.observations = tensors["envs.observations"].numpy().copy()
+        else:
+            # The env's internal state could not be saved: start fresh episodes from a seed derived
+            # from the run's seed and progress (deterministic), dropping the episodes in progress.
+            seed = int(np.random.SeedSequence([self.seed, self.env_steps]).generate_state(1)[0])
+            self.observations, _ = self.envs.reset(seed=seed)
+            self.autoreset[:] = False
+            self.episode_returns[:] = 0.0
+            self.episode_lengths[:] = 0
+
+
+def make_training_envs(env_id: str, num_envs: int, simulator: str) -> Any:
+    """The training vector env; Gymnasium's own when the fast simulator is not installed."""
+    try:
+        return make_vec_env(env_id, num_envs, simulator=simulator)  # type: ignore[arg-type]
+    except ModuleNotFoundError as err:
+        if simulator != "fast" or "cartpole.envs.fast" not in str(err):
+            raise
+        return make_vec_env(env_id, num_envs, simulator="gymnasium")
+
+
+def _with_prefix(tensors: dict[str, torch.Tensor], prefix: str) -> dict[str, torch.Tensor]:
+    return {k.removeprefix(prefix): v for k, v in tensors.items() if k.startswith(prefix)}
+
+
+# The per-env state of the batched CartPole vector envs: Gymnasium's CartPoleVectorEnv (public names)
+# and our fast simulator (private names). Other vector envs restart their episodes on resume.
+_ENV_STATE_FIELDS = ("state", "steps", "prev_done", "_state", "_steps", "_done_idx", "_n_done")
+
+
+def _vector_env_state(envs: Any) -> dict[str, Any] | None:
+    """Plain-data snapshot of a batched CartPole vector env, or None if we do not know its state."""
+    base = envs.unwrapped
+    fields: dict[str, Any] = {}
+    for name in _ENV_STATE_FIELDS:
+        value = getattr(base, name, None)
+        if isinstance(value, np.ndarray):
+            fields[name] = {"values": value.tolist(), "dtype": str(value.dtype), "shape": list(value.shape)}
+        elif isinstance(value, int | np.integer) and not isinstance(value, bool):
+            fields[name] = int(value)
+    if not any(isinstance(v, dict) for v in fields.values()) or not hasattr(base, "np_random"):
+        return None
+    return {"fields": fields, "np_random": base.np_random.bit_generator.state}
+
+
+def _restore_vector_env_state(envs: Any, snapshot: dict[str, Any] | None) -> bool:
+    if not snapshot:
+        return False
+    base = envs.unwrapped
+    for name, value in snapshot["fields"].items():
+        if isinstance(value, dict):
+            array = np.asarray(value["values"], dtype=value["dtype"]).reshape(value["shape"])
+            setattr(base, name, array)
+        else:
+            setattr(base, name, value)
+    base.np_random.bit_generator.state = snapshot["np_random"]
+    return True
+
+
+# ----------------------------------------------------------------------------------------------
+# 5. The greedy policy
+# ----------------------------------------------------------------------------------------------
+
+
+class QNetworkPolicy:
+    """Greedy policy of a Q-network: ``act`` = argmax of ``scores`` (the Q-values)."""
+
+    def __init__(self, q_net: QNetwork, device: str | torch.device = "cpu"):
+        self.q_net = q_net.eval()
+        self.device = torch.device(device)
+
+    def scores(self, observations: np.ndarray) -> np.ndarray:
+        """Q-values, shape [N, n_actions]."""
+        with torch.inference_mode():
+            obs = torch.as_tensor(np.asarray(observations, dtype=np.float32), device=self.device)
+            return self.q_net(obs).cpu().numpy()
+
+    def act(self, observations: np.ndarray) -> np.ndarray:
+        return self.scores(observations).argmax(axis=1)
+
+
+def policy_from_checkpoint(checkpoint: Checkpoint) -> QNetworkPolicy:
+    """Rebuild the greedy policy on CPU from a checkpoint's tensors."""
+    try:
+        config = build_config(DQNConfig, checkpoint.meta["config"])
+        data = checkpoint.meta["learner"]
+        q_net = QNetwork(int(data["obs_dim"]), int(data["n_actions"]), config)
+        q_net.load_state_dict(_with_prefix(checkpoint.tensors, "q_net."))
+    except (KeyError, RuntimeError, TypeError) as err:
+        raise CheckpointError(f"not a usable dqn checkpoint: {err!s:.120}") from err
+    return QNetworkPolicy(q_net, "cpu")
+
+
+def make_learner(config: DQNConfig, env: EnvInfo, seed: int, device: str) -> DQNLearner:
+    return DQNLearner(config, env, seed, device)
+
+
+AGENT = AgentSpec(
+    name="dqn",
+    summary="Deep Q-Network (PyTorch): double DQN, replay, target network, vectorized collection",
+    config_cls=DQNConfig,
+    make_learner=make_learner,
+    policy_from_checkpoint=policy_from_checkpoint,
+    iteration="step",
+)
+
+__all__ = ["AGENT", "DQNConfig", "DQNLearner", "QNetwork", "QNetworkPolicy", "td_targets"]
