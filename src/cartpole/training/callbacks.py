@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 from collections.abc import Callable
@@ -53,15 +54,11 @@ class EvalCallback(Callback):
 
     def __init__(self, env: EnvInfo, seed: int, settings: TrainSettings):
         self.env, self.seed, self.settings = env, seed, settings
-        self.last_eval_step = 0
-
-    def on_start(self, loop: TrainingLoop) -> None:
-        self.last_eval_step = loop.state.env_steps
 
     def on_step(self, loop: TrainingLoop, result: LearnResult) -> bool:
-        if loop.state.env_steps - self.last_eval_step < self.settings.eval_every:
+        if loop.state.env_steps - loop.state.last_eval_step < self.settings.eval_every:
             return True
-        self.last_eval_step = loop.state.env_steps
+        loop.state.last_eval_step = loop.state.env_steps
         return loop.record_eval(self.evaluate(loop))
 
     def on_end(self, loop: TrainingLoop) -> None:
@@ -69,8 +66,8 @@ class EvalCallback(Callback):
         reason = loop.state.stop_reason or ""
         if reason == "failed" or reason.startswith("interrupted"):
             return
-        if loop.state.evaluations == 0 or self.last_eval_step < loop.state.env_steps:
-            self.last_eval_step = loop.state.env_steps
+        if loop.state.evaluations == 0 or loop.state.last_eval_step < loop.state.env_steps:
+            loop.state.last_eval_step = loop.state.env_steps
             loop.record_eval(self.evaluate(loop))
 
     def evaluate(self, loop: TrainingLoop) -> EvalReport:
@@ -162,6 +159,11 @@ class CheckpointCallback(Callback):
         self.save(loop, "latest", resume=True)
 
 
+def finite(scalars: dict[str, float]) -> dict[str, float]:
+    """The scalars that JSON can hold: a NaN loss (no update yet) is left out, not written."""
+    return {k: float(v) for k, v in scalars.items() if math.isfinite(v)}
+
+
 class MetricsCallback(Callback):
     """Appends metric rows to ``metrics.jsonl`` and refreshes ``status.json`` every few seconds."""
 
@@ -188,14 +190,14 @@ class MetricsCallback(Callback):
         row = self.base_row(loop)
         row["train/episode_return"] = float(episode_return)
         row["train/episode_length"] = int(length)
-        row.update({k: float(v) for k, v in loop.state.scalars.items()})
+        row.update(finite(loop.state.scalars))
         self.pending.append(row)
         return True
 
     def on_step(self, loop: TrainingLoop, result: LearnResult) -> bool:
         if result.log_scalars:
             row = self.base_row(loop) | {"train/iteration": loop.state.iterations}
-            self.pending.append(row | {k: float(v) for k, v in result.scalars.items()})
+            self.pending.append(row | finite(result.scalars))
         now = time.perf_counter()
         if now - self.last_flush >= self.FLUSH_SECONDS:
             self.flush(loop, now)

@@ -67,6 +67,8 @@ class LoopState:
     elapsed: float = 0.0
     """Seconds of training so far, summed over resumed sessions."""
     evaluations: int = 0
+    last_eval_step: int = 0
+    """Env steps at the last evaluation, so a resumed run keeps the evaluation schedule."""
     best_eval_mean: float | None = None
     solved: bool = False
     solved_at_step: int | None = None
@@ -85,6 +87,7 @@ class LoopState:
             "env_steps",
             "episodes",
             "iterations",
+            "last_eval_step",
             "elapsed",
             "evaluations",
             "best_eval_mean",
