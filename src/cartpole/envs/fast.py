@@ -267,7 +267,33 @@ def step_cartpole(
     return np.ascontiguousarray(columns.T), terminated
 
 
-class CartPoleVectorEnv(VectorEnv[NDArray[np.float32], NDArray[np.int64], NDArray[Any]]):
+class _Physics:
+    """What both env forms share: the float type and the physics parameters, changeable live."""
+
+    _dtype: np.dtype[Any]
+    _params: CartPoleParams
+    _packed: Any
+    _kernels: Any
+
+    @property
+    def dtype(self) -> np.dtype[Any]:
+        """The simulation's float type (observations are float32 regardless)."""
+        return self._dtype
+
+    @property
+    def params(self) -> CartPoleParams:
+        """The physics in use; change it with :meth:`set_params`."""
+        return self._params
+
+    def set_params(self, params: CartPoleParams) -> None:
+        """Use ``params`` from the next step on (thresholds must stay: they define the spaces)."""
+        params = _check_params(params)
+        _check_same_thresholds(self._params, params)
+        self._params = params
+        self._packed = self._kernels.pack_params(params, self._dtype)
+
+
+class CartPoleVectorEnv(_Physics, VectorEnv[NDArray[np.float32], NDArray[np.int64], NDArray[Any]]):
     """``num_envs`` cart-poles stepped together; a drop-in for Gymnasium's CartPoleVectorEnv.
 
     Next-step autoreset, ``terminated`` and ``truncated`` kept apart, float32 observations; see the
@@ -330,26 +356,9 @@ class CartPoleVectorEnv(VectorEnv[NDArray[np.float32], NDArray[np.int64], NDArra
         self._low, self._high = DEFAULT_RESET_LOW, DEFAULT_RESET_HIGH
 
     @property
-    def dtype(self) -> np.dtype[Any]:
-        """The simulation's float type (observations are float32 regardless)."""
-        return self._dtype
-
-    @property
-    def params(self) -> CartPoleParams:
-        """The physics in use; change it with :meth:`set_params`."""
-        return self._params
-
-    @property
     def sutton_barto_reward(self) -> bool:
         """True for the 0 / -1 reward of Sutton and Barto, False for Gymnasium's +1 per step."""
         return self._sutton_barto_reward
-
-    def set_params(self, params: CartPoleParams) -> None:
-        """Use ``params`` from the next step on (thresholds must stay: they define the spaces)."""
-        params = _check_params(params)
-        _check_same_thresholds(self._params, params)
-        self._params = params
-        self._packed = self._kernels.pack_params(params, self._dtype)
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -475,7 +484,7 @@ class CartPoleVectorEnv(VectorEnv[NDArray[np.float32], NDArray[np.int64], NDArra
         return f"CartPoleVectorEnv({spec_id}, num_envs={self.num_envs}, dtype={self._dtype.name})"
 
 
-class CartPoleEnv(gym.Env[NDArray[np.float32], int]):
+class CartPoleEnv(_Physics, gym.Env[NDArray[np.float32], int]):
     """One cart-pole: Gymnasium's CartPoleEnv on the same kernel as :class:`CartPoleVectorEnv`.
 
     Passes ``gymnasium.utils.env_checker.check_env``; ``self.state`` can be read and assigned, and
@@ -511,23 +520,6 @@ class CartPoleEnv(gym.Env[NDArray[np.float32], int]):
         # The kernel is batched: one-element buffers for the push and the flag, reused every step.
         self._force = np.empty(1, dtype=self._dtype)
         self._terminated = np.empty(1, dtype=np.bool_)
-
-    @property
-    def dtype(self) -> np.dtype[Any]:
-        """The simulation's float type (observations are float32 regardless)."""
-        return self._dtype
-
-    @property
-    def params(self) -> CartPoleParams:
-        """The physics in use; change it with :meth:`set_params`."""
-        return self._params
-
-    def set_params(self, params: CartPoleParams) -> None:
-        """Use ``params`` from the next step on (thresholds must stay: they define the spaces)."""
-        params = _check_params(params)
-        _check_same_thresholds(self._params, params)
-        self._params = params
-        self._packed = self._kernels.pack_params(params, self._dtype)
 
     @property
     def state(self) -> NDArray[np.floating[Any]] | None:

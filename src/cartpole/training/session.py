@@ -83,74 +83,84 @@ def stop_on_signals(loop: TrainingLoop) -> Iterator[list[int]]:
             signal.signal(s, h)
 
 
-def make_callbacks(
-    run: RunDir,
-    spec: AgentSpec,
-    env: EnvInfo,
-    seed: int,
-    settings: TrainSettings,
-    budget: Budget,
-    meta: dict[str, Any],
-    quiet: bool,
-    tensorboard: bool = False,
-) -> list[Callback]:
+@dataclass(frozen=True)
+class RunSetup:
+    """Everything a run is trained with, rebuilt from its ``config.json`` (so a resume is the same)."""
+
+    run: RunDir
+    spec: AgentSpec
+    env: EnvInfo
+    seed: int
+    config: Any
+    settings: TrainSettings
+    budget: Budget
+    tensorboard: bool
+    meta: dict[str, Any]
+    """What every checkpoint of the run records about it."""
+
+    @classmethod
+    def from_record(cls, run: RunDir, record: dict[str, Any]) -> RunSetup:
+        spec = get_agent(record["agent"])
+        return cls(
+            run=run,
+            spec=spec,
+            env=env_info(record["env_id"]),
+            seed=record["seed"],
+            config=build_config(spec.config_cls, record["config"]),
+            settings=build_config(TrainSettings, record["settings"]),
+            budget=Budget.from_dict(record["budget"]),
+            tensorboard=bool(record.get("tensorboard", False)),
+            meta={k: record[k] for k in ("agent", "env_id", "seed", "preset", "config")},
+        )
+
+
+def make_callbacks(setup: RunSetup, quiet: bool) -> list[Callback]:
     """The standard callbacks, in the order they must see events."""
-    callbacks: list[Callback] = [BudgetCallback(budget), EvalCallback(env, seed, settings)]
+    run, settings = setup.run, setup.settings
+    callbacks: list[Callback] = [BudgetCallback(setup.budget), EvalCallback(setup.env, setup.seed, settings)]
     if settings.stop_when_solved:
         callbacks.append(StopWhenSolved())
     # Metrics before checkpoints: a step's rows are pending before ``latest`` is saved, which writes
     # them first, so a resume from ``latest`` continues the rows without a gap even after a kill -9.
     metrics = MetricsCallback(run)
-    callbacks += [metrics, CheckpointCallback(run, spec, meta, settings.checkpoint_every, metrics)]
-    if tensorboard:
+    callbacks += [
+        metrics,
+        CheckpointCallback(run, setup.spec, setup.meta, settings.checkpoint_every, metrics),
+    ]
+    if setup.tensorboard:
         callbacks.append(TensorBoardCallback(run, metrics))
     if not quiet:
-        callbacks.append(ProgressCallback(budget, spec.iteration))
+        callbacks.append(ProgressCallback(setup.budget, setup.spec.iteration))
     return callbacks
 
 
-def final_verdict(
-    run: RunDir, spec: AgentSpec, env: EnvInfo, seed: int, settings: TrainSettings
-) -> EvalReport:
+def final_verdict(setup: RunSetup) -> EvalReport:
     """Re-evaluate the kept best checkpoint on seeds no training or evaluation used: the verdict.
 
     The seeds follow from the run's seed, so the same run gives the same verdict; ``cartpole eval``
     judges it again on any other seeds.
     """
-    policy = spec.policy_from_checkpoint(load_checkpoint(run.checkpoint_path("best")))
+    run, settings = setup.run, setup.settings
+    policy = setup.spec.policy_from_checkpoint(load_checkpoint(run.checkpoint_path("best")))
     report = evaluate(
         policy,
-        env.env_id,
+        setup.env.env_id,
         max(settings.eval_episodes, MIN_EPISODES_FOR_SOLVED),
-        seed=final_eval_seed(seed),
+        seed=final_eval_seed(setup.seed),
         simulator=settings.eval_simulator,  # type: ignore[arg-type]
     )
     run.write_eval(report.to_dict())
     return report
 
 
-def run_loop(
-    run: RunDir,
-    spec: AgentSpec,
-    env: EnvInfo,
-    seed: int,
-    settings: TrainSettings,
-    budget: Budget,
-    learner: Any,
-    state: LoopState | None,
-    quiet: bool,
-    meta: dict[str, Any],
-    tensorboard: bool = False,
-) -> TrainOutcome:
+def run_loop(setup: RunSetup, learner: Any, state: LoopState | None, quiet: bool) -> TrainOutcome:
     """Drive the loop with the standard callbacks; compute the verdict unless interrupted."""
-    callbacks = make_callbacks(run, spec, env, seed, settings, budget, meta, quiet, tensorboard)
-    loop = TrainingLoop(learner, callbacks, state)
+    loop = TrainingLoop(learner, make_callbacks(setup, quiet), state)
     with stop_on_signals(loop) as received:
         loop.run()
     if received:
-        return TrainOutcome(run, loop.state, None, signal=received[0])
-    report = final_verdict(run, spec, env, seed, settings)
-    return TrainOutcome(run, loop.state, report)
+        return TrainOutcome(setup.run, loop.state, None, signal=received[0])
+    return TrainOutcome(setup.run, loop.state, final_verdict(setup))
 
 
 def train(
@@ -203,8 +213,7 @@ def train(
         "tensorboard": tensorboard,
     }
     run.write_config(record)
-    meta = {k: record[k] for k in ("agent", "env_id", "seed", "preset", "config")}
-    return run_loop(run, spec, env, seed, settings, budget, learner, None, quiet, meta, tensorboard)
+    return run_loop(RunSetup.from_record(run, record), learner, None, quiet)
 
 
 class AlreadyFinished(Exception):
@@ -226,17 +235,9 @@ def resume(run_path: Path | str, *, quiet: bool = True, device: str = "auto") ->
     checkpoint = load_checkpoint(latest)
     if not checkpoint.meta.get("resumable"):
         raise CheckpointError(f"{latest} is not a resumable checkpoint")
-    spec = get_agent(record["agent"])
-    env = env_info(record["env_id"])
-    config = build_config(spec.config_cls, record["config"])
-    settings = build_config(TrainSettings, record["settings"])
-    budget = Budget.from_dict(record["budget"])
-    learner = spec.make_learner(config, env, record["seed"], resolve_device(device))
+    setup = RunSetup.from_record(run, record)
+    learner = setup.spec.make_learner(setup.config, setup.env, setup.seed, resolve_device(device))
     learner.load_state_dict(checkpoint.tensors, checkpoint.meta["learner"])
     state = LoopState.from_dict(checkpoint.meta["loop"])
     run.truncate_metrics_after(state.env_steps)
-    meta = {k: record[k] for k in ("agent", "env_id", "seed", "preset", "config")}
-    tensorboard = bool(record.get("tensorboard", False))  # a resume logs where the run logged
-    return run_loop(
-        run, spec, env, record["seed"], settings, budget, learner, state, quiet, meta, tensorboard
-    )
+    return run_loop(setup, learner, state, quiet)
