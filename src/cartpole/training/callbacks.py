@@ -350,6 +350,7 @@ class ProgressCallback(Callback):
         return "  ".join(parts)
 
     def on_start(self, loop: TrainingLoop) -> None:
+        self.last_line = time.perf_counter()  # the first plain line comes after PLAIN_SECONDS
         if not self.stream.isatty():
             return
         from rich.console import Console
