@@ -9,7 +9,15 @@ import numpy as np
 import pytest
 import torch
 
-from cartpole.agents.dqn import AGENT, DQNConfig, DQNLearner, policy_from_checkpoint, td_targets
+from cartpole.agents.dqn import (
+    AGENT,
+    NUMPY_MAX_WORK,
+    DQNConfig,
+    DQNLearner,
+    QNetwork,
+    policy_from_checkpoint,
+    td_targets,
+)
 from cartpole.agents.registry import get_agent
 from cartpole.envs import env_info
 from cartpole.evaluation import ScoredPolicy
@@ -29,6 +37,104 @@ def small_config(**changes: object) -> DQNConfig:
 
 def flat_params(learner: DQNLearner) -> torch.Tensor:
     return torch.cat([p.detach().flatten() for p in learner.q_net.parameters()])
+
+
+def stored(learner: DQNLearner, field: str) -> np.ndarray:
+    """The written rows of one replay field, as a numpy array."""
+    return getattr(learner.buffer, field)[: len(learner.buffer)].cpu().numpy()
+
+
+# ----------------------------------------------------------------------------------------------
+# The Q-network: numpy greedy path against the torch forward
+# ----------------------------------------------------------------------------------------------
+
+
+def torch_q(net: QNetwork, observations: np.ndarray) -> np.ndarray:
+    with torch.no_grad():
+        return net(torch.from_numpy(observations)).numpy()
+
+
+@pytest.mark.parametrize("activation", ["relu", "tanh", "elu", "gelu"])
+@pytest.mark.parametrize(("dueling", "dropout"), [(False, 0.0), (True, 0.0), (False, 0.3), (True, 0.5)])
+def test_numpy_q_values_equal_the_torch_forward(activation: str, dueling: bool, dropout: float) -> None:
+    torch.manual_seed(0)
+    config = DQNConfig(hidden_sizes=(32, 16), activation=activation, dueling=dueling, dropout=dropout)
+    net = QNetwork(4, 3, config).eval()
+    for p in net.parameters():  # weights of a trained net's scale, so differences would show
+        p.data.normal_(0.0, 0.5)
+    rng = np.random.default_rng(0)
+    for n in (1, 4, 100, NUMPY_MAX_WORK // (32 * 16) + 1):  # the last one takes the torch path
+        observations = rng.normal(scale=2.0, size=(n, 4)).astype(np.float32)
+        q = net.q_values(observations)
+        assert q.shape == (n, 3) and q.dtype == np.float32
+        np.testing.assert_allclose(q, torch_q(net, observations), rtol=1e-5, atol=1e-5)
+    assert (net._numpy_plan() is None) == (activation == "gelu")  # numpy has no erf: torch runs it
+
+
+def test_numpy_q_values_follow_in_place_updates_and_copies() -> None:
+    learner = DQNLearner(small_config(learning_starts=0), CARTPOLE, seed=4, device="cpu")
+    observations = np.random.default_rng(1).normal(size=(5, 4)).astype(np.float32)
+    before = learner.q_net.q_values(observations)
+    snapshot = learner.policy()
+    for _ in range(20):  # optimizer steps update the parameters in place
+        learner.learn()
+    after = learner.q_net.q_values(observations)
+    assert not np.array_equal(before, after)
+    np.testing.assert_allclose(after, torch_q(learner.q_net, observations), rtol=1e-5, atol=1e-5)
+    np.testing.assert_array_equal(snapshot.scores(observations), before)  # the copy kept its weights
+    fresh = QNetwork(4, 2, small_config())
+    fresh.load_state_dict(learner.q_net.state_dict(), assign=True)  # new tensors: the cache must see it
+    fresh.eval()
+    np.testing.assert_allclose(fresh.q_values(observations), after, rtol=1e-6, atol=1e-6)
+
+
+def test_fast_optimizer_step_is_bitwise_torch_adam() -> None:
+    fast = DQNLearner(small_config(learning_starts=0), CARTPOLE, seed=5, device="cpu")
+    reference = DQNLearner(small_config(learning_starts=0), CARTPOLE, seed=5, device="cpu")
+    for _ in range(60):
+        fast.learn()
+        reference._adam_state = None  # forces optimizer.step() on every step
+        reference.learn()
+    assert fast.gradient_steps > 50
+    assert torch.equal(flat_params(fast), flat_params(reference))
+    steps = [s["step"] for s in fast.optimizer.state.values()]
+    assert all(int(step) == fast.gradient_steps for step in steps)
+
+
+def test_a_torch_that_refuses_the_direct_adam_call_falls_back_to_step(monkeypatch) -> None:
+    fast = DQNLearner(small_config(learning_starts=0), CARTPOLE, seed=5, device="cpu")
+    reference = DQNLearner(small_config(learning_starts=0), CARTPOLE, seed=5, device="cpu")
+    for _ in range(5):  # past the first step: the direct path is set up
+        fast.learn()
+        reference.learn()
+    real, calls = torch._fused_adam_, []
+
+    def refuse_once(*args, **kwargs):  # as if this torch named or shaped the op differently
+        calls.append(1)
+        if len(calls) == 1:
+            raise TypeError("unexpected keyword argument")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(torch, "_fused_adam_", refuse_once)
+    for _ in range(20):
+        fast.learn()
+        reference.learn()
+    assert fast._direct_adam_refused
+    assert torch.equal(flat_params(fast), flat_params(reference))
+
+
+def test_fast_optimizer_step_leaves_a_parameter_without_gradient_alone() -> None:
+    learner = DQNLearner(small_config(learning_starts=0), CARTPOLE, seed=5, device="cpu")
+    for _ in range(5):  # past the first step: the fast path is set up
+        learner.learn()
+    frozen, other = learner.parameters[0], learner.parameters[1]
+    before, other_before = frozen.detach().clone(), other.detach().clone()
+    for parameter in learner.parameters:
+        parameter.grad = torch.ones_like(parameter)
+    frozen.grad = None
+    learner.optimizer_step()
+    assert torch.equal(frozen, before)
+    assert not torch.equal(other, other_before)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -91,7 +197,7 @@ def test_collection_skips_autoreset_rows_and_keeps_truncation_bootstrappable() -
     learner.observations, _ = learner.envs.reset()
     results = [learner.learn() for _ in range(8)]
     buffer = learner.buffer
-    obs, next_obs = buffer.observations[: len(buffer)], buffer.next_observations[: len(buffer)]
+    obs, next_obs = stored(learner, "observations"), stored(learner, "next_observations")
     # no stored transition starts from a final state and ends in a reset state
     assert np.all(next_obs[:, 2] == obs[:, 2] + 1)
     assert np.all(next_obs[:, 1] == obs[:, 1])
@@ -99,8 +205,8 @@ def test_collection_skips_autoreset_rows_and_keeps_truncation_bootstrappable() -
     env0_end = (obs[:, 0] == 0) & (next_obs[:, 2] == 3)
     env1_end = (obs[:, 0] == 1) & (next_obs[:, 2] == 2)
     assert env0_end.any() and env1_end.any()
-    assert np.all(buffer.terminated[: len(buffer)][env0_end] == 0.0)
-    assert np.all(buffer.terminated[: len(buffer)][env1_end] == 1.0)
+    assert np.all(stored(learner, "terminated")[env0_end] == 0.0)
+    assert np.all(stored(learner, "terminated")[env1_end] == 1.0)
     # 8 calls x 2 envs = 16 rows minus the autoreset rows; episodes reported with raw returns
     assert sum(r.env_steps for r in results) == len(buffer) == learner.env_steps
     lengths = sorted(length for r in results for length in r.episode_lengths)
@@ -114,10 +220,9 @@ def test_reward_shaping_changes_stored_rewards_but_not_reported_returns() -> Non
     learner.envs = ScriptedVectorEnv()  # type: ignore[assignment]
     learner.observations, _ = learner.envs.reset()
     results = [learner.learn() for _ in range(8)]
-    size = len(learner.buffer)
-    terminal = learner.buffer.terminated[:size] == 1.0
-    assert np.all(learner.buffer.rewards[:size][terminal] == -10.0)
-    assert np.all(learner.buffer.rewards[:size][~terminal] == 1.0)  # truncation keeps its reward
+    terminal, rewards = stored(learner, "terminated") == 1.0, stored(learner, "rewards")
+    assert np.all(rewards[terminal] == -10.0)
+    assert np.all(rewards[~terminal] == 1.0)  # truncation keeps its reward
     assert sorted(ret for r in results for ret in r.episode_returns) == [2.0, 2.0, 2.0, 3.0, 3.0]
 
 
@@ -130,11 +235,11 @@ def test_short_episode_penalty() -> None:
     learner.observations, _ = learner.envs.reset()
     for _ in range(8):
         learner.learn()
-    size = len(learner.buffer)
-    obs, next_obs = learner.buffer.observations[:size], learner.buffer.next_observations[:size]
+    obs, next_obs = stored(learner, "observations"), stored(learner, "next_observations")
     ended_short = (obs[:, 0] == 1) & (next_obs[:, 2] == 2)  # env 1's episodes end at length 2 < 3
-    assert np.all(learner.buffer.rewards[:size][ended_short] == -1.0)
-    assert np.all(learner.buffer.rewards[:size][~ended_short] == 1.0)  # env 0 ends at 3: not short
+    rewards = stored(learner, "rewards")
+    assert np.all(rewards[ended_short] == -1.0)
+    assert np.all(rewards[~ended_short] == 1.0)  # env 0 ends at 3: not short
 
 
 # ----------------------------------------------------------------------------------------------
@@ -177,6 +282,7 @@ def test_resume_continues_exactly() -> None:
     for _ in range(80):
         a.learn()
     tensors, data = a.state_dict(resume=True)
+    assert tensors["rng.replay"].dtype == torch.uint8  # the replay sampler's generator state
     b = DQNLearner(config, CARTPOLE, seed=999, device="cpu")  # another seed: everything must be restored
     b.load_state_dict({k: v.clone() for k, v in tensors.items()}, data)
     results_a = [a.learn() for _ in range(80)]

@@ -22,7 +22,9 @@ pytestmark = [
     pytest.mark.skipif(not Path(CHROMIUM).exists(), reason=f"browser tests need Chromium at {CHROMIUM}"),
 ]
 playwright_api = pytest.importorskip("playwright.sync_api", reason="browser tests need playwright (pip)")
-uvicorn = pytest.importorskip("uvicorn", reason="the web app needs uvicorn (a dependency of cartpole: reinstall it)")
+uvicorn = pytest.importorskip(
+    "uvicorn", reason="the web app needs uvicorn (a dependency of cartpole: reinstall it)"
+)
 
 from cartpole.web.app import create_app  # noqa: E402
 

@@ -83,11 +83,11 @@ class DQNConfig:
     """Minibatch size of a gradient step (smaller while the memory holds fewer rows)."""
     learning_starts: int = 1000
     """Env steps collected before the first gradient step."""
-    num_envs: int = 4
+    num_envs: int = 8
     """Vector envs stepped together; one learn() call collects one transition from each."""
     train_freq: int = 1
     """learn() calls (batched env steps) between training rounds."""
-    gradient_steps: int = 1
+    gradient_steps: int = 2
     """Gradient steps per training round."""
     # exploration
     epsilon_schedule: str = "linear"
@@ -150,7 +150,13 @@ class DQNConfig:
 
 
 class QNetwork(nn.Module):
-    """MLP from observations to one Q-value per action."""
+    """MLP from observations to one Q-value per action.
+
+    ``forward`` is the torch computation (training, and big or non-CPU batches); ``q_values`` is the
+    greedy-time entry point for numpy observations, which on CPU evaluates the *same* parameters with
+    numpy when the batch is small (acting in a few envs, evaluation, the web app's one observation per
+    request): there torch's ~4 us per op is most of the cost, and numpy's is ~1 us.
+    """
 
     def __init__(self, obs_dim: int, n_actions: int, config: DQNConfig):
         super().__init__()
@@ -165,13 +171,94 @@ class QNetwork(nn.Module):
         self.dueling = config.dueling
         self.head = nn.Linear(width, n_actions)
         self.value = nn.Linear(width, 1) if config.dueling else None
+        self._linears = [m for m in self.modules() if isinstance(m, nn.Linear)]
+        self._widest_layer = max(m.weight.numel() for m in self._linears)
+        self._numpy_cache: tuple[tuple[int, ...], list[Any] | None] | None = None
 
     def forward(self, observations: torch.Tensor) -> torch.Tensor:
-        features = self.body(observations)
-        q = self.head(features)
+        # module.forward(x), not module(x): nn.Module.__call__'s hook handling costs more than a
+        # 64x64 layer's matmul here (no hooks are used on the layers).
+        features = observations
+        for module in self.body:
+            features = module.forward(features)
+        q = self.head.forward(features)
         if self.value is not None:  # dueling: the head gives advantages
-            q = self.value(features) + q - q.mean(dim=1, keepdim=True)
+            q = self.value.forward(features) + q - q.mean(dim=1, keepdim=True)
         return q
+
+    def q_values(self, observations: np.ndarray) -> np.ndarray:
+        """Q-values [N, n_actions] of numpy observations, without autograd (eval mode: no dropout)."""
+        observations = np.asarray(observations, dtype=np.float32)
+        plan = None if self.training else self._numpy_plan()
+        if plan is None or len(observations) * self._widest_layer > NUMPY_MAX_WORK:
+            device = self.head.weight.device
+            with torch.inference_mode():
+                return self.forward(torch.as_tensor(observations, device=device)).cpu().numpy()
+        features = observations
+        for step in plan:
+            if isinstance(step, tuple):  # a linear layer: x W^T + b
+                features = features @ step[0]
+                features += step[1]
+            else:
+                features = step(features)
+        return features
+
+    def _numpy_plan(self) -> list[Any] | None:
+        """The layers as numpy steps over views of the parameters (no copies), or None when numpy
+        cannot run this net (not on CPU, not float32, or an activation numpy lacks)."""
+        tensors = [t for layer in self._linears for t in (layer.weight, layer.bias)]
+        # A parameter's memory only changes by replacement (.to(), deepcopy, assign=True loads), which
+        # changes its address; in-place updates (optimizer, target lerp, load_state_dict) keep the
+        # views current. The views keep the memory alive, so an address is never reused meanwhile.
+        key = tuple(t.data_ptr() for t in tensors)
+        if self._numpy_cache is None or self._numpy_cache[0] != key:
+            usable = all(t.device.type == "cpu" and t.dtype == torch.float32 for t in tensors)
+            self._numpy_cache = (key, self._build_numpy_plan() if usable else None)
+        return self._numpy_cache[1]
+
+    def _build_numpy_plan(self) -> list[Any] | None:
+        def affine(layer: nn.Linear) -> tuple[np.ndarray, np.ndarray]:
+            return layer.weight.detach().numpy().T, layer.bias.detach().numpy()
+
+        plan: list[Any] = []
+        for module in self.body:
+            if isinstance(module, nn.Linear):
+                plan.append(affine(module))
+            elif isinstance(module, nn.Dropout):
+                continue  # identity in eval mode
+            elif type(module) in NUMPY_ACTIVATIONS:
+                plan.append(NUMPY_ACTIVATIONS[type(module)])
+            else:
+                return None
+        head = affine(self.head)
+        if self.value is None:
+            return [*plan, head]
+        value = affine(self.value)
+
+        def dueling(features: np.ndarray) -> np.ndarray:
+            advantages = features @ head[0] + head[1]
+            return (features @ value[0] + value[1]) + advantages - advantages.mean(axis=1, keepdims=True)
+
+        return [*plan, dueling]
+
+
+def _relu(x: np.ndarray) -> np.ndarray:
+    return np.maximum(x, 0.0, out=x)
+
+
+def _tanh(x: np.ndarray) -> np.ndarray:
+    return np.tanh(x, out=x)
+
+
+def _elu(x: np.ndarray) -> np.ndarray:
+    return np.where(x > 0.0, x, np.expm1(np.minimum(x, 0.0)))
+
+
+NUMPY_ACTIVATIONS: dict[type[nn.Module], Any] = {nn.ReLU: _relu, nn.Tanh: _tanh, nn.ELU: _elu}
+"""Activations with a numpy twin for ``QNetwork.q_values`` (GELU needs erf: it stays on torch)."""
+NUMPY_MAX_WORK = 100 * 64 * 64
+"""Largest rows x (widest layer's weights) ``q_values`` computes with numpy: beyond ~100 rows of a
+64x64 layer OpenBLAS starts a second thread (more CPU, not less), and torch is as fast there."""
 
 
 # ----------------------------------------------------------------------------------------------
@@ -228,9 +315,17 @@ class DQNLearner:
         self.q_net = QNetwork(env.obs_dim, env.n_actions, config).to(self.device).eval()
         self.target_net = copy.deepcopy(self.q_net) if config.target_network else None
         self.parameters = list(self.q_net.parameters())
+        self.target_parameters = list(self.target_net.parameters()) if self.target_net is not None else []
         # The fused kernel is the fastest Adam on CPU and GPU for small nets.
         self.optimizer = torch.optim.Adam(self.parameters, lr=config.lr, fused=True)
+        self._adam_state: tuple[list[torch.Tensor], ...] | None = None
+        """The optimizer's state tensors, once it has some (see ``optimizer_step``)."""
+        self._direct_adam_refused = False
+        """True once this torch refused the direct fused-Adam call: ``optimizer.step()`` from then on."""
         self.buffer = ReplayBuffer(config.buffer_size, env.obs_dim, self.device)
+        self.replay_generator = torch.Generator(self.device)
+        """Draws the replay minibatches (on the learner's device); seeded apart from the other streams."""
+        self.replay_generator.manual_seed(_derived_seed(seed, "replay"))
         self.envs = make_training_envs(env.env_id, config.num_envs, config.simulator)
         self.observations, _ = self.envs.reset(seed=seed)
         n = config.num_envs
@@ -258,10 +353,7 @@ class DQNLearner:
         explore = self.rng.random(n) < epsilon
         actions = self.rng.integers(0, self.env_info.n_actions, size=n)
         if not explore.all():
-            with torch.inference_mode():
-                q = self.q_net(torch.from_numpy(observations).to(self.device))
-                greedy = q.argmax(dim=1).cpu().numpy()
-            actions = np.where(explore, actions, greedy)
+            actions = np.where(explore, actions, self.q_net.q_values(observations).argmax(axis=1))
         return actions
 
     # -- one learn() call --------------------------------------------------------------------
@@ -331,7 +423,7 @@ class DQNLearner:
     def gradient_step(self) -> tuple[torch.Tensor, torch.Tensor]:
         """One update of the online net; returns its loss and Q-values (tensors: no sync here)."""
         config = self.config
-        batch = self.buffer.sample(min(config.batch_size, len(self.buffer)), self.rng)
+        batch = self.buffer.sample(min(config.batch_size, len(self.buffer)), self.replay_generator)
         if self.use_dropout:
             self.q_net.train()
         q_all = self.q_net(batch.observations)
@@ -348,11 +440,12 @@ class DQNLearner:
             targets = td_targets(batch.rewards, batch.terminated, next_q_target, next_q_online, config.gamma)
         q = q_all.gather(1, batch.actions.unsqueeze(1)).squeeze(1)
         loss = F.smooth_l1_loss(q, targets) if config.loss == "huber" else F.mse_loss(q, targets)
-        self.optimizer.zero_grad(set_to_none=True)
+        for parameter in self.parameters:  # = optimizer.zero_grad(), without its ~40 us of wrapper
+            parameter.grad = None
         loss.backward()
         if config.max_grad_norm is not None:
             nn.utils.clip_grad_norm_(self.parameters, config.max_grad_norm)
-        self.optimizer.step()
+        self.optimizer_step()
         self.gradient_steps += 1
         if self.target_net is not None and self.gradient_steps % config.target_update_interval == 0:
             self.update_target()
@@ -362,10 +455,42 @@ class DQNLearner:
             )
         return loss.detach(), q.detach()
 
+    def optimizer_step(self) -> None:
+        """``self.optimizer.step()``: the same fused Adam kernel, called without the Optimizer wrapper.
+
+        The wrapper (hooks, profiler scopes, regrouping the tensors by device on every call) costs ~5x
+        the kernel for a net this small. The first step after construction or a load goes through
+        ``step()`` itself, which creates (or checks) the state tensors this then reuses; the result
+        is bitwise the same (tested).
+        """
+        grads = [p.grad for p in self.parameters]
+        if self._adam_state is None or self._direct_adam_refused or any(g is None for g in grads):
+            self.optimizer.step()  # also the one that knows to skip a parameter without a gradient
+            states = [self.optimizer.state[p] for p in self.parameters]
+            if all("exp_avg" in state for state in states):
+                keys = ("exp_avg", "exp_avg_sq", "step")
+                self._adam_state = tuple([state[k] for state in states] for k in keys)
+            return
+        exp_avgs, exp_avg_sqs, steps = self._adam_state
+        group = self.optimizer.param_groups[0]
+        beta1, beta2 = group["betas"]
+        torch._foreach_add_(steps, 1)
+        try:
+            torch._fused_adam_(
+                self.parameters, grads, exp_avgs, exp_avg_sqs, [], steps,
+                lr=group["lr"], beta1=beta1, beta2=beta2, weight_decay=group["weight_decay"],
+                eps=group["eps"], amsgrad=False, maximize=False,
+            )  # fmt: skip
+        except (AttributeError, TypeError, RuntimeError):
+            # A private op: if another torch version names or shapes it differently, use the
+            # public path from now on (the kernel refused before touching any tensor).
+            torch._foreach_sub_(steps, 1)
+            self._direct_adam_refused = True
+            self.optimizer.step()
+
     @torch.no_grad()
     def update_target(self) -> None:
-        assert self.target_net is not None
-        online, target = self.parameters, list(self.target_net.parameters())
+        online, target = self.parameters, self.target_parameters
         if self.config.tau >= 1.0:
             torch._foreach_copy_(target, online)
         else:
@@ -390,6 +515,7 @@ class DQNLearner:
         replay_tensors, replay_data = self.buffer.state_dict()
         tensors |= {f"replay.{k}": v for k, v in replay_tensors.items()}
         tensors["rng.torch"] = torch.get_rng_state()
+        tensors["rng.replay"] = self.replay_generator.get_state()
         tensors["envs.observations"] = torch.from_numpy(np.asarray(self.observations, dtype=np.float32))
         data |= {
             "optim_param_groups": optim["param_groups"],
@@ -419,8 +545,11 @@ class DQNLearner:
             index, name = key.split(".", 1)
             state.setdefault(int(index), {})[name] = value
         self.optimizer.load_state_dict({"state": state, "param_groups": data["optim_param_groups"]})
+        self._adam_state = None  # the load made new state tensors
         self.buffer.load_state_dict(_with_prefix(tensors, "replay."), data["replay"])
         torch.set_rng_state(tensors["rng.torch"])
+        if "rng.replay" in tensors:  # absent from checkpoints older than the torch-sampled replay
+            self.replay_generator.set_state(tensors["rng.replay"])
         self.rng.bit_generator.state = data["rng_numpy"]
         self.env_steps, self.calls = int(data["env_steps"]), int(data["calls"])
         self.gradient_steps = int(data["gradient_steps"])
@@ -448,6 +577,12 @@ def make_training_envs(env_id: str, num_envs: int, simulator: str) -> Any:
         if simulator != "fast" or "cartpole.envs.fast" not in str(err):
             raise
         return make_vec_env(env_id, num_envs, simulator="gymnasium")
+
+
+def _derived_seed(seed: int, stream: str) -> int:
+    """A seed for one named random stream of a run, independent of the run seed's other uses."""
+    words = np.random.SeedSequence([seed, *stream.encode()]).generate_state(2, dtype=np.uint32)
+    return int(words[0]) << 32 | int(words[1])
 
 
 def _with_prefix(tensors: dict[str, torch.Tensor], prefix: str) -> dict[str, torch.Tensor]:
@@ -502,9 +637,7 @@ class QNetworkPolicy:
 
     def scores(self, observations: np.ndarray) -> np.ndarray:
         """Q-values, shape [N, n_actions]."""
-        with torch.inference_mode():
-            obs = torch.as_tensor(np.asarray(observations, dtype=np.float32), device=self.device)
-            return self.q_net(obs).cpu().numpy()
+        return self.q_net.q_values(observations)
 
     def act(self, observations: np.ndarray) -> np.ndarray:
         return self.scores(observations).argmax(axis=1)
