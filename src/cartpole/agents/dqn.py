@@ -591,35 +591,33 @@ def _with_prefix(tensors: dict[str, torch.Tensor], prefix: str) -> dict[str, tor
 
 # The per-env state of the batched CartPole vector envs: Gymnasium's CartPoleVectorEnv (public names)
 # and our fast simulator (private names). Other vector envs restart their episodes on resume.
-_ENV_STATE_FIELDS = ("state", "steps", "prev_done", "_state", "_steps", "_done_idx", "_n_done")
+_GYMNASIUM_CARTPOLE_FIELDS = ("state", "steps", "prev_done")
+"""The public state of Gymnasium's CartPoleVectorEnv (our fast simulator has ``snapshot()``)."""
 
 
 def _vector_env_state(envs: Any) -> dict[str, Any] | None:
     """Plain-data snapshot of a batched CartPole vector env, or None if we do not know its state."""
     base = envs.unwrapped
-    fields: dict[str, Any] = {}
-    for name in _ENV_STATE_FIELDS:
-        value = getattr(base, name, None)
-        if isinstance(value, np.ndarray):
-            fields[name] = {"values": value.tolist(), "dtype": str(value.dtype), "shape": list(value.shape)}
-        elif isinstance(value, int | np.integer) and not isinstance(value, bool):
-            fields[name] = int(value)
-    if not any(isinstance(v, dict) for v in fields.values()) or not hasattr(base, "np_random"):
+    if hasattr(base, "snapshot"):  # our fast simulator
+        return {"snapshot": base.snapshot()}
+    fields = {name: getattr(base, name, None) for name in _GYMNASIUM_CARTPOLE_FIELDS}
+    if not all(isinstance(v, np.ndarray) for v in fields.values()):
         return None
-    return {"fields": fields, "np_random": base.np_random.bit_generator.state}
+    arrays = {k: {"values": v.tolist(), "dtype": str(v.dtype)} for k, v in fields.items()}
+    return {"fields": arrays, "np_random": base.np_random.bit_generator.state}
 
 
-def _restore_vector_env_state(envs: Any, snapshot: dict[str, Any] | None) -> bool:
-    if not snapshot:
+def _restore_vector_env_state(envs: Any, saved: dict[str, Any] | None) -> bool:
+    """Put a vector env back where :func:`_vector_env_state` found it; False if it cannot."""
+    if not saved:
         return False
     base = envs.unwrapped
-    for name, value in snapshot["fields"].items():
-        if isinstance(value, dict):
-            array = np.asarray(value["values"], dtype=value["dtype"]).reshape(value["shape"])
-            setattr(base, name, array)
-        else:
-            setattr(base, name, value)
-    base.np_random.bit_generator.state = snapshot["np_random"]
+    if "snapshot" in saved:
+        base.restore(saved["snapshot"])
+        return True
+    for name, value in saved["fields"].items():
+        setattr(base, name, np.asarray(value["values"], dtype=value["dtype"]))
+    base.np_random.bit_generator.state = saved["np_random"]
     return True
 
 
