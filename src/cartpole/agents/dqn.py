@@ -186,10 +186,15 @@ class QNetwork(nn.Module):
             q = self.value.forward(features) + q - q.mean(dim=1, keepdim=True)
         return q
 
-    def q_values(self, observations: np.ndarray) -> np.ndarray:
-        """Q-values [N, n_actions] of numpy observations, without autograd (eval mode: no dropout)."""
+    def q_values(self, observations: np.ndarray, plan: list[Any] | None = None) -> np.ndarray:
+        """Q-values [N, n_actions] of numpy observations, without autograd (eval mode: no dropout).
+
+        ``plan`` is a numpy plan the caller knows to be current (a frozen policy keeps one); by
+        default it is looked up, which checks that the parameters were not replaced.
+        """
         observations = np.asarray(observations, dtype=np.float32)
-        plan = None if self.training else self._numpy_plan()
+        if plan is None and not self.training:
+            plan = self._numpy_plan()
         if plan is None or len(observations) * self._widest_layer > NUMPY_MAX_WORK:
             device = self.head.weight.device
             with torch.inference_mode():
@@ -632,10 +637,13 @@ class QNetworkPolicy:
     def __init__(self, q_net: QNetwork, device: str | torch.device = "cpu"):
         self.q_net = q_net.eval()
         self.device = torch.device(device)
+        # The net is a frozen copy: its numpy plan, built once, stays current (the web app asks
+        # for one observation at a time, where checking the plan would cost as much as using it).
+        self._plan = q_net._numpy_plan()
 
     def scores(self, observations: np.ndarray) -> np.ndarray:
         """Q-values, shape [N, n_actions]."""
-        return self.q_net.q_values(observations)
+        return self.q_net.q_values(observations, self._plan)
 
     def act(self, observations: np.ndarray) -> np.ndarray:
         return self.scores(observations).argmax(axis=1)
