@@ -230,7 +230,11 @@ def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
 def print_table(groups: dict[tuple[str, str], list[dict[str, Any]]], file: Any = sys.stdout) -> None:
     def num(value: float, spec: str) -> str:
-        return "never" if value == float("inf") else format(value, spec)
+        if value == float("inf"):
+            return "never"
+        if spec == ".1f" and value < 1:  # sub-second solves (the linear agents) need two digits
+            spec = ".2f"
+        return format(value, spec)
 
     header = ("| agent | preset | verified solves (final) | solved in training | median CPU s to solve "
               "| worst CPU s | median wall s | median env steps to solve | worst env steps "
