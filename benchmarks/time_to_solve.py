@@ -26,6 +26,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 ALL_AGENTS = ("random-search", "hill-climbing", "cem", "dqn")
@@ -257,9 +258,22 @@ def print_table(groups: dict[tuple[str, str], list[dict[str, Any]]], file: Any =
 # ----------------------------------------------------------------------------------------------
 
 
-def run_in_subprocess(task: dict[str, Any]) -> dict[str, Any]:
-    """Run one measurement in a fresh interpreter; return its JSON result."""
-    env = os.environ | {"PYTHONHASHSEED": "0"}
+def print_run(result: dict[str, Any]) -> None:
+    print(
+        f"  {result['agent']:>14} {result['preset']:<17} seed {result['seed']:>2}: "
+        f"solve at {_fmt(result['solve_steps'], ',')} steps, {_fmt(result['solve_cpu'], '.1f')} s CPU; "
+        f"final {result['final_mean']:.1f} ({result['stop_reason']})",
+        file=sys.stderr, flush=True,
+    )  # fmt: skip
+
+
+def run_in_subprocess(task: dict[str, Any], one_thread: bool = False) -> dict[str, Any]:
+    """Run one measurement in a fresh interpreter; return its JSON result.
+
+    ``one_thread`` caps torch's threads at one for presets that leave torch its default (used when
+    several runs share the machine).
+    """
+    env = os.environ | {"PYTHONHASHSEED": "0"} | ({"OMP_NUM_THREADS": "1"} if one_thread else {})
     proc = subprocess.run(
         [sys.executable, __file__, "--one", json.dumps(task)],
         capture_output=True, text=True, env=env, check=False,
@@ -283,7 +297,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sb3-steps", type=int, default=100_000, help="SB3's env-step budget")
     parser.add_argument("--sb3-eval-every", type=int, default=None,
                         help="SB3 evaluation cadence, env steps (default: dqn default preset's)")  # fmt: skip
-    parser.add_argument("--json", default=None, help="also write every run's measurements here")
+    parser.add_argument("--jobs", type=int, default=1,
+                        help="runs at once (one torch thread each); CPU s include contention")  # fmt: skip
+    parser.add_argument("--json", default=None,
+                        help="also write every run's measurements here (after each run)")  # fmt: skip
     parser.add_argument("--one", default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
 
@@ -326,21 +343,21 @@ def main(argv: list[str] | None = None) -> int:
 
     print(f"# time_to_solve: {args.env}, {len(tasks)} runs, {platform.processor() or platform.machine()}, "
           f"{os.cpu_count()} CPUs, python {platform.python_version()}", file=sys.stderr)  # fmt: skip
+    if args.jobs > 1:
+        print(f"# {args.jobs} runs at once, one torch thread each: CPU seconds include their contention",
+              file=sys.stderr)  # fmt: skip
     groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
     results = []
-    for task in tasks:
-        result = run_in_subprocess(task)
-        results.append(result)
-        groups.setdefault((result["agent"], result["preset"]), []).append(result)
-        print(
-            f"  {result['agent']:>14} {result['preset']:<17} seed {result['seed']:>2}: "
-            f"solve at {_fmt(result['solve_steps'], ',')} steps, {_fmt(result['solve_cpu'], '.1f')} s CPU; "
-            f"final {result['final_mean']:.1f} ({result['stop_reason']})",
-            file=sys.stderr, flush=True,
-        )  # fmt: skip
-    if args.json:
-        with open(args.json, "w") as handle:
-            json.dump(results, handle, indent=1)
+    with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
+        futures = [pool.submit(run_in_subprocess, task, args.jobs > 1) for task in tasks]
+        for future in futures:  # in task order, so the table's rows do not depend on timing
+            result = future.result()
+            results.append(result)
+            groups.setdefault((result["agent"], result["preset"]), []).append(result)
+            print_run(result)
+            if args.json:
+                with open(args.json, "w") as handle:
+                    json.dump(results, handle, indent=1)
     print_table(groups)
     return 0
 

@@ -25,8 +25,20 @@ def generator(seed: int) -> torch.Generator:
 def test_storage_is_preallocated_tensors_on_the_device() -> None:
     buffer = ReplayBuffer(10, 3)
     assert buffer.observations.shape == (10, 3) and buffer.observations.dtype == torch.float32
-    assert buffer.actions.shape == (10,) and buffer.actions.dtype == torch.int64
+    assert buffer.table.shape == (10, 2 * 3 + 3)  # one row per transition: all fields side by side
+    assert all(getattr(buffer, name).data_ptr() >= buffer.table.data_ptr() for name in FIELDS)
     assert all(getattr(buffer, name).device == torch.device("cpu") for name in FIELDS)
+
+
+def test_batches_have_the_documented_dtypes_and_shapes() -> None:
+    buffer = ReplayBuffer(10, 3)
+    buffer.add(*rows(0, 6))
+    batch = buffer.sample(5, generator(0))
+    assert batch.observations.shape == batch.next_observations.shape == (5, 3)
+    assert batch.actions.shape == (5,) and batch.actions.dtype == torch.int64
+    for name in ("observations", "rewards", "next_observations", "terminated"):
+        assert getattr(batch, name).dtype == torch.float32
+    np.testing.assert_array_equal(batch.actions.numpy(), batch.rewards.numpy())  # same row, same index
 
 
 def test_add_keeps_rows_in_order_until_full() -> None:

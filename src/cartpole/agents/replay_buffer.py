@@ -2,10 +2,11 @@
 
 One buffer for every off-policy agent. Rows live in tensors on the learner's device, written in place
 (no Python objects per transition); the oldest rows are overwritten once ``capacity`` is reached, and
-``sample`` only ever returns rows that were written. A sample is one ``torch.randint`` (from the
-caller's ``torch.Generator``) and one ``index_select`` per field: no host-to-device copy per gradient
-step. ``terminated`` is stored apart from truncation: a transition whose episode was cut by the time
-limit is stored with ``terminated=False``, so its target bootstraps from the next state.
+``sample`` only ever returns rows that were written. All fields of a transition share one row of a
+single float32 table, so a sample is one ``torch.randint`` (from the caller's ``torch.Generator``) and
+one ``index_select``, whose columns are the batch's fields: no host-to-device copy per gradient step.
+``terminated`` is stored apart from truncation: a transition whose episode was cut by the time limit
+is stored with ``terminated=False``, so its target bootstraps from the next state.
 """
 
 from __future__ import annotations
@@ -43,11 +44,15 @@ class ReplayBuffer:
         self.capacity = int(capacity)
         self.obs_dim = int(obs_dim)
         self.device = torch.device(device)
-        self.observations = torch.zeros((capacity, obs_dim), dtype=torch.float32, device=self.device)
-        self.actions = torch.zeros(capacity, dtype=torch.int64, device=self.device)
-        self.rewards = torch.zeros(capacity, dtype=torch.float32, device=self.device)
-        self.next_observations = torch.zeros((capacity, obs_dim), dtype=torch.float32, device=self.device)
-        self.terminated = torch.zeros(capacity, dtype=torch.float32, device=self.device)
+        # One row per transition: obs | next_obs | action | reward | terminated. Actions are stored as
+        # float32, exact for any discrete action index below 2**24.
+        d = self.obs_dim
+        self.table = torch.zeros((capacity, 2 * d + 3), dtype=torch.float32, device=self.device)
+        self.observations = self.table[:, :d]
+        self.next_observations = self.table[:, d : 2 * d]
+        self.actions = self.table[:, 2 * d]
+        self.rewards = self.table[:, 2 * d + 1]
+        self.terminated = self.table[:, 2 * d + 2]
         # On CPU, rows are written through numpy views of the same memory: a numpy fancy-index write
         # costs ~1/3 of torch's for the few rows of one env step.
         self._host_views = (
@@ -98,17 +103,20 @@ class ReplayBuffer:
         if self.size == 0:
             raise ValueError("cannot sample from an empty replay buffer")
         rows = torch.randint(0, self.size, (batch_size,), generator=generator, device=self.device)
+        sampled = self.table.index_select(0, rows)
+        d = self.obs_dim
         return Batch(
-            self.observations.index_select(0, rows),
-            self.actions.index_select(0, rows),
-            self.rewards.index_select(0, rows),
-            self.next_observations.index_select(0, rows),
-            self.terminated.index_select(0, rows),
+            sampled[:, :d],
+            sampled[:, 2 * d].long(),
+            sampled[:, 2 * d + 1],
+            sampled[:, d : 2 * d],
+            sampled[:, 2 * d + 2],
         )
 
     def state_dict(self) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
         """The written rows as CPU tensors, and the write position as plain data (for exact resume)."""
         tensors = {name: getattr(self, name)[: self.size].to("cpu", copy=True) for name in _FIELDS}
+        tensors["actions"] = tensors["actions"].long()  # int64, as the batches give them
         return tensors, {"capacity": self.capacity, "pos": self.pos, "size": self.size}
 
     def load_state_dict(self, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None:
