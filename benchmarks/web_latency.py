@@ -149,7 +149,8 @@ def main() -> None:
 
 def print_table(rows: list[tuple[str, int, list[float], float | None]], pace_ms: float) -> None:
     machine = platform.processor() or platform.machine()
-    print(f"cartpole web latency on {platform.node()} ({machine}, {os.cpu_count()} CPUs), localhost")
+    load = f", load average {os.getloadavg()[0]:.2f}" if hasattr(os, "getloadavg") else ""
+    print(f"cartpole web latency on {platform.node()} ({machine}, {os.cpu_count()} CPUs{load}), localhost")
     header = f"{'measure':<38} {'n':>6} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} {'target':>10}"
     print(header)
     print("-" * len(header))

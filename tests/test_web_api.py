@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -16,9 +18,11 @@ from fastapi.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
 
 from cartpole.agents.registry import load_policy
-from cartpole.evaluation import evaluate, start_states
+from cartpole.envs.fast import CartPoleEnv, CartPoleParams
+from cartpole.evaluation import Policy, evaluate, start_states
 from cartpole.runs import RunDir
 from cartpole.web.app import create_app
+from cartpole.web.episodes import sim_limits
 
 sys.path.insert(0, str(Path(__file__).parent))
 from conftest_web import WebRuns, make_dqn_run, make_web_runs
@@ -32,6 +36,13 @@ def web_runs(tmp_path_factory: pytest.TempPathFactory) -> WebRuns:
 @pytest.fixture(scope="module")
 def client(web_runs: WebRuns) -> TestClient:
     return TestClient(create_app(web_runs.root))
+
+
+@pytest.fixture(scope="module")
+def dqn_runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
+    """A runs folder with one small DQN run, and that run's name."""
+    root = tmp_path_factory.mktemp("dqn")
+    return root, make_dqn_run(root)
 
 
 def episode_url(run: str, checkpoint: str = "best") -> str:
@@ -80,6 +91,14 @@ def test_corrupt_and_half_written_runs_are_described(client: TestClient, web_run
     assert corrupt.json()["config"] is None
     incomplete = client.get(f"/api/runs/{web_runs.incomplete}/metrics")
     assert incomplete.json()["rows"] == [{"step": 1, "episode": 0, "time": 0.1}]  # half line left out
+
+
+def test_a_corrupt_runs_problem_names_its_file_inside_the_runs_folder(client: TestClient, web_runs: WebRuns):
+    listed = {row["name"]: row for row in client.get("/api/runs").json()["runs"]}[web_runs.corrupt]
+    detail = client.get(f"/api/runs/{web_runs.corrupt}").json()
+    for problem in (listed["problem"], detail["problem"]):
+        assert problem.startswith(f"{Path(web_runs.corrupt, 'config.json')} is unreadable: ")
+        assert str(web_runs.root) not in problem
 
 
 def test_metrics_offset_returns_only_newer_rows(client: TestClient, web_runs: WebRuns):
@@ -141,11 +160,91 @@ def test_physics_overrides_and_nudges_change_the_trajectory(client: TestClient, 
     assert len(two.json()["nudges"]) == 2
 
 
-def test_dqn_episode_shows_q_values(tmp_path: Path):
-    name = make_dqn_run(tmp_path)
-    body = TestClient(create_app(tmp_path)).get(episode_url(name, "latest"), params={"seed": 1}).json()
+def test_dqn_episode_shows_q_values(dqn_runs: tuple[Path, str]):
+    root, name = dqn_runs
+    body = TestClient(create_app(root)).get(episode_url(name, "latest"), params={"seed": 1}).json()
     assert body["agent"] == "dqn" and body["score_label"] == "Q-values"
     assert len(body["scores"]) == body["length"] and len(body["scores"][0]) == 2
+
+
+def reference_episode(
+    policy: Policy, seed: int, physics: dict[str, float], nudges: dict[int, float]
+) -> dict[str, Any]:
+    """The episode the plain way: our single env stepped one action at a time, the time limit by hand."""
+    env = CartPoleEnv(params=replace(CartPoleParams(), **physics))
+    env.state = start_states("CartPole-v1", [seed])[0]
+    states: list[list[float]] = []
+    actions: list[int] = []
+    scores: list[list[float]] = []
+    terminated = truncated = False
+    while not (terminated or truncated):
+        assert env.state is not None
+        if len(actions) in nudges:
+            env.state[3] += nudges[len(actions)]  # in place: applies to the next step
+        states.append(env.state.tolist())
+        obs = env.state.astype(np.float32)[None]
+        if hasattr(policy, "scores"):
+            row = policy.scores(obs)[0]
+            scores.append([float(v) for v in row])
+            actions.append(int(np.argmax(row)))
+        else:
+            actions.append(int(policy.act(obs)[0]))
+        _, _, terminated, _, _ = env.step(actions[-1])
+        truncated = len(actions) >= 500
+    states.append(env.state.tolist())
+    return {
+        "length": len(actions),
+        "return": float(len(actions)),
+        "terminated": terminated,
+        "truncated": truncated,
+        "states": states,
+        "actions": actions,
+        "rewards": [1.0] * len(actions),
+        "scores": scores or None,
+    }
+
+
+EPISODE_CASES = [
+    ({}, {}),
+    ({"gravity": 30.0, "length": 2.0}, {}),
+    ({"masspole": 0.7, "masscart": 0.2, "force_mag": 25.0}, {0: 0.4}),
+    ({}, {10: 1.5, 11: -0.25, 40: -3.0}),
+]
+
+
+@pytest.mark.parametrize(("physics", "nudges"), EPISODE_CASES)
+@pytest.mark.parametrize("agent", ["cem", "dqn"])
+def test_episode_api_equals_a_plain_loop_over_the_single_env(
+    web_runs: WebRuns,
+    dqn_runs: tuple[Path, str],
+    agent: str,
+    physics: dict[str, float],
+    nudges: dict[int, float],
+):
+    root, name = (web_runs.root, web_runs.cem) if agent == "cem" else dqn_runs
+    policy = load_policy(root / name / "checkpoints" / "best.pt")
+    client = TestClient(create_app(root))
+    for seed in (0, 3, 2**33 + 5):
+        query: list[tuple[str, Any]] = [("seed", seed), *physics.items()]
+        query += [item for step, change in nudges.items() for item in (("nudge_at", step), ("nudge", change))]
+        body = client.get(episode_url(name), params=query).json()
+        expected = reference_episode(policy, seed, physics, nudges)
+        assert {key: body[key] for key in expected} == expected, (agent, seed, physics, nudges)
+
+
+def test_a_policy_without_scores_plays_the_same_episode_as_the_plain_loop():
+    from cartpole.web.episodes import play_episode
+
+    class Balancer:  # act only: no scores to show
+        def act(self, observations: np.ndarray) -> np.ndarray:
+            return (np.asarray(observations) @ [0.05, 0.3, 1.0, 0.3] > 0).astype(np.int64)
+
+    for seed, physics in ((1, {}), (2, {"gravity": 40.0})):
+        episode, sim = play_episode(Balancer(), "CartPole-v1", seed, physics, {30: 2.0})
+        got = episode.to_dict(sim_limits(sim), "linear score")
+        expected = reference_episode(Balancer(), seed, physics, {30: 2.0})
+        assert {key: got[key] for key in expected} == expected
+        assert got["score_label"] is None
 
 
 def test_non_cartpole_runs_cannot_be_watched(client: TestClient, web_runs: WebRuns):

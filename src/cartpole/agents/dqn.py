@@ -444,17 +444,18 @@ class DQNLearner:
         batch = self.buffer.sample(min(config.batch_size, len(self.buffer)), self.replay_generator)
         if self.use_dropout:
             self.q_net.train()
-        q_all = self.q_net(batch.observations)
+        # forward(), not __call__: no hooks are used, and the call's wrapper is ~2% of a gradient step.
+        q_all = self.q_net.forward(batch.observations)
         if self.use_dropout:
             self.q_net.eval()
         with torch.no_grad():
             # Without a target network the online net (without dropout) values s', as the tutorials do.
             target_net = self.target_net if self.target_net is not None else self.q_net
-            next_q_target = target_net(batch.next_observations)
+            next_q_target = target_net.forward(batch.next_observations)
             next_q_online = None
             if config.double_dqn:
                 same = self.target_net is None
-                next_q_online = next_q_target if same else self.q_net(batch.next_observations)
+                next_q_online = next_q_target if same else self.q_net.forward(batch.next_observations)
             targets = td_targets(batch.rewards, batch.terminated, next_q_target, next_q_online, config.gamma)
         q = q_all.gather(1, batch.actions.unsqueeze(1)).squeeze(1)
         loss = F.smooth_l1_loss(q, targets) if config.loss == "huber" else F.mse_loss(q, targets)

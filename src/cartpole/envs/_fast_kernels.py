@@ -181,6 +181,31 @@ def step_states(
 
 
 @njit(**_JIT)
+def step_single(
+    state: NDArray[np.floating[Any]],
+    action: int,
+    p: NDArray[np.floating[Any]],
+    out: NDArray[np.floating[Any]],
+) -> bool:
+    """One env, one step through :func:`dynamics`: ``out`` (4,) gets the next state of ``state`` (4,).
+
+    ``action`` must be 0 or 1 (the caller checks); ``out`` may be ``state`` itself. Returns
+    ``terminated``. For callers that step a single state in a Python loop, where one dispatch with
+    no buffers to pass is what a step costs.
+    """
+    column = np.empty((4, 1), dtype=out.dtype)
+    for k in range(4):
+        column[k, 0] = state[k]
+    force = np.empty(1, dtype=out.dtype)
+    force[0] = p[FORCE_MAG] if action == 1 else -p[FORCE_MAG]
+    terminated = np.empty(1, dtype=np.bool_)
+    dynamics(column, force, p, terminated)
+    for k in range(4):
+        out[k] = column[k, 0]
+    return terminated[0]
+
+
+@njit(**_JIT)
 def vector_step(
     state: NDArray[np.floating[Any]],
     force: NDArray[np.floating[Any]],

@@ -9,7 +9,10 @@ physics kernel (:func:`step_cartpole`, compiled with numba on first use and cach
 
 - :class:`CartPoleVectorEnv`, a ``gymnasium.vector.VectorEnv`` of ``num_envs`` cart-poles with
   Gymnasium's next-step autoreset, for training;
-- :class:`CartPoleEnv`, a ``gymnasium.Env``, for interactive use (the web app, playing by hand).
+- :class:`CartPoleEnv`, a ``gymnasium.Env``, for interactive use (playing by hand, rendering).
+
+A caller that keeps its own float64 state (the web app's simulator) can step it with
+:class:`CartPoleStepper`: the single env's kernel call, without the env around it.
 
 :func:`register_fast_envs` registers both under ``cartpole/CartPole-v1`` and ``cartpole/CartPole-v0``:
 
@@ -265,6 +268,61 @@ def step_cartpole(
     if not k.step_states(columns, a.astype(np.int64, copy=False), k.pack_params(params, dtype), terminated):
         raise ValueError("actions must be 0 (push left) or 1 (push right)")
     return np.ascontiguousarray(columns.T), terminated
+
+
+class CartPoleStepper:
+    """Steps one float64 state at a time: Gymnasium's equations, through the same kernel, and nothing else.
+
+    No spaces, time limit, rewards or copies: the caller keeps the state (and any step counter), e.g.
+    the web app's simulator, which plays whole episodes in a Python loop. A step costs one compiled
+    call, several times less than :meth:`CartPoleEnv.step`, and gives the same bits as that step.
+
+    ```python
+    >>> stepper = CartPoleStepper()
+    >>> state = np.array([0.0, 0.0, 0.01, 0.0])
+    >>> stepper.step(state, 1)  # in place; returns terminated
+    False
+
+    ```
+    """
+
+    def __init__(self, params: CartPoleParams | None = None) -> None:
+        self._kernels = _kernels()
+        self.set_params(_check_params(params))
+
+    @property
+    def params(self) -> CartPoleParams:
+        """The physics in use; change it with :meth:`set_params`."""
+        return self._params
+
+    def set_params(self, params: CartPoleParams) -> None:
+        """Use ``params`` from the next step on (any params: there are no spaces to keep)."""
+        self._params = _check_params(params)
+        self._packed = self._kernels.pack_params(self._params, np.dtype(np.float64))
+
+    def step(
+        self,
+        state: NDArray[np.float64],
+        action: int | np.integer[Any],
+        out: NDArray[np.float64] | None = None,
+    ) -> bool:
+        """Advance ``state`` (4,) by one push (0 left, 1 right) into ``out`` (default: ``state``, in
+        place); returns ``terminated`` (off the track, or the pole past the angle threshold)."""
+        if out is None:
+            out = state
+        if not (_is_single_state(state) and _is_single_state(out)):
+            raise ValueError(f"states must be float64 arrays of shape (4,), got {state!r} and {out!r}")
+        if not isinstance(action, (int, np.integer)) or action not in (0, 1):
+            raise ValueError(f"action must be 0 (push left) or 1 (push right), got {action!r}")
+        # int(): a numpy integer of another width would compile a second specialization.
+        return self._kernels.step_single(state, int(action), self._packed, out)  # type: ignore[no-any-return]
+
+
+_FLOAT64 = np.dtype(np.float64)
+
+
+def _is_single_state(array: Any) -> bool:
+    return isinstance(array, np.ndarray) and array.dtype == _FLOAT64 and array.shape == (4,)
 
 
 class _Physics:
@@ -648,6 +706,7 @@ __all__ = [
     "REFERENCE_IDS",
     "CartPoleEnv",
     "CartPoleParams",
+    "CartPoleStepper",
     "CartPoleVectorEnv",
     "KinematicsIntegrator",
     "register_fast_envs",

@@ -11,7 +11,7 @@ from pydantic import BaseModel, Field
 from cartpole import __version__
 from cartpole.envs import env_info
 from cartpole.runs import CheckpointError, RunDir
-from cartpole.web.episodes import MAX_NUDGE, PolicyCache, play_episode, sim_limits
+from cartpole.web.episodes import MAX_NUDGE, UNLIMITED_STEPS, PolicyCache, play_episode, sim_limits
 from cartpole.web.physics import PHYSICS_LABELS, PHYSICS_LIMITS, PhysicsError, default_physics, is_cartpole
 from cartpole.web.runs_folder import NotFound, RunsFolder
 
@@ -207,4 +207,4 @@ def run_env(run: RunDir) -> tuple[str, str | None]:
 
 
 def max_episode_steps(env_id: str) -> int:
-    return env_info(env_id).max_episode_steps or 100_000
+    return env_info(env_id).max_episode_steps or UNLIMITED_STEPS

@@ -6,6 +6,7 @@ charts use uPlot, vendored in ``static/vendor`` with its license. The app only r
 
 from __future__ import annotations
 
+import gc
 import threading
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
@@ -61,6 +62,19 @@ def _load_heavy_modules() -> None:
     sim = CartPoleSim("CartPole-v1")
     sim.reset(start_state("CartPole-v1", 0))
     sim.step(0)
+    _freeze_long_lived_objects()
+
+
+def _freeze_long_lived_objects() -> None:
+    """Keep the cyclic garbage collector off the objects alive after start-up (torch, numba, ...).
+
+    Requests make and drop many small lists; every so often they set off a full collection, which
+    otherwise walks these hundreds of thousands of objects for tens of ms, in the middle of a
+    request. Frozen objects are still freed by reference counting; garbage is collected first, so
+    none is kept for good.
+    """
+    gc.collect()
+    gc.freeze()
 
 
 def _page(name: str) -> Callable[[], FileResponse]:

@@ -16,11 +16,16 @@ from typing import Any
 import numpy as np
 
 from cartpole.agents.registry import load_policy
+from cartpole.envs import env_info
+from cartpole.envs.fast import CartPoleStepper
 from cartpole.evaluation import Policy
 from cartpole.web.physics import CartPoleSim, start_state
 
 MAX_NUDGE = 10.0
 """Largest nudge, in rad/s added to the pole's angular velocity (a hard slap is about 2)."""
+
+UNLIMITED_STEPS = 100_000
+"""Where an episode of an env without a time limit stops (no CartPole id lacks one)."""
 
 
 class PolicyCache:
@@ -86,35 +91,64 @@ def play_episode(
     physics: dict[str, float] | None = None,
     nudges: dict[int, float] | None = None,
 ) -> tuple[Episode, CartPoleSim]:
-    """Run ``policy`` greedily from ``seed``'s start state until the episode ends."""
+    """Run ``policy`` greedily from ``seed``'s start state until the episode ends.
+
+    Returns the episode and the simulator it ran on (for its physics and limits). Every CartPole id
+    has a time limit; were there none, the episode would stop, truncated, after ``UNLIMITED_STEPS``.
+    """
     sim = CartPoleSim(env_id, physics)
     nudges = dict(nudges or {})
-    episode = Episode(env_id, seed, sim.physics(), nudges)
-    state = sim.reset(start_state(env_id, seed))
+    limit = sim.max_steps or UNLIMITED_STEPS
+    states = np.empty((limit + 1, 4))
+    states[0] = start_state(env_id, seed)
+    actions = np.empty(limit, dtype=np.int64)
     scored = callable(getattr(policy, "scores", None))
-    scores: list[list[float]] = []
-    while True:
-        if sim.steps in nudges:
-            sim.nudge(nudges[sim.steps])
-            state = sim.state
-        episode.states.append(state.tolist())
+    scores = np.empty((limit, env_info(env_id).n_actions)) if scored else None
+    length, terminated = _play_greedily(policy, sim.stepper, nudges, states, actions, scores)
+    # Lists once, at the end: per-step conversions cost as much as the physics.
+    episode = Episode(
+        env_id,
+        seed,
+        sim.physics(),
+        nudges,
+        states=states[: length + 1].tolist(),
+        actions=actions[:length].tolist(),
+        rewards=[1.0] * length,  # +1 per step, the terminating one included (as Gymnasium)
+        scores=None if scores is None else scores[:length].tolist(),
+        terminated=terminated,
+        truncated=length >= limit,  # as TimeLimit: both flags can be set on the last step
+    )
+    return episode, sim
+
+
+def _play_greedily(
+    policy: Policy,
+    stepper: CartPoleStepper,
+    nudges: dict[int, float],
+    states: np.ndarray,
+    actions: np.ndarray,
+    scores: np.ndarray | None,
+) -> tuple[int, bool]:
+    """Fill ``states[1:]``, ``actions`` and ``scores`` (when given: the policy's, whose argmax is the
+    action) step by step from ``states[0]``, until termination or the arrays are full.
+
+    Returns (steps played, terminated). Each nudge is added to ``states[t]`` before the policy sees it.
+    """
+    for t in range(len(actions)):
+        state = states[t]
+        if t in nudges:
+            state[3] += nudges[t]
         obs = state.astype(np.float32)[None]  # what the env would hand the policy
-        if scored:
+        if scores is not None:
             row = np.asarray(policy.scores(obs))[0]  # type: ignore[attr-defined]
+            scores[t] = row  # float32 to float64 is exact: the JSON shows the policy's own values
             action = int(row.argmax())  # ScoredPolicy contract: act is the argmax of scores
-            scores.append([float(v) for v in row])
         else:
             action = int(np.asarray(policy.act(obs))[0])
-        result = sim.step(action)
-        state = result.state
-        episode.actions.append(action)
-        episode.rewards.append(result.reward)
-        if result.terminated or result.truncated:
-            episode.terminated, episode.truncated = result.terminated, result.truncated
-            episode.states.append(state.tolist())
-            break
-    episode.scores = scores if scored else None
-    return episode, sim
+        actions[t] = action
+        if stepper.step(state, action, out=states[t + 1]):
+            return t + 1, True
+    return len(actions), False
 
 
 def sim_limits(sim: CartPoleSim) -> dict[str, float]:

@@ -1,7 +1,8 @@
 """One cart-pole simulated on the server, a step at a time, for the Watch and Play pages.
 
-The browser only draws: every state it shows comes from here. ``CartPoleSim`` wraps our fast
-simulator's single env (``cartpole.envs.fast.CartPoleEnv``, Gymnasium's equations bit for bit).
+The browser only draws: every state it shows comes from here. ``CartPoleSim`` steps its state with
+our fast simulator's kernel (``cartpole.envs.fast.CartPoleStepper``: the same bits as its
+``CartPoleEnv`` and as Gymnasium's equations, without an env's per-step checks and copies).
 Physics overrides use the field names of ``CartPoleParams`` (``length`` is the pole's *half* length,
 as in Gymnasium).
 """
@@ -15,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from cartpole.envs import env_info
-from cartpole.envs.fast import CartPoleEnv, CartPoleParams
+from cartpole.envs.fast import CartPoleParams, CartPoleStepper
 from cartpole.evaluation import start_states
 
 PHYSICS_LIMITS: dict[str, tuple[float, float]] = {
@@ -96,8 +97,8 @@ class CartPoleSim:
             raise PhysicsError(f"{env_id} is not CartPole: only CartPole can be watched or played")
         self.env_id = env_id
         self.max_steps = info.max_episode_steps
-        self.env = CartPoleEnv()
-        params = self.env.params
+        self.stepper = CartPoleStepper()
+        params = self.stepper.params
         self.x_threshold, self.theta_threshold = params.x_threshold, params.theta_threshold_radians
         self.tau = params.tau
         self.overrides: dict[str, float] = {}
@@ -109,7 +110,7 @@ class CartPoleSim:
     def set_physics(self, overrides: dict[str, Any]) -> None:
         """Apply validated overrides on top of the env's defaults (an empty dict restores them)."""
         checked = check_overrides(overrides)
-        self.env.set_params(replace(CartPoleParams(), **checked))
+        self.stepper.set_params(replace(CartPoleParams(), **checked))
         self.overrides = checked
 
     def physics(self) -> dict[str, float]:
@@ -129,9 +130,9 @@ class CartPoleSim:
             raise PhysicsError("the episode is over: reset first")
         if action not in (0, 1):
             raise PhysicsError(f"action must be 0 (push left) or 1 (push right), got {action!r}")
-        self.env.state = self.state
-        _, _, terminated, _, _ = self.env.step(action)
-        self.state = np.array(self.env.state, dtype=np.float64)
+        next_state = np.empty(4)  # a new array each step: an earlier StepResult's state stays put
+        terminated = self.stepper.step(self.state, action, out=next_state)
+        self.state = next_state
         self.steps += 1
         truncated = self.max_steps is not None and self.steps >= self.max_steps  # as TimeLimit
         self.done = terminated or truncated

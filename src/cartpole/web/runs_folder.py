@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from cartpole.envs import env_info
-from cartpole.runs import RunDir, RunError, list_runs, summarize_run
+from cartpole.runs import RunDir, RunError, RunSummary, list_runs, summarize_run
 from cartpole.web.physics import is_cartpole
 
 SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,199}$")
@@ -63,8 +63,7 @@ class RunsFolder:
             path = Path(summary.path)
             if path.is_symlink() and not _inside(path, self.root):
                 continue  # a link to elsewhere is not one of our runs
-            row = asdict(summary)
-            row.pop("path")
+            row = _as_shown(summary)
             row["rule"] = solved_rule(RunDir(path).eval_report())
             row["watchable"] = bool(summary.env_id and is_cartpole(summary.env_id))
             rows.append(row)
@@ -72,8 +71,7 @@ class RunsFolder:
 
     def detail(self, run: RunDir) -> dict[str, Any]:
         """Everything the Run page shows except the metrics."""
-        summary = asdict(summarize_run(run.path))
-        summary.pop("path")
+        summary = _as_shown(summarize_run(run.path))
         try:
             config = run.config()
         except RunError:
@@ -104,6 +102,16 @@ class RunsFolder:
         stat = run.checkpoint_path(name).stat()
         modified = datetime.fromtimestamp(stat.st_mtime, UTC).isoformat(timespec="seconds")
         return {"name": name, "bytes": stat.st_size, "modified": modified}
+
+
+def _as_shown(summary: RunSummary) -> dict[str, Any]:
+    """A run's summary for the API: no path, and a problem that names files relative to the runs
+    folder ("<run>/config.json is unreadable: ..."), not where the runs folder is on this machine."""
+    row = asdict(summary)
+    path = row.pop("path")
+    if row["problem"]:
+        row["problem"] = row["problem"].replace(path, summary.name)
+    return row
 
 
 def solved_rule(report: dict[str, Any] | None) -> str | None:
