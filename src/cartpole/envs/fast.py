@@ -288,15 +288,16 @@ class CartPoleStepper:
 
     def __init__(self, params: CartPoleParams | None = None) -> None:
         self._kernels = _kernels()
-        self.set_params(_check_params(params))
+        self.set_params(params)
 
     @property
     def params(self) -> CartPoleParams:
         """The physics in use; change it with :meth:`set_params`."""
         return self._params
 
-    def set_params(self, params: CartPoleParams) -> None:
-        """Use ``params`` from the next step on (any params: there are no spaces to keep)."""
+    def set_params(self, params: CartPoleParams | None) -> None:
+        """Use ``params`` (None: the defaults) from the next step on (any params: there are no spaces to
+        keep)."""
         self._params = _check_params(params)
         self._packed = self._kernels.pack_params(self._params, np.dtype(np.float64))
 
@@ -332,6 +333,12 @@ class _Physics:
     _params: CartPoleParams
     _packed: Any
     _kernels: Any
+
+    def _init_physics(self, params: CartPoleParams | None, dtype: DTypeLike) -> None:
+        self._dtype = _check_dtype(dtype)
+        self._params = _check_params(params)
+        self._kernels = _kernels()
+        self._packed = self._kernels.pack_params(self._params, self._dtype)
 
     @property
     def dtype(self) -> np.dtype[Any]:
@@ -393,10 +400,7 @@ class CartPoleVectorEnv(_Physics, VectorEnv[NDArray[np.float32], NDArray[np.int6
         self.max_episode_steps = int(max_episode_steps)
         self.render_mode = None
         self._sutton_barto_reward = bool(sutton_barto_reward)
-        self._dtype = _check_dtype(dtype)
-        self._params = _check_params(params)
-        self._kernels = _kernels()
-        self._packed = self._kernels.pack_params(self._params, self._dtype)
+        self._init_physics(params, dtype)
 
         self.single_action_space = spaces.Discrete(2)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
@@ -565,19 +569,13 @@ class CartPoleEnv(_Physics, gym.Env[NDArray[np.float32], int]):
             )
         self.render_mode = render_mode
         self._sutton_barto_reward = bool(sutton_barto_reward)
-        self._dtype = _check_dtype(dtype)
-        self._params = _check_params(params)
-        self._kernels = _kernels()
-        self._packed = self._kernels.pack_params(self._params, self._dtype)
+        self._init_physics(params, dtype)
         self.action_space = spaces.Discrete(2)
         high = self._params.observation_high()
         self.observation_space = spaces.Box(-high, high, dtype=np.float32)
         self._state: NDArray[np.floating[Any]] | None = None
         self._steps_beyond_terminated: int | None = None
         self._renderer: Any = None
-        # The kernel is batched: one-element buffers for the push and the flag, reused every step.
-        self._force = np.empty(1, dtype=self._dtype)
-        self._terminated = np.empty(1, dtype=np.bool_)
 
     @property
     def state(self) -> NDArray[np.floating[Any]] | None:
@@ -606,13 +604,10 @@ class CartPoleEnv(_Physics, gym.Env[NDArray[np.float32], int]):
             raise ValueError(f"action must be 0 (push left) or 1 (push right), got {action!r}")
         if self._state is None:
             raise ResetNeeded("call reset() before step()")
-        force_mag = self._params.force_mag
-        self._force[0] = force_mag if a == 1 else -force_mag
         # A new array each step, as in Gymnasium: a reference to the old state stays put.
-        next_state = self._state.copy()
-        self._kernels.dynamics(next_state.reshape(4, 1), self._force, self._packed, self._terminated)
+        next_state = np.empty_like(self._state)
+        terminated = bool(self._kernels.step_single(self._state, a, self._packed, next_state))
         self._state = next_state
-        terminated = bool(self._terminated[0])
         obs = next_state.astype(np.float32)
 
         sutton = self._sutton_barto_reward

@@ -92,7 +92,7 @@ def info(request: Request) -> dict[str, Any]:
         "version": __version__,
         "runs_dir": str(folder(request).root),
         "physics": {
-            "defaults": default_physics("CartPole-v1"),
+            "defaults": default_physics(),
             "limits": PHYSICS_LIMITS,
             "labels": PHYSICS_LABELS,
         },

@@ -74,8 +74,9 @@ def start_state(env_id: str, seed: int) -> np.ndarray:
     return np.array(_start_state(env_id, seed), dtype=np.float64)
 
 
-def default_physics(env_id: str) -> dict[str, float]:
-    """The env's own physics constants (``CartPoleParams``' defaults, never written here)."""
+def default_physics() -> dict[str, float]:
+    """CartPole's own physics constants (``CartPoleParams``' defaults, never written here); every
+    CartPole id shares them."""
     params = CartPoleParams()
     return {name: float(getattr(params, name)) for name in PHYSICS_LIMITS}
 
@@ -114,16 +115,12 @@ class CartPoleSim:
         self.overrides = checked
 
     def physics(self) -> dict[str, float]:
-        return {**default_physics(self.env_id), **self.overrides}
+        return {**default_physics(), **self.overrides}
 
     def reset(self, state: np.ndarray) -> np.ndarray:
         self.state = np.asarray(state, dtype=np.float64).copy()
         self.steps, self.done = 0, False
         return self.state
-
-    def nudge(self, theta_dot_change: float) -> None:
-        """A push on the pole: add ``theta_dot_change`` (rad/s) to its angular velocity."""
-        self.state[3] += theta_dot_change
 
     def step(self, action: int) -> StepResult:
         if self.done:
