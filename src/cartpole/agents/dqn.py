@@ -184,7 +184,6 @@ class QNetwork(nn.Module):
                 layers.append(Dropout(config.dropout))
             width = hidden
         self.body = nn.Sequential(*layers)
-        self.dueling = config.dueling
         self.head = nn.Linear(width, n_actions)
         self.value = nn.Linear(width, 1) if config.dueling else None
         self._linears = [m for m in self.modules() if isinstance(m, nn.Linear)]
@@ -344,7 +343,7 @@ class DQNLearner:
         self.replay_generator = torch.Generator(self.device)
         """Draws the replay minibatches (on the learner's device); seeded apart from the other streams."""
         self.replay_generator.manual_seed(_derived_seed(seed, "replay"))
-        self.envs = make_training_envs(env.env_id, config.num_envs, config.simulator)
+        self.envs = make_vec_env(env.env_id, config.num_envs, simulator=config.simulator)  # type: ignore[arg-type]
         self.observations, _ = self.envs.reset(seed=seed)
         n = config.num_envs
         self.autoreset = np.zeros(n, dtype=bool)
@@ -546,16 +545,6 @@ class DQNLearner:
             self.autoreset[:] = False
             self.episode_returns[:] = 0.0
             self.episode_lengths[:] = 0
-
-
-def make_training_envs(env_id: str, num_envs: int, simulator: str) -> Any:
-    """The training vector env; Gymnasium's own when the fast simulator is not installed."""
-    try:
-        return make_vec_env(env_id, num_envs, simulator=simulator)  # type: ignore[arg-type]
-    except ModuleNotFoundError as err:
-        if simulator != "fast" or "cartpole.envs.fast" not in str(err):
-            raise
-        return make_vec_env(env_id, num_envs, simulator="gymnasium")
 
 
 def _derived_seed(seed: int, stream: str) -> int:

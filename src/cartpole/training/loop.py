@@ -11,12 +11,14 @@ from __future__ import annotations
 import time
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
-import torch
 
 from cartpole.evaluation import EvalReport, Policy
+
+if TYPE_CHECKING:  # only in annotations: `cartpole presets` and `runs` start without torch
+    import torch
 
 
 @dataclass

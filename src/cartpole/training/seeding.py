@@ -8,7 +8,6 @@ from __future__ import annotations
 import random
 
 import numpy as np
-import torch
 
 EVAL_SEED_LOW = 2**32
 EVAL_SEED_SPAN = 2**32
@@ -37,6 +36,8 @@ def fresh_eval_seed() -> int:
 
 def seed_everything(seed: int) -> np.random.Generator:
     """Seed torch's and Python's global generators; return a numpy Generator for the caller."""
+    import torch  # here, not at the top: the seed ranges above are used without torch
+
     random.seed(seed)
     torch.manual_seed(seed)
     return np.random.default_rng(seed)
