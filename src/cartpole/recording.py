@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import functools
 import os
-import tempfile
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from cartpole.evaluation import Policy
+from cartpole.runs.atomic import replace_atomically
 
 VIDEO_SUFFIXES = (".gif", ".mp4")
 VIDEO_EXTRA = "pip install 'cartpole[video]'"
@@ -136,22 +135,6 @@ def draw_caption(image: np.ndarray, text: str) -> np.ndarray:
     return np.asarray(picture)
 
 
-def _write_replacing(path: Path, write: Callable[[Path], None]) -> None:
-    """Call ``write`` on a temp path beside ``path`` (same suffix), then move it over ``path``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        write(Path(tmp))
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; a video is an ordinary file
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def check_video_path(path: Path) -> None:
     """Raise RecordingError now (before any episode is played) if ``path`` cannot be written."""
     suffix = path.suffix.lower()
@@ -173,9 +156,9 @@ def write_video(frames: list[np.ndarray], path: Path | str, fps: int = DEFAULT_F
     if not frames:
         raise RecordingError("no frames to write")
     if path.suffix.lower() == ".gif":
-        _write_replacing(path, lambda tmp: _write_gif(frames, tmp, fps))
+        replace_atomically(path, lambda tmp: _write_gif(frames, tmp, fps), suffix=path.suffix)
     else:
-        _write_replacing(path, lambda tmp: _write_mp4(frames, tmp, fps))
+        replace_atomically(path, lambda tmp: _write_mp4(frames, tmp, fps), suffix=path.suffix)
     return path
 
 

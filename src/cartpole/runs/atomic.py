@@ -19,14 +19,25 @@ def write_atomic(path: Path, write: Callable[[IO[bytes]], None], durable: bool =
     ``os.replace`` alone is atomic against a killed process; ``durable`` also fsyncs the data so a
     power loss cannot leave an empty file (checkpoints want that; frequent status files do not).
     """
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as handle:
+
+    def write_file(tmp: Path) -> None:
+        with open(tmp, "wb") as handle:
             write(handle)
             handle.flush()
             if durable:
                 os.fsync(handle.fileno())
+
+    replace_atomically(path, write_file)
+
+
+def replace_atomically(path: Path, write_file: Callable[[Path], None], suffix: str = ".tmp") -> None:
+    """Call ``write_file`` on a fresh temp path beside ``path`` (ending in ``suffix``, for writers that
+    choose a format by extension), then move it over ``path``; on any error the temp file goes."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        write_file(Path(tmp))
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600 files; give the usual mode
         os.replace(tmp, path)
     except BaseException:
