@@ -118,17 +118,25 @@ def run_ours(agent: str, preset: str, seed: int, max_seconds: float | None, env_
 def run_sb3(seed: int, max_seconds: float | None, env_id: str, eval_every: int, screen: int,
             total_steps: int) -> dict[str, Any]:  # fmt: skip
     """SB3 DQN with the RL Zoo's CartPole-v1 hyperparameters, judged exactly like our agents."""
+    import dataclasses
+
     import gymnasium as gym
     import numpy as np
     import torch
     from stable_baselines3 import DQN
     from stable_baselines3.common.callbacks import BaseCallback
 
+    from cartpole.agents.dqn import DQNConfig
+    from cartpole.envs import env_info
     from cartpole.evaluation import evaluate
-    from cartpole.training.callbacks import report_rank
-    from cartpole.training.seeding import eval_seed
+    from cartpole.training.callbacks import report_rank, screened_evaluation
+    from cartpole.training.config import resolve_config
 
     torch.set_num_threads(1)  # the same thread setting as our default preset
+    # Judged exactly as our runs are (the same function), at our default preset's cadence.
+    _, settings = resolve_config("dqn", DQNConfig, "default")
+    settings = dataclasses.replace(settings, eval_every=eval_every, eval_screen_episodes=screen)
+    env = env_info(env_id)
 
     class Adapter:
         """SB3 model -> our Policy (greedy actions)."""
@@ -144,16 +152,12 @@ def run_sb3(seed: int, max_seconds: float | None, env_id: str, eval_every: int, 
             super().__init__()
             self.last, self.evals, self.best, self.best_params = 0, 0, None, None
             self.solve: dict[str, float] = {}
-            self.threshold = gym.spec(env_id).reward_threshold
 
         def _on_step(self) -> bool:
             if self.num_timesteps - self.last < eval_every:
                 return True
             self.last = self.num_timesteps
-            policy = Adapter(self.model)
-            report = evaluate(policy, env_id, screen, seed=eval_seed(seed, 2 * self.evals), simulator="fast")
-            if report.mean >= self.threshold:
-                report = evaluate(policy, env_id, 100, seed=eval_seed(seed, 2 * self.evals + 1))
+            report = screened_evaluation(Adapter(self.model), env, seed, self.evals, settings)
             self.evals += 1
             if self.best is None or report_rank(report) > report_rank(self.best):
                 self.best = report

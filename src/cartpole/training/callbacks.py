@@ -10,7 +10,7 @@ from typing import Any, TextIO
 
 from cartpole.agents.registry import AgentSpec
 from cartpole.envs import EnvInfo
-from cartpole.evaluation import MIN_EPISODES_FOR_SOLVED, EvalReport, evaluate
+from cartpole.evaluation import MIN_EPISODES_FOR_SOLVED, EvalReport, Policy, evaluate
 from cartpole.runs import Checkpoint, RunDir, save_checkpoint
 from cartpole.training.budget import Budget
 from cartpole.training.config import TrainSettings
@@ -71,25 +71,30 @@ class EvalCallback(Callback):
             loop.record_eval(self.evaluate(loop))
 
     def evaluate(self, loop: TrainingLoop) -> EvalReport:
-        policy = loop.learner.policy()
-        index = loop.state.evaluations
-        screen = evaluate(
-            policy,
-            self.env.env_id,
-            self.settings.eval_screen_episodes,
-            seed=eval_seed(self.seed, 2 * index),
-            simulator="fast",
+        return screened_evaluation(
+            loop.learner.policy(), self.env, self.seed, loop.state.evaluations, self.settings
         )
-        threshold = self.env.reward_threshold
-        if threshold is None or screen.mean < threshold:
-            return screen
-        return evaluate(
-            policy,
-            self.env.env_id,
-            self.settings.eval_episodes,
-            seed=eval_seed(self.seed, 2 * index + 1),
-            simulator=self.settings.eval_simulator,  # type: ignore[arg-type]
-        )
+
+
+def screened_evaluation(
+    policy: Policy, env: EnvInfo, seed: int, index: int, settings: TrainSettings
+) -> EvalReport:
+    """The ``index``-th evaluation of run ``seed``: a screen of ``eval_screen_episodes`` on the fast
+    simulator, then, when its mean reaches the threshold, the full ``eval_episodes`` on
+    ``eval_simulator``. (Also how the benchmarks judge other libraries' agents.)"""
+    screen = evaluate(
+        policy, env.env_id, settings.eval_screen_episodes, seed=eval_seed(seed, 2 * index), simulator="fast"
+    )
+    threshold = env.reward_threshold
+    if threshold is None or screen.mean < threshold:
+        return screen
+    return evaluate(
+        policy,
+        env.env_id,
+        settings.eval_episodes,
+        seed=eval_seed(seed, 2 * index + 1),
+        simulator=settings.eval_simulator,  # type: ignore[arg-type]
+    )
 
 
 class StopWhenSolved(Callback):
