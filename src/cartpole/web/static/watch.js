@@ -123,12 +123,14 @@ function tick(now) {
   const e = watch.episode;
   if (watch.playing && e && watch.last !== null) {
     const fps = e.limits.fps || 50;
+    const shown = Math.floor(watch.frame);
     watch.frame += ((now - watch.last) / 1000) * fps * watch.speed;
     if (watch.frame >= e.length) {
       watch.frame = e.length;
       setPlaying(false);
     }
-    render();
+    // The picture only changes with the step: no redraw (bars, layout) on the display's other frames.
+    if (Math.floor(watch.frame) !== shown) render();
   }
   watch.last = now;
   requestAnimationFrame(tick);
