@@ -36,6 +36,9 @@ AGENT_MODULES = {
     "hill-climbing": "cartpole.agents.linear",
     "cem": "cartpole.agents.linear",
     "dqn": "cartpole.agents.dqn",
+    "reinforce": "cartpole.agents.reinforce",
+    "a2c": "cartpole.agents.a2c",
+    "ppo": "cartpole.agents.ppo",
 }
 """Agent name -> the module that defines it (imported only when the agent is used: torch is slow)."""
 

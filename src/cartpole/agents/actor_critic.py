@@ -1,0 +1,182 @@
+"""The actor-critic network of the policy-gradient agents (REINFORCE, A2C, PPO), and their policy.
+
+- ``ActorCritic``: an MLP from observations to action logits (the actor) and a state value (the
+  critic), with separate trunks or one shared trunk, and optional orthogonal initialization (the
+  scheme CleanRL and Stable-Baselines3 use: gain sqrt(2) on hidden layers, 0.01 on the policy head,
+  1 on the value head, zero biases).
+- ``CategoricalPolicy``: the greedy policy of a trained actor, frozen: ``scores`` are the action
+  probabilities, ``act`` their argmax. It runs the actor with numpy on copies of its weights (for the
+  few observations of acting, evaluation and the web app, numpy's ~1 us per op beats torch's ~4 us).
+- ``schedule_value``: the constant and linear schedules of learning rate and clip range.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+ACTIVATIONS: dict[str, type[nn.Module]] = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
+"""Hidden-layer activations; each has a numpy twin for :class:`CategoricalPolicy`."""
+SCHEDULES = ("constant", "linear")
+
+
+def schedule_value(start: float, schedule: str, env_steps: int, schedule_steps: int) -> float:
+    """``start`` (constant), or ``start`` decayed linearly to 0 at ``schedule_steps`` env steps (linear)."""
+    if schedule == "constant":
+        return start
+    return start * max(0.0, 1.0 - env_steps / schedule_steps)
+
+
+def mlp(sizes: list[int], activation: str) -> list[nn.Linear | nn.Module]:
+    """Linear layers of widths ``sizes``, each followed by ``activation``."""
+    layers: list[nn.Module] = []
+    for width_in, width_out in zip(sizes[:-1], sizes[1:], strict=True):
+        layers += [nn.Linear(width_in, width_out), ACTIVATIONS[activation]()]
+    return layers
+
+
+class ActorCritic(nn.Module):
+    """Action logits and state values from one MLP (shared trunk) or two (separate trunks).
+
+    ``forward`` returns both; ``logits`` and ``values`` compute one of them alone (acting needs only the
+    logits, and with separate trunks skips the critic).
+    """
+
+    def __init__(
+        self,
+        obs_dim: int,
+        n_actions: int,
+        hidden_sizes: tuple[int, ...],
+        activation: str = "tanh",
+        shared_trunk: bool = False,
+        orthogonal_init: bool = True,
+        generator: torch.Generator | None = None,
+    ):
+        super().__init__()
+        self.shared_trunk = shared_trunk
+        sizes = [obs_dim, *hidden_sizes]
+        # nn.Linear initializes itself from torch's global generator: build under fork_rng, which puts
+        # the global state back, then initialize every parameter from ``generator`` (nothing global
+        # changes when a learner is built).
+        with torch.random.fork_rng(devices=[]):
+            self.actor_trunk = nn.Sequential(*mlp(sizes, activation))
+            self.critic_trunk = self.actor_trunk if shared_trunk else nn.Sequential(*mlp(sizes, activation))
+            self.policy_head = nn.Linear(sizes[-1], n_actions)
+            self.value_head = nn.Linear(sizes[-1], 1)
+        self.initialize(orthogonal_init, generator)
+
+    def linear_layers(self) -> list[tuple[nn.Linear, float]]:
+        """Every linear layer once, with its orthogonal-init gain."""
+        trunks = [self.actor_trunk] if self.shared_trunk else [self.actor_trunk, self.critic_trunk]
+        hidden = [layer for trunk in trunks for layer in trunk if isinstance(layer, nn.Linear)]
+        return [(layer, math.sqrt(2)) for layer in hidden] + [(self.policy_head, 0.01), (self.value_head, 1.0)]
+
+    @torch.no_grad()
+    def initialize(self, orthogonal: bool, generator: torch.Generator | None) -> None:
+        """Orthogonal weights (gain sqrt(2) hidden, 0.01 policy head, 1 value head) and zero biases;
+        else nn.Linear's own default initialization. Drawn from ``generator``."""
+        for layer, gain in self.linear_layers():
+            if orthogonal:
+                nn.init.orthogonal_(layer.weight, gain, generator=generator)
+                nn.init.zeros_(layer.bias)
+            else:  # = nn.Linear.reset_parameters, from our generator
+                nn.init.kaiming_uniform_(layer.weight, a=math.sqrt(5), generator=generator)
+                bound = 1.0 / math.sqrt(layer.in_features)
+                nn.init.uniform_(layer.bias, -bound, bound, generator=generator)
+
+    @staticmethod
+    def _run(trunk: nn.Sequential, observations: torch.Tensor) -> torch.Tensor:
+        # module.forward(x), not module(x): nn.Module.__call__'s hook handling costs more than a small
+        # layer's matmul (no hooks are used on these layers).
+        features = observations
+        for layer in trunk:
+            features = layer.forward(features)
+        return features
+
+    def forward(self, observations: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(logits [N, n_actions], values [N])."""
+        actor_features = self._run(self.actor_trunk, observations)
+        critic_features = (
+            actor_features if self.shared_trunk else self._run(self.critic_trunk, observations)
+        )
+        logits = self.policy_head.forward(actor_features)
+        return logits, self.value_head.forward(critic_features).squeeze(-1)
+
+    def logits(self, observations: torch.Tensor) -> torch.Tensor:
+        return self.policy_head.forward(self._run(self.actor_trunk, observations))
+
+    def values(self, observations: torch.Tensor) -> torch.Tensor:
+        return self.value_head.forward(self._run(self.critic_trunk, observations)).squeeze(-1)
+
+    def actor_layers(self) -> list[nn.Module]:
+        """The modules from observation to logits, in order."""
+        return [*self.actor_trunk, self.policy_head]
+
+
+# ----------------------------------------------------------------------------------------------
+# The greedy policy
+# ----------------------------------------------------------------------------------------------
+
+
+def _relu(x: np.ndarray) -> np.ndarray:
+    return np.maximum(x, 0.0, out=x)
+
+
+def _tanh(x: np.ndarray) -> np.ndarray:
+    return np.tanh(x, out=x)
+
+
+def _elu(x: np.ndarray) -> np.ndarray:
+    return np.where(x > 0.0, x, np.expm1(np.minimum(x, 0.0)))
+
+
+NUMPY_ACTIVATIONS: dict[type[nn.Module], Callable[[np.ndarray], np.ndarray]] = {
+    nn.ReLU: _relu,
+    nn.Tanh: _tanh,
+    nn.ELU: _elu,
+}
+
+
+class CategoricalPolicy:
+    """The greedy policy of an actor: ``scores`` = action probabilities, ``act`` = their argmax.
+
+    Holds numpy copies of the actor's weights taken when it is built, so it is a frozen snapshot.
+    """
+
+    def __init__(self, model: ActorCritic):
+        self.plan: list[Any] = []
+        for layer in model.actor_layers():
+            if isinstance(layer, nn.Linear):
+                weight = layer.weight.detach().cpu().numpy().T.copy()
+                self.plan.append((weight, layer.bias.detach().cpu().numpy().copy()))
+            else:
+                self.plan.append(NUMPY_ACTIVATIONS[type(layer)])
+
+    def logits(self, observations: np.ndarray) -> np.ndarray:
+        features = np.asarray(observations, dtype=np.float32)
+        for step in self.plan:
+            if isinstance(step, tuple):  # a linear layer: x W^T + b
+                features = features @ step[0]
+                features += step[1]
+            else:
+                features = step(features)
+        return features
+
+    def scores(self, observations: np.ndarray) -> np.ndarray:
+        """Action probabilities, shape [N, n_actions]."""
+        logits = self.logits(observations).astype(np.float64)
+        logits -= logits.max(axis=1, keepdims=True)
+        probabilities = np.exp(logits)
+        probabilities /= probabilities.sum(axis=1, keepdims=True)
+        return probabilities
+
+    def act(self, observations: np.ndarray) -> np.ndarray:
+        return self.logits(observations).argmax(axis=1)
+
+
+__all__ = ["ACTIVATIONS", "SCHEDULES", "ActorCritic", "CategoricalPolicy", "schedule_value"]
