@@ -35,8 +35,12 @@ class TrainSettings:
     """Episodes of the full evaluation (Gymnasium's rule needs >= 100 to call it solved)."""
     eval_simulator: str = "gymnasium"
     """Simulator of the full evaluation: "gymnasium" (the reference) or "fast"."""
-    checkpoint_every: int = 50_000
-    """Env steps between writes of checkpoints/latest.pt (it is also written at the end)."""
+    checkpoint_fraction: float = 0.1
+    """Share of the budget between writes of checkpoints/latest.pt (also written at start and end)."""
+    checkpoint_seconds: float = 60.0
+    """Wall-clock seconds between writes of checkpoints/latest.pt at the most."""
+    checkpoint_every: int = 0
+    """Env steps between writes of checkpoints/latest.pt at the most (0: no step-based cadence)."""
     stop_when_solved: bool = True
     """End training at the first verified solve."""
 
@@ -46,7 +50,9 @@ class TrainSettings:
         require(self.eval_screen_episodes >= 1, "eval_screen_episodes must be >= 1")
         require(self.eval_episodes >= 1, "eval_episodes must be >= 1")
         require(self.eval_simulator in ("gymnasium", "fast"), "eval_simulator: gymnasium or fast")
-        require(self.checkpoint_every >= 1, "checkpoint_every must be >= 1")
+        require(0 < self.checkpoint_fraction <= 1, "checkpoint_fraction must be in (0, 1]")
+        require(0 < self.checkpoint_seconds < float("inf"), "checkpoint_seconds must be > 0")
+        require(self.checkpoint_every >= 0, "checkpoint_every must be >= 0 (0: off)")
 
 
 def require(condition: bool, message: str) -> None:

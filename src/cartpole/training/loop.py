@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from cartpole.evaluation import EvalReport, Policy
+from cartpole.runs.names import StopReason
 
 if TYPE_CHECKING:  # only in annotations: `cartpole presets` and `runs` start without torch
     import torch
@@ -78,11 +79,23 @@ class LoopState:
     recent_returns: deque[float] = field(default_factory=lambda: deque(maxlen=100))
     scalars: dict[str, float] = field(default_factory=dict)
     last_eval: EvalReport | None = None
-    stop_reason: str | None = None
+    stop_reason: StopReason | None = None
+    """Why training stopped (None while it goes on); saved, so a resume knows training was complete."""
+    stop_detail: str | None = None
+    """The same for people, e.g. "budget reached (50000 env steps)"."""
 
     @property
     def mean_recent_return(self) -> float | None:
         return float(np.mean(self.recent_returns)) if self.recent_returns else None
+
+    def stop(self, reason: StopReason, detail: str) -> None:
+        """Record why training stops (the first reason given wins)."""
+        if self.stop_reason is None:
+            self.stop_reason, self.stop_detail = reason, detail
+
+    def clear_stop(self) -> None:
+        """Forget an interruption or failure: a resumed session trains on."""
+        self.stop_reason = self.stop_detail = None
 
     def to_dict(self) -> dict[str, Any]:
         keys = (
@@ -97,12 +110,18 @@ class LoopState:
             "solved_at_step",
             "solved_at_seconds",
         )
-        return {k: getattr(self, k) for k in keys} | {"recent_returns": list(self.recent_returns)}
+        return {k: getattr(self, k) for k in keys} | {
+            "recent_returns": list(self.recent_returns),
+            "stop_reason": self.stop_reason.value if self.stop_reason else None,
+            "stop_detail": self.stop_detail,
+        }
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> LoopState:
-        state = cls(**{k: v for k, v in data.items() if k != "recent_returns"})
+        state = cls(**{k: v for k, v in data.items() if k not in ("recent_returns", "stop_reason")})
         state.recent_returns.extend(data.get("recent_returns", []))
+        reason = data.get("stop_reason")
+        state.stop_reason = StopReason(reason) if reason else None
         return state
 
 
@@ -135,11 +154,11 @@ class TrainingLoop:
         self.learner = learner
         self.callbacks = callbacks
         self.state = state or LoopState()
-        self._stop_requested: str | None = None
+        self._stop_requested: tuple[StopReason, str] | None = None
 
-    def request_stop(self, reason: str) -> None:
+    def request_stop(self, reason: StopReason, detail: str) -> None:
         """Stop after the current step (safe to call from a signal handler)."""
-        self._stop_requested = reason
+        self._stop_requested = (reason, detail)
 
     def record_eval(self, report: EvalReport) -> bool:
         """Note an evaluation in the counters and tell every callback; False if one says stop."""
@@ -175,11 +194,11 @@ class TrainingLoop:
                     keep_going &= all([cb.on_episode(self, ret, length) for cb in self.callbacks])
                 keep_going &= all([cb.on_step(self, result) for cb in self.callbacks])
                 if self._stop_requested:
-                    state.stop_reason = self._stop_requested
-                elif not keep_going and state.stop_reason is None:
-                    state.stop_reason = "stopped by a callback"
-        except BaseException:
-            state.stop_reason = state.stop_reason or "failed"
+                    state.stop(*self._stop_requested)
+                elif not keep_going:
+                    state.stop(StopReason.CALLBACK, "stopped by a callback")
+        except BaseException as error:
+            state.stop(StopReason.FAILED, f"failed: {type(error).__name__}: {error}")
             raise
         finally:
             state.elapsed = time.perf_counter() - started
