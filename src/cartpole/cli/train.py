@@ -132,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
     console.print(f"run: {outcome.run.path}")
     console.print(
         f"trained {state.env_steps:,} env steps, {state.episodes:,} episodes in {state.elapsed:.1f} s "
-        f"({state.stop_reason})"
+        f"({state.stop_detail})"
     )
     if outcome.signal is not None:
         console.print(

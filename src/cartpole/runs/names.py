@@ -45,11 +45,6 @@ class StopReason(StrEnum):
     INTERRUPTED = "interrupted"
     FAILED = "failed"
 
-    @property
-    def completes_training(self) -> bool:
-        """Training is over for good: a resume only has to give the final verdict."""
-        return self in (StopReason.BUDGET, StopReason.SOLVED, StopReason.CALLBACK)
-
 
 class CheckpointName(StrEnum):
     """The checkpoints a run keeps in ``checkpoints/<name>.pt``."""

@@ -149,7 +149,7 @@ class CheckpointSchedule:
 
 
 class CheckpointCallback(Callback):
-    """Keeps ``latest`` (at start, on :class:`CheckpointSchedule` and at exit), ``best`` (best
+    """Keeps ``latest`` (on :class:`CheckpointSchedule` and at exit), ``best`` (best
     evaluation, with its report in ``best_eval.json``) and ``solved`` (first verified solve)."""
 
     def __init__(
@@ -166,15 +166,14 @@ class CheckpointCallback(Callback):
         self.last_save = (0, 0.0, 0.0)
         """(env steps, perf_counter time, budget progress) at the last save of ``latest``."""
         self.best: EvalReport | None = None
+        self.latest_loop: dict[str, Any] | None = None
+        """The loop counters in the last ``latest`` written."""
 
     def on_start(self, loop: TrainingLoop) -> None:
         self.mark_saved(loop)
         previous = self.run.best_eval_report() if loop.state.evaluations else None
         if previous and "returns" in previous:
             self.best = EvalReport.from_dict(previous)
-        if not self.run.checkpoint_path(CheckpointName.LATEST).exists():
-            # A kill before the first interval leaves a run that --resume starts over, not a dead one.
-            self.save(loop, CheckpointName.LATEST, resume=True)
 
     def mark_saved(self, loop: TrainingLoop) -> None:
         progress = budget_progress(self.schedule.budget, loop.state)
@@ -203,6 +202,8 @@ class CheckpointCallback(Callback):
             "resumable": resume,
         }
         save_checkpoint(self.run.checkpoint_path(name), Checkpoint(meta=meta, tensors=tensors))
+        if name == CheckpointName.LATEST:
+            self.latest_loop = meta["loop"]
 
     def on_step(self, loop: TrainingLoop, result: LearnResult) -> bool:
         if self.due(loop):
@@ -220,7 +221,12 @@ class CheckpointCallback(Callback):
         return True
 
     def on_end(self, loop: TrainingLoop) -> None:
-        self.save(loop, CheckpointName.LATEST, resume=True)
+        if without_time(loop.state.to_dict()) != without_time(self.latest_loop or {}):
+            self.save(loop, CheckpointName.LATEST, resume=True)  # not already saved by the last step
+
+
+def without_time(loop: dict[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in loop.items() if k != "elapsed"}
 
 
 def finite(scalars: dict[str, float]) -> dict[str, float]:

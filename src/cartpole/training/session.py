@@ -309,19 +309,22 @@ def resume(run_path: Path | str, *, quiet: bool = True, device: str = "auto") ->
         return run_loop(setup, learner, state, quiet)
 
 
+RESUMABLE_STOPS = (StopReason.INTERRUPTED, StopReason.FAILED, StopReason.BUDGET)
+"""Stops a resume trains on from (the budget is checked again at start: a spent one stops at once).
+After the others (solved, a callback's stop) a resume only gives the final verdict."""
+
+
 def restore(run: RunDir, learner: Any) -> LoopState | None:
     """Load ``latest.pt`` into ``learner`` and return the loop counters to go on from; None (start
-    over) for a run killed before its first checkpoint."""
+    over, as the run's seed makes it the same run) for a run killed before its first ``latest``."""
     latest = run.checkpoint_path(CheckpointName.LATEST)
-    if not latest.is_file():
-        if not run.checkpoints():
-            return None
-        raise CheckpointError(f"run {run.name} has no checkpoints/latest.pt to resume from")
+    if not latest.exists():
+        return None
     checkpoint = load_checkpoint(latest)
     if not checkpoint.meta.get("resumable"):
         raise CheckpointError(f"{latest} is not a resumable checkpoint")
     learner.load_state_dict(checkpoint.tensors, checkpoint.meta["learner"])
     state = LoopState.from_dict(checkpoint.meta["loop"])
-    if state.stop_reason is not None and not state.stop_reason.completes_training:
-        state.clear_stop()  # interrupted or failed: train on
+    if state.stop_reason in RESUMABLE_STOPS:
+        state.clear_stop()
     return state
