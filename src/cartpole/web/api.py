@@ -10,7 +10,7 @@ from pydantic import BaseModel, Field
 
 from cartpole import __version__
 from cartpole.envs import env_info
-from cartpole.runs import CheckpointError, RunDir
+from cartpole.runs import CheckpointError, RunDir, RunState
 from cartpole.web.episodes import MAX_NUDGE, UNLIMITED_STEPS, PolicyCache, play_episode, sim_limits
 from cartpole.web.physics import PHYSICS_LABELS, PHYSICS_LIMITS, PhysicsError, default_physics, is_cartpole
 from cartpole.web.runs_folder import NotFound, RunsFolder
@@ -30,7 +30,7 @@ class RunRow(BaseModel):
     seed: int | None
     preset: str | None
     created: str | None
-    state: str = Field(description="running, finished, interrupted, failed, unknown, corrupt or incomplete")
+    state: RunState = Field(description=f"one of: {', '.join(RunState)} (crashed: its process is gone)")
     env_steps: int | None
     episodes: int | None
     best_eval_mean: float | None
