@@ -180,7 +180,7 @@ def evaluate(
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     info = env_info(env_id)
     if seed is None:
-        from cartpole.training.seeding import fresh_eval_seed
+        from cartpole.core.seeding import fresh_eval_seed
 
         seed = fresh_eval_seed()
     used = resolve_simulator(env_id, simulator)

@@ -144,14 +144,14 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 from numpy.typing import ArrayLike, DTypeLike, NDArray
 
+from cartpole.envs.registration import REFERENCE_IDS, register_fast_envs
+
 KinematicsIntegrator = Literal["euler", "semi-implicit euler"]
 
 #: Gymnasium's bounds for the uniform start state (``reset`` without options).
 DEFAULT_RESET_LOW, DEFAULT_RESET_HIGH = -0.05, 0.05
 
 #: The Gymnasium ids whose dynamics we reproduce; ours are registered as ``cartpole/<id>``.
-REFERENCE_IDS: tuple[str, ...] = ("CartPole-v0", "CartPole-v1")
-_NAMESPACE = "cartpole"
 
 _DTYPES = (np.dtype(np.float32), np.dtype(np.float64))
 
@@ -672,26 +672,6 @@ def _check_same_thresholds(old: CartPoleParams, new: CartPoleParams) -> None:
         raise ValueError(
             "x_threshold and theta_threshold_radians define the observation space and cannot change "
             "on a live env; make a new env with these params instead"
-        )
-
-
-def register_fast_envs() -> None:
-    """Register ``cartpole/CartPole-v0`` and ``cartpole/CartPole-v1`` with Gymnasium (idempotent).
-
-    Time limits and reward thresholds are copied from Gymnasium's own registrations at runtime, so
-    ``gymnasium.make`` and ``gymnasium.make_vec`` give our envs the same limits as the originals.
-    """
-    for reference_id in REFERENCE_IDS:
-        env_id = f"{_NAMESPACE}/{reference_id}"
-        if env_id in gym.registry:
-            continue
-        reference = gym.spec(reference_id)
-        gym.register(
-            id=env_id,
-            entry_point=f"{__name__}:CartPoleEnv",
-            vector_entry_point=f"{__name__}:CartPoleVectorEnv",
-            max_episode_steps=reference.max_episode_steps,
-            reward_threshold=reference.reward_threshold,
         )
 
 

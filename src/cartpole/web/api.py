@@ -8,7 +8,8 @@ from fastapi import APIRouter, HTTPException, Query, Request
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, Field
 
-from cartpole import __version__
+from cartpole.core.version import __version__
+from cartpole.agents.registry import get_agent
 from cartpole.envs import env_info
 from cartpole.runs import CheckpointError, RunDir
 from cartpole.web.episodes import MAX_NUDGE, UNLIMITED_STEPS, PolicyCache, play_episode, sim_limits
@@ -184,7 +185,7 @@ def episode(
         raise HTTPException(409, f"checkpoint {checkpoint} cannot be loaded: {err}") from err
     except PhysicsError as err:
         raise HTTPException(422, str(err)) from err
-    label = "Q-values" if agent == "dqn" else "linear score"
+    label = score_label(agent)
     body = {
         "run": run.name,
         "checkpoint": checkpoint,
@@ -192,6 +193,14 @@ def episode(
         **result.to_dict(sim_limits(sim), label),
     }
     return JSONResponse(body)
+
+
+def score_label(agent: str | None) -> str:
+    """What the agent's per-action scores mean, as the agent itself says."""
+    try:
+        return get_agent(str(agent)).score_label
+    except ValueError:  # an agent this version does not know
+        return "score"
 
 
 def run_env(run: RunDir) -> tuple[str, str | None]:
