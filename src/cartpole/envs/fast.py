@@ -316,7 +316,7 @@ class CartPoleStepper:
         if not isinstance(action, (int, np.integer)) or action not in (0, 1):
             raise ValueError(f"action must be 0 (push left) or 1 (push right), got {action!r}")
         # int(): a numpy integer of another width would compile a second specialization.
-        return self._kernels.step_single(state, int(action), self._packed, out)  # type: ignore[no-any-return]
+        return self._kernels.step_single(state, int(action), self._packed, out)
 
 
 _FLOAT64 = np.dtype(np.float64)
@@ -570,7 +570,8 @@ class CartPoleEnv(_Physics, gym.Env[NDArray[np.float32], int]):
         self.render_mode = render_mode
         self._sutton_barto_reward = bool(sutton_barto_reward)
         self._init_physics(params, dtype)
-        self.action_space = spaces.Discrete(2)
+        # Gymnasium types Env.action_space as Space[int]; Discrete samples np.int64 (as in its own CartPole).
+        self.action_space = spaces.Discrete(2)  # type: ignore[assignment]
         high = self._params.observation_high()
         self.observation_space = spaces.Box(-high, high, dtype=np.float32)
         self._state: NDArray[np.floating[Any]] | None = None
@@ -655,7 +656,7 @@ class CartPoleEnv(_Physics, gym.Env[NDArray[np.float32], int]):
         renderer.length = self._params.length
         renderer.x_threshold = self._params.x_threshold
         renderer.state = None if self._state is None else self._state.astype(np.float64)
-        return renderer.render()  # type: ignore[no-any-return]
+        return renderer.render()
 
     def close(self) -> None:
         """Close the renderer, if one was opened."""
