@@ -12,9 +12,10 @@ import pytest
 import torch
 
 from cartpole.agents.registry import get_agent
+from cartpole.core.names import StopReason
 from cartpole.envs import env_info
 from cartpole.evaluation import EvalReport
-from cartpole.runs import LiveStatus, RunDir, StopReason, load_checkpoint
+from cartpole.runs import LiveStatus, RunDir, load_checkpoint
 from cartpole.training import Budget, Callback, LearnResult, LoopState, TrainingLoop, TrainSettings
 from cartpole.training.callbacks import (
     BudgetCallback,

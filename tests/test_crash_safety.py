@@ -19,7 +19,8 @@ from pathlib import Path
 import pytest
 
 from cartpole.cli.main import main
-from cartpole.runs import LiveStatus, RunDir, RunState, displayed_state, load_checkpoint, summarize_run
+from cartpole.core.names import RunState
+from cartpole.runs import LiveStatus, RunDir, displayed_state, load_checkpoint, summarize_run
 from cartpole.runs.run_dir import STALE_SECONDS
 from cartpole.training import resume, train
 

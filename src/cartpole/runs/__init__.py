@@ -1,7 +1,6 @@
 """Run folders and checkpoints: the record of every training run."""
 
 from cartpole.runs.checkpoint import Checkpoint, CheckpointError, load_checkpoint, save_checkpoint
-from cartpole.runs.names import CheckpointName, RunState, StopReason
 from cartpole.runs.run_dir import (
     LiveStatus,
     RunBusy,
@@ -16,14 +15,11 @@ from cartpole.runs.run_dir import (
 __all__ = [
     "Checkpoint",
     "CheckpointError",
-    "CheckpointName",
     "LiveStatus",
     "RunBusy",
     "RunDir",
     "RunError",
-    "RunState",
     "RunSummary",
-    "StopReason",
     "displayed_state",
     "list_runs",
     "load_checkpoint",

@@ -24,10 +24,11 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import IO, Any
 
+from cartpole.core.errors import InputError
+from cartpole.core.names import CheckpointName, RunState
 from cartpole.runs.atomic import write_json_atomic
-from cartpole.runs.names import CheckpointName, RunState
 
 CONFIG = "config.json"
 STATUS = "status.json"
@@ -44,7 +45,7 @@ STALE_SECONDS = 60.0
 RUN_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*__[A-Za-z0-9._-]+__s\d+__\d{8}-\d{6}(-\d+)?$")
 
 
-class RunError(ValueError):
+class RunError(InputError, ValueError):
     """A run folder is missing or unreadable."""
 
 
@@ -220,7 +221,10 @@ class RunDir:
         text = "".join(json.dumps(row) + "\n" for row in kept)
         from cartpole.runs.atomic import write_atomic
 
-        write_atomic(self.metrics_path, lambda handle: handle.write(text.encode()))
+        def write(handle: IO[bytes]) -> None:
+            handle.write(text.encode())
+
+        write_atomic(self.metrics_path, write)
 
 
 class LiveStatus:
@@ -312,6 +316,10 @@ def training_process_alive(status: dict[str, Any], now: float | None = None) -> 
     return True
 
 
+STOPPED_STATES = frozenset({RunState.FINISHED, RunState.INTERRUPTED, RunState.FAILED, RunState.CRASHED})
+"""States in which no process writes to the run any more (until a ``--resume``)."""
+
+
 def displayed_state(status: dict[str, Any], now: float | None = None) -> RunState:
     """The state to show for a run's ``status.json``: the written state, except that a run whose
     training process is gone shows as crashed (``--resume`` continues it). Everything that shows or
@@ -359,7 +367,7 @@ def summarize_run(path: Path) -> RunSummary:
             None,
             None,
             None,
-            RunState.CORRUPT if (path / CONFIG).exists() else RunState.INCOMPLETE,
+            "corrupt" if (path / CONFIG).exists() else "incomplete",
             None,
             None,
             None,

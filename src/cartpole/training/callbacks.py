@@ -9,22 +9,16 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TextIO
 
+from cartpole.agents.learner import LearnResult
 from cartpole.agents.registry import AgentSpec
-from cartpole.envs import EnvInfo
+from cartpole.core.names import CheckpointName, RunState, StopReason
+from cartpole.core.seeding import eval_seed
+from cartpole.envs import EnvInfo, check_simulator
 from cartpole.evaluation import MIN_EPISODES_FOR_SOLVED, EvalReport, Policy, evaluate
-from cartpole.runs import (
-    Checkpoint,
-    CheckpointName,
-    LiveStatus,
-    RunDir,
-    RunState,
-    StopReason,
-    save_checkpoint,
-)
+from cartpole.runs import Checkpoint, LiveStatus, RunDir, save_checkpoint
 from cartpole.training.budget import Budget
 from cartpole.training.config import TrainSettings
-from cartpole.training.loop import Callback, LearnResult, LoopState, TrainingLoop
-from cartpole.training.seeding import eval_seed
+from cartpole.training.loop import Callback, LoopState, TrainingLoop
 
 
 class BudgetCallback(Callback):
@@ -117,7 +111,7 @@ def screened_evaluation(
         env.env_id,
         settings.eval_episodes,
         seed=eval_seed(seed, 2 * index + 1),
-        simulator=settings.eval_simulator,  # type: ignore[arg-type]
+        simulator=check_simulator(settings.eval_simulator),
     )
 
 
@@ -396,7 +390,7 @@ TENSORBOARD_EXTRA = "pip install 'cartpole[tensorboard]'"
 
 def require_tensorboard() -> None:
     """Raise ConfigError with the install line when the ``tensorboard`` package is missing."""
-    from cartpole.training.config import ConfigError
+    from cartpole.core.errors import ConfigError
 
     try:
         import tensorboard  # noqa: F401

@@ -13,20 +13,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from cartpole import __version__
 from cartpole.agents.registry import AgentSpec, get_agent
-from cartpole.envs import EnvInfo, env_info
+from cartpole.core.config import build_config, config_to_dict
+from cartpole.core.errors import ConfigError
+from cartpole.core.names import CheckpointName, RunState, StopReason
+from cartpole.core.seeding import MAX_TRAIN_SEED, final_eval_seed
+from cartpole.core.version import __version__
+from cartpole.envs import EnvInfo, check_simulator, env_info
 from cartpole.evaluation import MIN_EPISODES_FOR_SOLVED, EvalReport, evaluate
-from cartpole.runs import (
-    CheckpointError,
-    CheckpointName,
-    LiveStatus,
-    RunDir,
-    RunState,
-    StopReason,
-    displayed_state,
-    load_checkpoint,
-)
+from cartpole.runs import CheckpointError, LiveStatus, RunDir, displayed_state, load_checkpoint
 from cartpole.runs.run_dir import utc_now
 from cartpole.training.budget import Budget, parse_budget
 from cartpole.training.callbacks import (
@@ -42,15 +37,8 @@ from cartpole.training.callbacks import (
     require_tensorboard,
     status_fields,
 )
-from cartpole.training.config import (
-    ConfigError,
-    TrainSettings,
-    build_config,
-    config_to_dict,
-    resolve_config,
-)
+from cartpole.training.config import TrainSettings, resolve_config
 from cartpole.training.loop import Callback, LoopState, TrainingLoop
-from cartpole.training.seeding import MAX_TRAIN_SEED, final_eval_seed
 
 
 @dataclass
@@ -189,7 +177,7 @@ def final_verdict(setup: RunSetup) -> EvalReport:
         setup.env.env_id,
         max(settings.eval_episodes, MIN_EPISODES_FOR_SOLVED),
         seed=final_eval_seed(setup.seed),
-        simulator=settings.eval_simulator,  # type: ignore[arg-type]
+        simulator=check_simulator(settings.eval_simulator),
     )
     run.write_eval(report.to_dict())
     return report

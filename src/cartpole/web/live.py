@@ -27,7 +27,9 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Query, WebSocket, WebSocketDisconnect
 from pydantic import BaseModel, Field, TypeAdapter, ValidationError
 
-from cartpole.runs import RunDir, RunState, displayed_state
+from cartpole.core.names import RunState
+from cartpole.runs import RunDir, displayed_state
+from cartpole.runs.run_dir import STOPPED_STATES
 from cartpole.web.api import MAX_SEED
 from cartpole.web.physics import CartPoleSim, PhysicsError, is_cartpole, start_state
 from cartpole.web.runs_folder import NotFound, RunsFolder
@@ -71,7 +73,7 @@ async def live_metrics(websocket: WebSocket, name: str, offset: int = 0) -> None
         reader.cancel()
 
 
-async def _follow(websocket: WebSocket, run: RunDir, offset: int, reader: asyncio.Future[str]) -> None:
+async def _follow(websocket: WebSocket, run: RunDir, offset: int, reader: asyncio.Future[str | None]) -> None:
     seen_metrics = seen_status = None
     state = shown = RunState.UNKNOWN
     while True:
@@ -91,7 +93,7 @@ async def _follow(websocket: WebSocket, run: RunDir, offset: int, reader: asynci
             if rows:
                 await websocket.send_json({"type": "metrics", "offset": offset, "rows": rows})
             offset = next_offset
-        if status is not None and state.stopped and stamp == _stamp(run.metrics_path):
+        if status is not None and state in STOPPED_STATES and stamp == _stamp(run.metrics_path):
             await websocket.send_json({"type": "end", "state": state.value})
             await websocket.close(code=1000, reason="run stopped")
             return
@@ -118,7 +120,7 @@ class Step(BaseModel):
     action: Literal[0, 1]
 
 
-PlayMessage = TypeAdapter(Annotated[Reset | Step, Field(discriminator="type")])
+PlayMessage: TypeAdapter[Reset | Step] = TypeAdapter(Annotated[Reset | Step, Field(discriminator="type")])
 
 
 class PlaySession:
