@@ -207,14 +207,16 @@ def main() -> int:
         end = f"{'finished' if t.finished else 'NOT finished'}, {t.stop_detail}; {t.verdict}"
         print(
             f"{t.index:>2} {t.agent:5} {t.kill_after:7.1f}s {t.status_at_kill:>14} {t.steps_at_kill:>8} "
-            f"{t.steps_in_latest:>8} {t.lost:>6} {t.interval_steps:>8.0f} {t.resume_rc!s:>6} {t.final_steps:>8}  {end}"
+            f"{t.steps_in_latest:>8} {t.lost:>6} {t.interval_steps:>8.0f} {t.resume_rc!s:>6} "
+            f"{t.final_steps:>8}  {end}"
         )
     worst = max(done, key=lambda t: t.lost)
     passed = sum(t.passed for t in done)
+    verdicts = sum(t.finished and t.verdict is not None for t in done)
     print(
         f"largest loss: {worst.lost} env steps (trial {worst.index}, {worst.agent}; interval "
-        f"{worst.interval_steps:.0f}); resumed to a verdict: {sum(t.finished and t.verdict is not None for t in done)}"
-        f"/{len(done)}; passed: {passed}/{len(done)}"
+        f"{worst.interval_steps:.0f}); resumed to a verdict: {verdicts}/{len(done)}; "
+        f"passed: {passed}/{len(done)}"
     )
     if args.json:
         Path(args.json).write_text(json.dumps([asdict(t) | {"lost": t.lost} for t in done], indent=2))
