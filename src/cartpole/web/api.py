@@ -32,7 +32,7 @@ class RunRow(BaseModel):
     seed: int | None
     preset: str | None
     created: str | None
-    state: RunState = Field(description=f"one of: {', '.join(RunState)} (crashed: its process is gone)")
+    state: str = Field(description=f"one of: {', '.join(RunState)} (crashed: its process is gone)")
     env_steps: int | None
     episodes: int | None
     best_eval_mean: float | None
