@@ -29,6 +29,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from cartpole.agents.adam import FusedAdam
+from cartpole.agents.memory import dqn_memory_problem
 from cartpole.agents.registry import AgentSpec
 from cartpole.agents.replay_buffer import ReplayBuffer
 from cartpole.envs import EnvInfo, make_vec_env
@@ -143,6 +144,8 @@ class DQNConfig:
         require(self.short_episode_length >= 0, "short_episode_length must be >= 0")
         require(self.simulator in ("fast", "gymnasium"), "simulator must be fast or gymnasium")
         require(self.torch_threads >= 0, "torch_threads must be >= 0")
+        problem = dqn_memory_problem(self.buffer_size, self.hidden_sizes, self.batch_size)
+        require(problem is None, problem or "")
 
 
 # ----------------------------------------------------------------------------------------------

@@ -7,6 +7,7 @@ config dataclass or of :class:`TrainSettings`; anything else is an error that na
 from __future__ import annotations
 
 import dataclasses
+import math
 import tomllib
 import types
 import typing
@@ -14,7 +15,7 @@ from dataclasses import dataclass, fields
 from importlib import resources
 from typing import Any
 
-from cartpole.training.budget import parse_budget
+from cartpole.training.budget import BudgetError, parse_budget
 
 
 class ConfigError(ValueError):
@@ -41,7 +42,10 @@ class TrainSettings:
     """End training at the first verified solve."""
 
     def validate(self) -> None:
-        parse_budget(self.budget)
+        try:
+            parse_budget(self.budget)
+        except BudgetError as err:
+            raise ConfigError(f"budget: {err}") from None
         require(self.eval_every >= 0, "eval_every must be >= 0")
         require(self.eval_screen_episodes >= 1, "eval_screen_episodes must be >= 1")
         require(self.eval_episodes >= 1, "eval_episodes must be >= 1")
@@ -82,20 +86,45 @@ def _coerce(value: Any, annotation: Any, key: str) -> Any:
                 if isinstance(value, str) and value.lower() in ("true", "false", "1", "0"):
                     return value.lower() in ("true", "1")
             elif origin in (int, float):
-                if isinstance(value, bool):
-                    continue
-                if origin is int and isinstance(value, float) and not value.is_integer():
-                    continue
-                return origin(float(value)) if origin is int else origin(value)
+                return _number(value, origin)
             elif origin is str:
                 return str(value)
             elif origin in (list, tuple):
                 items = value if isinstance(value, list | tuple) else str(value).split(",")
                 (item_type,) = typing.get_args(option)[:1] or (str,)
                 return origin(_coerce(v, item_type, key) for v in items if v != "")
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             continue
-    raise ConfigError(f"{key}={value!r} is not a valid {hint}")
+    name = hint.__name__ if isinstance(hint, type) else str(hint)
+    kinds = {typing.get_origin(o) or o for o in options}
+    rule = (
+        " (a whole number is needed)"
+        if int in kinds
+        else " (a finite number is needed)"
+        if float in kinds
+        else ""
+    )
+    raise ConfigError(f"{key}={value!r} is not a valid {name}{rule}")
+
+
+def _number(value: Any, kind: type) -> int | float:
+    """``value`` (a number, or text from the command line) as a finite int or float; ValueError if
+    it is not one (``2.5`` for an int, ``inf``, ``nan``, ``true``)."""
+    if isinstance(value, bool) or not isinstance(value, int | float | str):
+        raise TypeError(f"not a number: {value!r}")
+    if isinstance(value, str):
+        text = value.strip()
+        try:
+            value = int(text)
+        except ValueError:
+            value = float(text)
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ValueError(f"not finite: {value}")
+    if kind is int:
+        if isinstance(value, float) and not value.is_integer():
+            raise ValueError(f"not whole: {value}")
+        return int(value)
+    return float(value)
 
 
 def build_config(cls: type, values: dict[str, Any]) -> Any:
