@@ -8,6 +8,7 @@ assumed (every real env has at least that many).
 
 from __future__ import annotations
 
+import itertools
 import os
 from collections.abc import Sequence
 
@@ -31,7 +32,7 @@ def physical_memory_bytes() -> int | None:
 
 def mlp_parameters(sizes: Sequence[int]) -> int:
     """Weights and biases of an MLP whose layer widths are ``sizes`` (input first, output last)."""
-    return sum(n_in * n_out + n_out for n_in, n_out in zip(sizes[:-1], sizes[1:], strict=False))
+    return sum(n_in * n_out + n_out for n_in, n_out in itertools.pairwise(sizes))
 
 
 def dqn_memory_bytes(
