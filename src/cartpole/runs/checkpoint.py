@@ -73,14 +73,17 @@ def load_checkpoint(path: Path) -> Checkpoint:
         ) from err
     except Exception as err:  # weights_only refuses pickled objects with UnpicklingError
         raise CheckpointError(
-            f"{path} is not a cartpole checkpoint (it holds objects we do not unpickle: {err!s:.80})"
+            f"{path} is not a cartpole checkpoint: it holds pickled Python objects, which we never load "
+            f"(they can run code); use a checkpoint written by `cartpole train` ({type(err).__name__})"
         ) from err
     if not isinstance(payload, dict) or not isinstance(payload.get("meta"), str):
         raise CheckpointError(f"{path} is not a cartpole checkpoint (no metadata found)")
     try:
         meta = json.loads(payload["meta"])
-    except json.JSONDecodeError as err:
+    except (json.JSONDecodeError, RecursionError) as err:
         raise CheckpointError(f"{path} has corrupt metadata: {err}") from err
+    if not isinstance(meta, dict):
+        raise CheckpointError(f"{path} has corrupt metadata (a {type(meta).__name__}, not an object)")
     if meta.get("format") != FORMAT:
         raise CheckpointError(f"{path} is not a cartpole checkpoint (format {meta.get('format')!r})")
     if meta.get("format_version") != FORMAT_VERSION:
@@ -89,7 +92,10 @@ def load_checkpoint(path: Path) -> Checkpoint:
             f"{meta.get('package_version')}); this is cartpole {__version__}, which reads format "
             f"{FORMAT_VERSION}: use that version to load it"
         )
+    for key in ("agent", "env_id"):
+        if not isinstance(meta.get(key), str):
+            raise CheckpointError(f"{path} has corrupt metadata (no {key!r})")
     tensors = payload.get("tensors", {})
-    if not isinstance(tensors, dict):
-        raise CheckpointError(f"{path} is corrupt (tensors are not a mapping)")
+    if not isinstance(tensors, dict) or not all(isinstance(t, torch.Tensor) for t in tensors.values()):
+        raise CheckpointError(f"{path} is corrupt (tensors are not a mapping of names to tensors)")
     return Checkpoint(meta=meta, tensors=tensors)

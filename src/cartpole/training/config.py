@@ -128,10 +128,22 @@ def _number(value: Any, kind: type) -> int | float:
 
 
 def build_config(cls: type, values: dict[str, Any]) -> Any:
-    """An instance of dataclass ``cls`` from ``values`` (unknown keys were filtered before)."""
+    """An instance of dataclass ``cls`` from ``values``; ConfigError for an unknown key or bad value."""
     kinds = {f.name: f.type for f in fields(cls)}
+    unknown = sorted(set(values) - set(kinds))
+    if unknown:
+        raise ConfigError(f"unknown setting {unknown[0]!r}; valid: {', '.join(sorted(kinds))}")
     kwargs = {k: _coerce(v, kinds[k], k) for k, v in values.items()}
     return cls(**kwargs)
+
+
+def build_valid_config(cls: type, values: dict[str, Any]) -> Any:
+    """``build_config``, then the config's own ``validate()`` (if it has one)."""
+    config = build_config(cls, values)
+    validate = getattr(config, "validate", None)
+    if validate is not None:
+        validate()
+    return config
 
 
 def resolve_config(
@@ -150,12 +162,8 @@ def resolve_config(
         raise ConfigError(
             f"unknown setting {unknown[0]!r} for {agent}; valid: {', '.join(sorted(agent_keys | train_keys))}"
         )
-    config = build_config(config_cls, {k: v for k, v in values.items() if k in agent_keys})
-    settings = build_config(TrainSettings, {k: v for k, v in values.items() if k in train_keys})
-    validate = getattr(config, "validate", None)
-    if validate is not None:
-        validate()
-    settings.validate()
+    config = build_valid_config(config_cls, {k: v for k, v in values.items() if k in agent_keys})
+    settings = build_valid_config(TrainSettings, {k: v for k, v in values.items() if k in train_keys})
     return config, settings
 
 

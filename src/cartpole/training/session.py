@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from cartpole import __version__
-from cartpole.agents.registry import AgentSpec, get_agent
+from cartpole.agents.registry import AgentSpec, agent_names, get_agent
 from cartpole.envs import EnvInfo, env_info
 from cartpole.evaluation import MIN_EPISODES_FOR_SOLVED, EvalReport, evaluate
 from cartpole.runs import CheckpointError, RunDir, load_checkpoint
@@ -33,7 +33,7 @@ from cartpole.training.callbacks import (
 from cartpole.training.config import (
     ConfigError,
     TrainSettings,
-    build_config,
+    build_valid_config,
     config_to_dict,
     resolve_config,
 )
@@ -100,14 +100,18 @@ class RunSetup:
 
     @classmethod
     def from_record(cls, run: RunDir, record: dict[str, Any]) -> RunSetup:
+        if record["agent"] not in agent_names():
+            raise ConfigError(f"{run.path / 'config.json'} names an unknown agent {record['agent']!r}")
+        if not 0 <= record["seed"] <= MAX_TRAIN_SEED:
+            raise ConfigError(f"{run.path / 'config.json'} records seed {record['seed']}, out of range")
         spec = get_agent(record["agent"])
         return cls(
             run=run,
             spec=spec,
             env=env_info(record["env_id"]),
             seed=record["seed"],
-            config=build_config(spec.config_cls, record["config"]),
-            settings=build_config(TrainSettings, record["settings"]),
+            config=build_valid_config(spec.config_cls, record["config"]),
+            settings=build_valid_config(TrainSettings, record["settings"]),
             budget=Budget.from_dict(record["budget"]),
             tensorboard=bool(record.get("tensorboard", False)),
             meta={k: record[k] for k in ("agent", "env_id", "seed", "preset", "config")},
@@ -224,7 +228,7 @@ def resume(run_path: Path | str, *, quiet: bool = True, device: str = "auto") ->
     """Continue a run from ``checkpoints/latest.pt`` with its recorded config and budget."""
     run = RunDir.open(Path(run_path))
     record = run.config()
-    status = run.status()
+    status = run.status(strict=True)
     if status.get("state") == "finished":
         raise AlreadyFinished(
             f"run {run.name} already finished ({status.get('stop_reason') or 'done'}); nothing to resume"
@@ -236,8 +240,19 @@ def resume(run_path: Path | str, *, quiet: bool = True, device: str = "auto") ->
     if not checkpoint.meta.get("resumable"):
         raise CheckpointError(f"{latest} is not a resumable checkpoint")
     setup = RunSetup.from_record(run, record)
+    if (checkpoint.agent, checkpoint.env_id) != (setup.spec.name, setup.env.env_id):
+        raise CheckpointError(
+            f"{latest} holds {checkpoint.agent} on {checkpoint.env_id}, but run {run.name} trains "
+            f"{setup.spec.name} on {setup.env.env_id}: it belongs to another run"
+        )
     learner = setup.spec.make_learner(setup.config, setup.env, setup.seed, resolve_device(device))
-    learner.load_state_dict(checkpoint.tensors, checkpoint.meta["learner"])
-    state = LoopState.from_dict(checkpoint.meta["loop"])
+    try:
+        learner.load_state_dict(checkpoint.tensors, checkpoint.meta["learner"])
+        state = LoopState.from_dict(checkpoint.meta["loop"])
+    except (KeyError, IndexError, TypeError, ValueError, RuntimeError, AttributeError) as err:
+        raise CheckpointError(
+            f"{latest} does not fit run {run.name}'s config ({type(err).__name__}: {err!s:.100}); "
+            "it may come from another run: restore the run's own latest.pt, or train again"
+        ) from err
     run.truncate_metrics_after(state.env_steps)
     return run_loop(setup, learner, state, quiet)
