@@ -67,7 +67,12 @@ STATUS_OPTIONAL: dict[str, Kind] = {
     "solved_at_step": (int, type(None)),
 }
 EVAL_FIELDS: dict[str, Kind] = {"solved": bool, "verdict": str}
-EVAL_OPTIONAL: dict[str, Kind] = {"mean": (int, float), "episodes": int, "env_id": str}
+EVAL_OPTIONAL: dict[str, Kind] = {
+    "mean": (int, float),
+    "episodes": int,
+    "env_id": str,
+    "threshold": (int, float, type(None)),
+}
 
 
 def _is(value: Any, kind: Kind) -> bool:
@@ -76,6 +81,12 @@ def _is(value: Any, kind: Kind) -> bool:
     if isinstance(value, bool):
         return bool in kinds
     return isinstance(value, kinds) or (float in kinds and isinstance(value, int))
+
+
+def _kind_name(kind: Kind) -> str:
+    names = {str: "text", int: "a whole number", float: "a number", bool: "true or false", dict: "an object"}
+    kinds = kind if isinstance(kind, tuple) else (kind,)
+    return " or ".join("null" if k is type(None) else names.get(k, k.__name__) for k in kinds)
 
 
 def read_record(path: Path, required: dict[str, Kind], optional: dict[str, Kind]) -> dict[str, Any]:
@@ -94,7 +105,9 @@ def read_record(path: Path, required: dict[str, Kind], optional: dict[str, Kind]
             if key in required:
                 raise RunError(f"{path} is malformed: no {key!r}")
         elif not _is(data[key], kind):
-            raise RunError(f"{path} is malformed: {key!r} is a {type(data[key]).__name__}: {data[key]!r:.40}")
+            raise RunError(
+                f"{path} is malformed: {key!r} should be {_kind_name(kind)}, found {data[key]!r:.40}"
+            )
     return data
 
 
@@ -217,9 +230,11 @@ class RunDir:
         rows = []
         for line in lines[offset:]:
             try:
-                rows.append(json.loads(line))
-            except json.JSONDecodeError:
+                row = json.loads(line)
+            except (json.JSONDecodeError, RecursionError):
                 continue
+            if isinstance(row, dict):  # a line that is valid JSON but not a row is skipped too
+                rows.append(row)
         return rows, max(offset, len(lines))
 
     def truncate_metrics_after(self, step: int) -> None:

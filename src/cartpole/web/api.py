@@ -10,7 +10,7 @@ from pydantic import BaseModel, Field
 
 from cartpole import __version__
 from cartpole.envs import env_info
-from cartpole.runs import CheckpointError, RunDir
+from cartpole.runs import CheckpointError, RunDir, RunError
 from cartpole.web.episodes import MAX_NUDGE, UNLIMITED_STEPS, PolicyCache, play_episode, sim_limits
 from cartpole.web.physics import PHYSICS_LABELS, PHYSICS_LIMITS, PhysicsError, default_physics, is_cartpole
 from cartpole.web.runs_folder import NotFound, RunsFolder
@@ -30,7 +30,9 @@ class RunRow(BaseModel):
     seed: int | None
     preset: str | None
     created: str | None
-    state: str = Field(description="running, finished, interrupted, failed, unknown, corrupt or incomplete")
+    state: str = Field(
+        description="running, finished, interrupted, failed, unknown, unreadable (see problem) or incomplete"
+    )
     env_steps: int | None
     episodes: int | None
     best_eval_mean: float | None
@@ -44,6 +46,7 @@ class RunRow(BaseModel):
 class RunsOut(BaseModel):
     runs_dir: str
     runs: list[RunRow]
+    problem: str | None = Field(None, description="why the runs folder itself cannot be listed, if it cannot")
 
 
 class MetricsOut(BaseModel):
@@ -102,8 +105,13 @@ def info(request: Request) -> dict[str, Any]:
 
 @router.get("/runs", response_model=RunsOut)
 def runs(request: Request) -> dict[str, Any]:
-    """Every run folder, newest first; half-written or corrupt ones are listed with their problem."""
-    return {"runs_dir": str(folder(request).root), "runs": folder(request).summaries()}
+    """Every run folder, newest first; half-written or unreadable ones are listed with their problem."""
+    runs_folder = folder(request)
+    try:
+        rows, problem = runs_folder.summaries(), None
+    except RunError as err:
+        rows, problem = [], str(err)
+    return {"runs_dir": str(runs_folder.root), "runs": rows, "problem": problem}
 
 
 @router.get("/runs/{name}")
