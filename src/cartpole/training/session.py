@@ -229,6 +229,7 @@ def resume(run_path: Path | str, *, quiet: bool = True, device: str = "auto") ->
     run = RunDir.open(Path(run_path))
     record = run.config()
     status = run.status(strict=True)
+    run.eval_report(strict=True)  # a resume may rewrite it: never over a record it cannot read
     if status.get("state") == "finished":
         raise AlreadyFinished(
             f"run {run.name} already finished ({status.get('stop_reason') or 'done'}); nothing to resume"
