@@ -8,6 +8,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from cartpole.envs import EnvInfo, env_info
 from cartpole.evaluation import Policy
 from cartpole.runs import Checkpoint, CheckpointError, RunDir, load_checkpoint
@@ -119,7 +121,9 @@ def policy_of(checkpoint: Checkpoint, file: Path) -> Policy:
     """The greedy policy a checkpoint holds; CheckpointError if its tensors or metadata do not fit."""
     spec = spec_of(checkpoint)
     try:
-        return spec.policy_from_checkpoint(checkpoint)
+        policy = spec.policy_from_checkpoint(checkpoint)
+        policy.act(np.zeros((1, fitted_shape(checkpoint)[0]), dtype=np.float32))  # tensors of the right size?
+        return policy
     except CheckpointError as err:
         raise CheckpointError(f"{file}: {err}") from err
     except (KeyError, IndexError, TypeError, ValueError, RuntimeError, AttributeError) as err:
@@ -129,17 +133,22 @@ def policy_of(checkpoint: Checkpoint, file: Path) -> Policy:
         ) from err
 
 
+def fitted_shape(checkpoint: Checkpoint) -> tuple[int, int]:
+    """(observations, actions) of the env a checkpoint's agent was built for."""
+    learner = checkpoint.meta.get("learner")
+    learner = learner if isinstance(learner, dict) else {}
+    try:
+        return int(learner["obs_dim"]), int(learner["n_actions"])
+    except (KeyError, TypeError, ValueError):
+        own = env_info(checkpoint.env_id)
+        return own.obs_dim, own.n_actions
+
+
 def check_fits_env(checkpoint: Checkpoint, file: Path, env_id: str) -> None:
     """CheckpointError unless the checkpoint's agent sees as many observations, and has as many
     actions, as ``env_id`` (a CartPole agent cannot play Acrobot)."""
     target = env_info(env_id)
-    learner = checkpoint.meta.get("learner")
-    learner = learner if isinstance(learner, dict) else {}
-    try:
-        shape = int(learner["obs_dim"]), int(learner["n_actions"])
-    except (KeyError, TypeError, ValueError):
-        own = env_info(checkpoint.env_id)
-        shape = own.obs_dim, own.n_actions
+    shape = fitted_shape(checkpoint)
     if shape != (target.obs_dim, target.n_actions):
         raise CheckpointError(
             f"{file} holds a {checkpoint.agent} agent for {checkpoint.env_id} ({shape[0]} observations, "

@@ -61,8 +61,17 @@ def known_errors() -> tuple[type[BaseException], ...]:
     from cartpole.envs import UnsupportedEnvError
     from cartpole.runs import CheckpointError, RunError
     from cartpole.training import ConfigError
+    from cartpole.training.budget import BudgetError
 
-    return (UsageError, ConfigError, UnsupportedEnvError, CheckpointError, RunError, FileNotFoundError)
+    return (
+        UsageError,
+        ConfigError,
+        BudgetError,
+        UnsupportedEnvError,
+        CheckpointError,
+        RunError,
+        FileNotFoundError,
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -76,16 +85,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.run(args) or 0)
     except known_errors() as err:
-        print(f"cartpole {args.command}: error: {err}", file=sys.stderr)
+        print(f"cartpole {args.command}: error: {one_line(str(err))}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except BrokenPipeError:
         raise  # stdout was closed by its reader: run_main ends quietly
     except OSError as err:  # a full disk, a read-only folder, a file where a folder should be
-        print(f"cartpole {args.command}: error: {describe_os_error(err)}", file=sys.stderr)
+        print(f"cartpole {args.command}: error: {one_line(describe_os_error(err))}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print(f"cartpole {args.command}: interrupted", file=sys.stderr)
         return 130
+
+
+def one_line(message: str) -> str:
+    """A message on one line: some library errors (torch's state-dict report) span several."""
+    return " ".join(message.split())
 
 
 OS_ERROR_HINTS = {

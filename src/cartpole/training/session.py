@@ -13,6 +13,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from cartpole import __version__
 from cartpole.agents.registry import AgentSpec, agent_names, get_agent
 from cartpole.envs import EnvInfo, env_info
@@ -249,6 +251,7 @@ def resume(run_path: Path | str, *, quiet: bool = True, device: str = "auto") ->
     learner = setup.spec.make_learner(setup.config, setup.env, setup.seed, resolve_device(device))
     try:
         learner.load_state_dict(checkpoint.tensors, checkpoint.meta["learner"])
+        learner.policy().act(np.zeros((1, setup.env.obs_dim), dtype=np.float32))  # weights of the right size?
         state = LoopState.from_dict(checkpoint.meta["loop"])
     except (KeyError, IndexError, TypeError, ValueError, RuntimeError, AttributeError) as err:
         raise CheckpointError(
