@@ -18,10 +18,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cartpole.cli.main import main
+from cartpole.core.config import build_config
+from cartpole.core.errors import ConfigError
 from cartpole.runs import RunDir, load_checkpoint
 from cartpole.training import train
 from cartpole.training.budget import MAX_COUNT, Budget, BudgetError, parse_budget
-from cartpole.training.config import ConfigError, TrainSettings, build_config
+from cartpole.training.config import TrainSettings
 
 # --- material: two small real runs, copied fresh for every case ------------------------------------
 

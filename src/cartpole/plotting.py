@@ -17,13 +17,14 @@ from the mean. Figures are drawn with matplotlib's object API (no pyplot, no dis
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 
+from cartpole.core.errors import InputError
 from cartpole.runs import RunDir, RunError, summarize_run
 
 XAxis = Literal["steps", "episodes"]
@@ -36,7 +37,7 @@ BOOTSTRAP_SAMPLES = 2000
 GRID_POINTS = 400
 
 
-class PlotError(ValueError):
+class PlotError(InputError, ValueError):
     """Nothing to plot, or an output file type we cannot write."""
 
 
@@ -126,7 +127,7 @@ def load_readable_runs(paths: list[Path], on_skip: Callable[[str], None] | None)
     return runs
 
 
-def expand_run_paths(paths: list[Path | str]) -> list[Path]:
+def expand_run_paths(paths: Sequence[Path | str]) -> list[Path]:
     """Run folders as given; a folder of run folders (like ``runs/``) stands for all of them."""
     found: list[Path] = []
     for item in map(Path, paths):
@@ -180,7 +181,7 @@ def _hold_last(grid: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def plot_runs(
-    paths: list[Path | str],
+    paths: Sequence[Path | str],
     out: Path | str,
     *,
     x_axis: XAxis = "steps",

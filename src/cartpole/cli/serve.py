@@ -28,7 +28,7 @@ def add_parser(sub: Any) -> None:
 
 
 def serve(args: argparse.Namespace) -> int:
-    from cartpole.cli.main import UsageError
+    from cartpole.cli.errors import UsageError
 
     try:
         import uvicorn
@@ -55,7 +55,7 @@ def serve(args: argparse.Namespace) -> int:
 def check_can_listen(host: str, port: int) -> None:
     """UsageError unless ``host`` is an address of this machine and ``port`` is free on it: one line
     now, instead of the server's own log lines and exit code 1 or 3 later."""
-    from cartpole.cli.main import UsageError
+    from cartpole.cli.errors import UsageError
 
     try:
         family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]

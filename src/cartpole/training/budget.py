@@ -6,6 +6,8 @@ import re
 from dataclasses import asdict, dataclass
 from typing import Any
 
+from cartpole.core.errors import ConfigError
+
 _UNITS = {
     "": "env_steps",
     "k": "env_steps",
@@ -28,7 +30,7 @@ MAX_SECONDS = 10 * 365 * 24 * 3600.0
 HOW = "use env steps (50000, 50k, 1e5), episodes (300ep), generations (20gen) or time (90s, 5min)"
 
 
-class BudgetError(ValueError):
+class BudgetError(ConfigError):
     """A budget that cannot be parsed, or one that no run could have (0.5 steps, 1e400 steps)."""
 
 

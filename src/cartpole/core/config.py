@@ -1,0 +1,105 @@
+"""Typed configs from plain data: dataclasses filled from TOML or the command line, then checked.
+
+Every agent config and the training settings are dataclasses; :func:`build_config` fills one from a
+dict (strings from ``--set`` are converted by the field's type) and :func:`require` is the one-line
+check their ``validate()`` methods use.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import types
+import typing
+from dataclasses import fields
+from typing import Any
+
+from cartpole.core.errors import ConfigError
+
+
+def require(condition: bool, message: str) -> None:
+    """Raise ConfigError(message) unless ``condition``: the one-line check configs use."""
+    if not condition:
+        raise ConfigError(message)
+
+
+def _coerce(value: Any, annotation: Any, key: str) -> Any:
+    """Check ``value`` against a field's type, converting strings from the command line."""
+    hint = typing.get_type_hints(type("_", (), {"__annotations__": {"x": annotation}}))["x"]
+    options = typing.get_args(hint) if isinstance(hint, types.UnionType) else (hint,)
+    if value is None or (isinstance(value, str) and value.lower() == "none"):
+        if type(None) in options:
+            return None
+        raise ConfigError(f"{key} cannot be none")
+    for option in options:
+        origin = typing.get_origin(option) or option
+        try:
+            if origin is bool:
+                if isinstance(value, bool):
+                    return value
+                if isinstance(value, str) and value.lower() in ("true", "false", "1", "0"):
+                    return value.lower() in ("true", "1")
+            elif origin in (int, float):
+                return _number(value, origin)
+            elif origin is str:
+                return str(value)
+            elif origin in (list, tuple):
+                items = value if isinstance(value, list | tuple) else str(value).split(",")
+                (item_type,) = typing.get_args(option)[:1] or (str,)
+                return origin(_coerce(v, item_type, key) for v in items if v != "")
+        except (TypeError, ValueError, OverflowError):
+            continue
+    name = hint.__name__ if isinstance(hint, type) else str(hint)
+    kinds = {typing.get_origin(o) or o for o in options}
+    rule = (
+        " (a whole number is needed)"
+        if int in kinds
+        else " (a finite number is needed)"
+        if float in kinds
+        else ""
+    )
+    raise ConfigError(f"{key}={value!r} is not a valid {name}{rule}")
+
+
+def _number(value: Any, kind: type) -> int | float:
+    """``value`` (a number, or text from the command line) as a finite int or float; ValueError if
+    it is not one (``2.5`` for an int, ``inf``, ``nan``, ``true``)."""
+    if isinstance(value, bool) or not isinstance(value, int | float | str):
+        raise TypeError(f"not a number: {value!r}")
+    if isinstance(value, str):
+        text = value.strip()
+        try:
+            value = int(text)
+        except ValueError:
+            value = float(text)
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ValueError(f"not finite: {value}")
+    if kind is int:
+        if isinstance(value, float) and not value.is_integer():
+            raise ValueError(f"not whole: {value}")
+        return int(value)
+    return float(value)
+
+
+def build_config(cls: type, values: dict[str, Any]) -> Any:
+    """An instance of dataclass ``cls`` from ``values``; ConfigError for an unknown key or bad value."""
+    kinds = {f.name: f.type for f in fields(cls)}
+    unknown = sorted(set(values) - set(kinds))
+    if unknown:
+        raise ConfigError(f"unknown setting {unknown[0]!r}; valid: {', '.join(sorted(kinds))}")
+    kwargs = {k: _coerce(v, kinds[k], k) for k, v in values.items()}
+    return cls(**kwargs)
+
+
+def build_valid_config(cls: type, values: dict[str, Any]) -> Any:
+    """``build_config``, then the config's own ``validate()`` (if it has one)."""
+    config = build_config(cls, values)
+    validate = getattr(config, "validate", None)
+    if validate is not None:
+        validate()
+    return config
+
+
+def config_to_dict(config: Any) -> dict[str, Any]:
+    """A dataclass config as JSON-able data (tuples become lists)."""
+    return dataclasses.asdict(config)
