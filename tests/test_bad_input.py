@@ -176,6 +176,9 @@ RESUME_DAMAGE: dict[str, Damage] = {
         1
     ],
     "config without agent": edit_json("config.json", lambda c: {k: v for k, v in c.items() if k != "agent"}),
+    "config without settings": edit_json(
+        "config.json", lambda c: {k: v for k, v in c.items() if k != "settings"}
+    ),
     "config agent a number": edit_json("config.json", lambda c: {**c, "agent": 3}),
     "config unknown agent": edit_json("config.json", lambda c: {**c, "agent": "ppo9"}),
     "config unknown env": edit_json("config.json", lambda c: {**c, "env_id": "Nope-v0"}),

@@ -47,16 +47,17 @@ def read_json(path: Path) -> Any:
 
 
 Kind = type | tuple[type, ...]
-CONFIG_FIELDS: dict[str, Kind] = {
-    "agent": str,
-    "env_id": str,
-    "seed": int,
+CONFIG_FIELDS: dict[str, Kind] = {"agent": str, "env_id": str, "seed": int}
+"""What every ``config.json`` holds; the rest is typed when present (a resume needs it all)."""
+CONFIG_OPTIONAL: dict[str, Kind] = {
     "config": dict,
     "settings": dict,
     "budget": dict,
+    "preset": str,
+    "created": str,
+    "overrides": dict,
+    "tensorboard": bool,
 }
-"""What every ``config.json`` holds (a resume rebuilds the run from these)."""
-CONFIG_OPTIONAL: dict[str, Kind] = {"preset": str, "created": str, "overrides": dict, "tensorboard": bool}
 STATUS_FIELDS: dict[str, Kind] = {"state": str}
 STATUS_OPTIONAL: dict[str, Kind] = {
     "env_steps": int,

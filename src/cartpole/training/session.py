@@ -100,6 +100,9 @@ class RunSetup:
     def from_record(cls, run: RunDir, record: dict[str, Any]) -> RunSetup:
         if record["agent"] not in agent_names():
             raise ConfigError(f"{run.path / 'config.json'} names an unknown agent {record['agent']!r}")
+        missing = [key for key in ("config", "settings", "budget") if key not in record]
+        if missing:
+            raise ConfigError(f"{run.path / 'config.json'} records no {missing[0]!r}: it cannot be resumed")
         if not 0 <= record["seed"] <= MAX_TRAIN_SEED:
             raise ConfigError(f"{run.path / 'config.json'} records seed {record['seed']}, out of range")
         spec = get_agent(record["agent"])
