@@ -38,11 +38,17 @@ class Checkpoint:
 
     @property
     def agent(self) -> str:
-        return str(self.meta["agent"])
+        return self._text("agent")
 
     @property
     def env_id(self) -> str:
-        return str(self.meta["env_id"])
+        return self._text("env_id")
+
+    def _text(self, key: str) -> str:
+        value = self.meta.get(key)
+        if not isinstance(value, str):
+            raise CheckpointError(f"the checkpoint's metadata records no {key} (it is damaged or foreign)")
+        return value
 
 
 def save_checkpoint(path: Path, checkpoint: Checkpoint) -> None:
@@ -93,9 +99,6 @@ def load_checkpoint(path: Path) -> Checkpoint:
             f"{meta.get('package_version')}); this is cartpole {__version__}, which reads format "
             f"{FORMAT_VERSION}: use that version to load it"
         )
-    for key in ("agent", "env_id"):
-        if not isinstance(meta.get(key), str):
-            raise CheckpointError(f"{path} has corrupt metadata (no {key!r})")
     tensors = payload.get("tensors", {})
     if not isinstance(tensors, dict) or not all(isinstance(t, torch.Tensor) for t in tensors.values()):
         raise CheckpointError(f"{path} is corrupt (tensors are not a mapping of names to tensors)")
