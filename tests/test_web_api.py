@@ -63,7 +63,7 @@ def test_runs_lists_every_run_newest_first_and_survives_bad_folders(client: Test
     assert cem["rule"].startswith("mean ") and ">= 475 over 100 episodes, CartPole-v1" in cem["rule"]
     assert cem["watchable"] is True
     assert by_name[web_runs.acrobot]["watchable"] is False
-    assert by_name[web_runs.corrupt]["state"] == "corrupt" and by_name[web_runs.corrupt]["problem"]
+    assert by_name[web_runs.corrupt]["state"] == "unreadable" and by_name[web_runs.corrupt]["problem"]
     assert by_name[web_runs.incomplete]["state"] == "incomplete"
     assert "CartPole-v1__cem__s9__20200101-000000" not in by_name  # the symlink out is not listed
 
@@ -87,7 +87,7 @@ def test_run_detail_has_config_status_eval_and_checkpoints(client: TestClient, w
 
 def test_corrupt_and_half_written_runs_are_described(client: TestClient, web_runs: WebRuns):
     corrupt = client.get(f"/api/runs/{web_runs.corrupt}")
-    assert corrupt.status_code == 200 and corrupt.json()["state"] == "corrupt"
+    assert corrupt.status_code == 200 and corrupt.json()["state"] == "unreadable"
     assert corrupt.json()["config"] is None
     incomplete = client.get(f"/api/runs/{web_runs.incomplete}/metrics")
     assert incomplete.json()["rows"] == [{"step": 1, "episode": 0, "time": 0.1}]  # half line left out

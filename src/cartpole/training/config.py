@@ -10,7 +10,7 @@ from dataclasses import dataclass, fields
 from typing import Any
 
 from cartpole.agents.presets import preset_table
-from cartpole.core.config import build_config, require
+from cartpole.core.config import build_valid_config, require
 from cartpole.core.errors import ConfigError
 from cartpole.envs import check_simulator
 from cartpole.training.budget import parse_budget
@@ -66,10 +66,6 @@ def resolve_config(
         raise ConfigError(
             f"unknown setting {unknown[0]!r} for {agent}; valid: {', '.join(sorted(agent_keys | train_keys))}"
         )
-    config = build_config(config_cls, {k: v for k, v in values.items() if k in agent_keys})
-    settings = build_config(TrainSettings, {k: v for k, v in values.items() if k in train_keys})
-    validate = getattr(config, "validate", None)
-    if validate is not None:
-        validate()
-    settings.validate()
+    config = build_valid_config(config_cls, {k: v for k, v in values.items() if k in agent_keys})
+    settings = build_valid_config(TrainSettings, {k: v for k, v in values.items() if k in train_keys})
     return config, settings

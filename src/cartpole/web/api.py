@@ -12,7 +12,7 @@ from cartpole.agents.registry import get_agent
 from cartpole.core.names import RunState
 from cartpole.core.version import __version__
 from cartpole.envs import env_info
-from cartpole.runs import CheckpointError, RunDir
+from cartpole.runs import CheckpointError, RunDir, RunError
 from cartpole.web.episodes import MAX_NUDGE, UNLIMITED_STEPS, PolicyCache, play_episode, sim_limits
 from cartpole.web.physics import PHYSICS_LABELS, PHYSICS_LIMITS, PhysicsError, default_physics, is_cartpole
 from cartpole.web.runs_folder import NotFound, RunsFolder
@@ -32,7 +32,9 @@ class RunRow(BaseModel):
     seed: int | None
     preset: str | None
     created: str | None
-    state: str = Field(description=f"one of: {', '.join(RunState)} (crashed: its process is gone)")
+    state: str = Field(
+        description=f"one of: {', '.join(RunState)} (crashed: its process is gone; unreadable: see problem)"
+    )
     env_steps: int | None
     episodes: int | None
     best_eval_mean: float | None
@@ -46,6 +48,7 @@ class RunRow(BaseModel):
 class RunsOut(BaseModel):
     runs_dir: str
     runs: list[RunRow]
+    problem: str | None = Field(None, description="why the runs folder itself cannot be listed, if it cannot")
 
 
 class MetricsOut(BaseModel):
@@ -104,8 +107,13 @@ def info(request: Request) -> dict[str, Any]:
 
 @router.get("/runs", response_model=RunsOut)
 def runs(request: Request) -> dict[str, Any]:
-    """Every run folder, newest first; half-written or corrupt ones are listed with their problem."""
-    return {"runs_dir": str(folder(request).root), "runs": folder(request).summaries()}
+    """Every run folder, newest first; half-written or unreadable ones are listed with their problem."""
+    runs_folder = folder(request)
+    try:
+        rows, problem = runs_folder.summaries(), None
+    except RunError as err:
+        rows, problem = [], str(err)
+    return {"runs_dir": str(runs_folder.root), "runs": rows, "problem": problem}
 
 
 @router.get("/runs/{name}")

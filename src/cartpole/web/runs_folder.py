@@ -57,7 +57,8 @@ class RunsFolder:
         return path
 
     def summaries(self) -> list[dict[str, Any]]:
-        """Every run, newest first, each with a one-line rule for its badge."""
+        """Every run, newest first, each with a one-line rule for its badge (an unreadable run is
+        listed with its problem); RunError if the runs folder itself cannot be listed."""
         rows = []
         for summary in list_runs(self.root):
             path = Path(summary.path)
@@ -99,7 +100,10 @@ class RunsFolder:
 
     @staticmethod
     def _checkpoint_info(run: RunDir, name: str) -> dict[str, Any]:
-        stat = run.checkpoint_path(name).stat()
+        try:
+            stat = run.checkpoint_path(name).stat()
+        except OSError:  # a dangling link, or removed since it was listed
+            return {"name": name, "bytes": None, "modified": None}
         modified = datetime.fromtimestamp(stat.st_mtime, UTC).isoformat(timespec="seconds")
         return {"name": name, "bytes": stat.st_size, "modified": modified}
 

@@ -195,7 +195,7 @@ function wireInput() {
 
 async function loadAgents() {
   const body = await CP.getJSON("/api/runs");
-  const runs = body.runs.filter((r) => r.watchable && r.state !== "corrupt" && r.state !== "incomplete");
+  const runs = body.runs.filter((r) => r.watchable && r.state !== "unreadable" && r.state !== "incomplete");
   runs.sort((a, b) => Number(b.solved) - Number(a.solved));
   const select = el("agent-select");
   el("no-runs").hidden = runs.length > 0;

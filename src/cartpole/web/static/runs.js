@@ -10,7 +10,7 @@ function runRow(run) {
   const link = `<a href="/run?name=${encodeURIComponent(run.name)}">${name}</a>`;
   const state = CP.stateBadge(run.state, run.problem);
   const problem = run.problem ? `<span class="rule">${CP.escapeHTML(run.problem)}</span>` : "";
-  const watch = run.watchable && run.state !== "corrupt" && run.state !== "incomplete"
+  const watch = run.watchable && run.state !== "unreadable" && run.state !== "incomplete"
     ? `<a class="button" href="/run?name=${encodeURIComponent(run.name)}#checkpoints">Watch</a>` : "";
   return `<tr data-run="${name}">
     <td class="name">${link}<span class="rule">${CP.fmtDate(run.created)}</span></td>
