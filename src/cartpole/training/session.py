@@ -317,7 +317,7 @@ def restore(run: RunDir, setup: RunSetup, learner: Any) -> LoopState | None:
     over, as the run's seed makes it the same run) for a run killed before its first ``latest``.
     CheckpointError, in one line, for a checkpoint of another run or one that does not fit."""
     latest = run.checkpoint_path(CheckpointName.LATEST)
-    if not latest.exists():
+    if not latest.exists() and not latest.is_symlink():  # a dangling link is damage, not absence
         return None
     checkpoint = load_checkpoint(latest)
     if not checkpoint.meta.get("resumable"):
