@@ -102,7 +102,7 @@ LINEAR_CHANGES: dict[str, Change] = {
 
 NOT_APPLICABLE: dict[str, dict[str, str]] = {
     "dqn": {
-        "torch_threads": "a process-wide thread count, not learning behaviour (results must not depend on it)",
+        "torch_threads": "a process-wide thread count, not learning behaviour (results do not depend on it)",
     },
     "random-search": {
         "noise": "hill climbing only",
