@@ -71,7 +71,7 @@ DQN_CHANGES: dict[str, Change] = {
     "double_dqn": ({"lr": 1e-2, "tau": 1.0, "target_update_interval": 1000}, False),
     "target_network": ({}, False),
     "target_update_interval": ({}, 5),
-    "tau": ({}, 1.0),
+    "tau": ({}, 0.5),  # the Polyak path (1.0 takes the hard-copy one)
     "buffer_size": ({}, 40),
     "batch_size": ({}, 8),
     "learning_starts": ({}, 0),
