@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import pytest
 
+from cartpole.agents.presets import preset_table
 from cartpole.agents.registry import agent_names, agents, get_agent
 from cartpole.training import Budget, ConfigError, TrainSettings, parse_budget
-from cartpole.training.config import preset_table, resolve_config
+from cartpole.training.config import resolve_config
 
 
 @pytest.mark.parametrize("agent", agent_names())

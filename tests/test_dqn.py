@@ -12,11 +12,12 @@ import torch
 
 from cartpole.agents.dqn import DQNConfig, QNetwork, td_targets
 from cartpole.agents.registry import get_agent
+from cartpole.core.errors import ConfigError
 from cartpole.envs import env_info
 from cartpole.evaluation import ScoredPolicy, evaluate
 from cartpole.runs import Checkpoint, load_checkpoint, save_checkpoint
 from cartpole.training import train
-from cartpole.training.config import ConfigError, resolve_config
+from cartpole.training.config import resolve_config
 
 CARTPOLE = env_info("CartPole-v1")
 PRESETS = ("default", "tutorial-keras", "tutorial-pytorch")

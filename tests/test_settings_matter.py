@@ -29,10 +29,10 @@ import pytest
 import torch
 
 from cartpole.agents.registry import get_agent
+from cartpole.core.seeding import MAX_TRAIN_SEED, eval_seed, final_eval_seed
 from cartpole.envs import env_info
 from cartpole.runs import load_checkpoint
 from cartpole.training import train
-from cartpole.training.seeding import MAX_TRAIN_SEED, eval_seed, final_eval_seed
 
 CARTPOLE = env_info("CartPole-v1")
 PROBE_OBSERVATIONS = np.random.default_rng(123).normal(scale=0.5, size=(64, 4)).astype(np.float32)

@@ -6,19 +6,13 @@ config dataclass or of :class:`TrainSettings`; anything else is an error that na
 
 from __future__ import annotations
 
-import dataclasses
-import tomllib
-import types
-import typing
 from dataclasses import dataclass, fields
-from importlib import resources
 from typing import Any
 
+from cartpole.agents.presets import preset_table
+from cartpole.core.config import build_config, require
+from cartpole.core.errors import ConfigError
 from cartpole.training.budget import parse_budget
-
-
-class ConfigError(ValueError):
-    """A preset, an override or a config value is wrong."""
 
 
 @dataclass
@@ -49,62 +43,6 @@ class TrainSettings:
         require(self.checkpoint_every >= 1, "checkpoint_every must be >= 1")
 
 
-def require(condition: bool, message: str) -> None:
-    """Raise ConfigError(message) unless ``condition``: the one-line check configs use."""
-    if not condition:
-        raise ConfigError(message)
-
-
-def preset_table(agent: str) -> dict[str, dict[str, Any]]:
-    """All presets of ``agent`` as read from its TOML file."""
-    text = resources.files("cartpole.agents").joinpath("presets", f"{agent}.toml").read_text()
-    return tomllib.loads(text)
-
-
-def preset_names(agent: str) -> list[str]:
-    return list(preset_table(agent))
-
-
-def _coerce(value: Any, annotation: Any, key: str) -> Any:
-    """Check ``value`` against a field's type, converting strings from the command line."""
-    hint = typing.get_type_hints(type("_", (), {"__annotations__": {"x": annotation}}))["x"]
-    options = typing.get_args(hint) if isinstance(hint, types.UnionType) else (hint,)
-    if value is None or (isinstance(value, str) and value.lower() == "none"):
-        if type(None) in options:
-            return None
-        raise ConfigError(f"{key} cannot be none")
-    for option in options:
-        origin = typing.get_origin(option) or option
-        try:
-            if origin is bool:
-                if isinstance(value, bool):
-                    return value
-                if isinstance(value, str) and value.lower() in ("true", "false", "1", "0"):
-                    return value.lower() in ("true", "1")
-            elif origin in (int, float):
-                if isinstance(value, bool):
-                    continue
-                if origin is int and isinstance(value, float) and not value.is_integer():
-                    continue
-                return origin(float(value)) if origin is int else origin(value)
-            elif origin is str:
-                return str(value)
-            elif origin in (list, tuple):
-                items = value if isinstance(value, list | tuple) else str(value).split(",")
-                (item_type,) = typing.get_args(option)[:1] or (str,)
-                return origin(_coerce(v, item_type, key) for v in items if v != "")
-        except (TypeError, ValueError):
-            continue
-    raise ConfigError(f"{key}={value!r} is not a valid {hint}")
-
-
-def build_config(cls: type, values: dict[str, Any]) -> Any:
-    """An instance of dataclass ``cls`` from ``values`` (unknown keys were filtered before)."""
-    kinds = {f.name: f.type for f in fields(cls)}
-    kwargs = {k: _coerce(v, kinds[k], k) for k, v in values.items()}
-    return cls(**kwargs)
-
-
 def resolve_config(
     agent: str, config_cls: type, preset: str, overrides: dict[str, Any] | None = None
 ) -> tuple[Any, TrainSettings]:
@@ -128,8 +66,3 @@ def resolve_config(
         validate()
     settings.validate()
     return config, settings
-
-
-def config_to_dict(config: Any) -> dict[str, Any]:
-    """A dataclass config as JSON-able data (tuples become lists)."""
-    return dataclasses.asdict(config)
