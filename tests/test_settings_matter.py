@@ -28,7 +28,7 @@ import numpy as np
 import pytest
 import torch
 
-from cartpole.agents.registry import get_agent
+from cartpole.agents.registry import agent_names, get_agent
 from cartpole.core.seeding import MAX_TRAIN_SEED, eval_seed, final_eval_seed
 from cartpole.envs import env_info
 from cartpole.runs import load_checkpoint
@@ -102,6 +102,7 @@ LINEAR_CHANGES: dict[str, Change] = {
 
 NOT_APPLICABLE: dict[str, dict[str, str]] = {
     "dqn": {
+        # (gone once agents stop setting process-wide state; an entry for a missing field is harmless)
         "torch_threads": "a process-wide thread count, not learning behaviour (results do not depend on it)",
     },
     "random-search": {
@@ -163,12 +164,20 @@ def same(a: tuple[list[Any], dict[str, np.ndarray], np.ndarray], b: tuple[Any, .
     return scores_a.shape == scores_b.shape and np.array_equal(scores_a, scores_b)
 
 
+def test_every_registered_agent_is_in_the_table() -> None:
+    """A new agent needs a small base config (BASES), another value per setting (CHANGES), the
+    settings that do not apply to it (NOT_APPLICABLE) and a number of learn() calls (CALLS)."""
+    missing = set(agent_names()) - set(CHANGES)
+    assert not missing, f"add these agents to BASES, CHANGES, NOT_APPLICABLE and CALLS: {sorted(missing)}"
+
+
 @pytest.mark.parametrize("agent", list(CHANGES))
 def test_every_config_field_is_in_the_table(agent: str) -> None:
     """A new setting needs an entry here (and so a test that fails when it is ignored)."""
     names = {f.name for f in dataclasses.fields(get_agent(agent).config_cls)}
-    covered = set(CHANGES[agent]) | set(NOT_APPLICABLE[agent])
-    assert names == covered, f"untested: {sorted(names - covered)}; stale: {sorted(covered - names)}"
+    untested = names - set(CHANGES[agent]) - set(NOT_APPLICABLE[agent])
+    assert not untested, f"{agent}: add these settings to the table: {sorted(untested)}"
+    assert set(CHANGES[agent]) <= names, f"{agent}: the table names settings that are gone"
 
 
 @pytest.mark.parametrize(
