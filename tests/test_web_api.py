@@ -459,8 +459,16 @@ def test_static_files_need_no_internet():
     assert (static / "vendor" / "uPlot.LICENSE").is_file()
 
 
-def test_serve_command_defaults_to_localhost():
-    from cartpole.cli.main import build_parser
+def test_serve_binds_this_machine_only_by_default(monkeypatch, tmp_path: Path, capsys):
+    """``cartpole serve`` without --host hands uvicorn 127.0.0.1 (other machines cannot reach it)."""
+    import uvicorn
 
-    args = build_parser().parse_args(["serve"])
-    assert args.host == "127.0.0.1" and args.port == 8000 and args.runs_dir == "runs"
+    from cartpole.cli.main import main
+
+    served: list[dict[str, Any]] = []
+    monkeypatch.setattr(uvicorn, "run", lambda app, **kwargs: served.append(kwargs))
+    assert main(["serve", "--runs-dir", str(tmp_path)]) == 0
+    assert served and served[0]["host"] == "127.0.0.1" and served[0]["port"] == 8000
+    assert "warning" not in capsys.readouterr().out
+    assert main(["serve", "--runs-dir", str(tmp_path), "--host", "0.0.0.0"]) == 0
+    assert served[1]["host"] == "0.0.0.0" and "other machines can reach" in capsys.readouterr().out
