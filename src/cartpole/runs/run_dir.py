@@ -22,6 +22,8 @@ METRICS = "metrics.jsonl"
 EVAL = "eval.json"
 CHECKPOINTS = "checkpoints"
 CHECKPOINT_NAMES = ("latest", "best", "solved")
+NOT_RUNS = ("experiments", "sweeps")
+"""Folders of a runs folder that hold experiments and sweeps (their run folders inside), not one run."""
 RUN_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*__[A-Za-z0-9._-]+__s\d+__\d{8}-\d{6}(-\d+)?$")
 
 
@@ -230,6 +232,8 @@ def list_runs(runs_dir: Path) -> list[RunSummary]:
     """Every run folder directly under ``runs_dir``, newest first."""
     if not runs_dir.is_dir():
         return []
-    folders = [p for p in runs_dir.iterdir() if p.is_dir() and not p.name.startswith(".")]
+    folders = [
+        p for p in runs_dir.iterdir() if p.is_dir() and not p.name.startswith(".") and p.name not in NOT_RUNS
+    ]
     summaries = [summarize_run(p) for p in folders]
     return sorted(summaries, key=lambda s: (s.created or "", s.name), reverse=True)

@@ -1,6 +1,7 @@
 """Agent configs and presets: typed dataclasses filled from TOML data files, then validated.
 
-A preset is a table in ``cartpole/agents/presets/<agent>.toml``. Its keys are fields of the agent's
+A preset is a table in ``cartpole/agents/presets/<agent>.toml``, or a ``.toml`` file anywhere (for
+example the ``best.toml`` a sweep writes) holding one table of settings. Its keys are fields of the agent's
 config dataclass or of :class:`TrainSettings`; anything else is an error that names the valid keys.
 """
 
@@ -12,6 +13,7 @@ import types
 import typing
 from dataclasses import dataclass, fields
 from importlib import resources
+from pathlib import Path
 from typing import Any
 
 from cartpole.training.budget import parse_budget
@@ -65,6 +67,51 @@ def preset_names(agent: str) -> list[str]:
     return list(preset_table(agent))
 
 
+def preset_source(agent: str) -> str:
+    """Where ``agent``'s named presets are read from (a file path, for ``cartpole presets``)."""
+    return str(resources.files("cartpole.agents").joinpath("presets", f"{agent}.toml"))
+
+
+def is_preset_file(preset: str) -> bool:
+    """A preset given as a path to a TOML file (``best.toml``, ``my/preset.toml``) rather than a name."""
+    return preset.endswith(".toml")
+
+
+def read_preset_file(path: str | Path) -> dict[str, Any]:
+    """The settings of a preset file: one table of settings (the form ``cartpole sweep`` writes as
+    ``best.toml``), or a file holding exactly one named table of them."""
+    path = Path(path)
+    try:
+        table = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"preset file {path} does not exist") from None
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
+        raise ConfigError(f"preset file {path} is not readable TOML: {err}") from None
+    tables = [v for v in table.values() if isinstance(v, dict)]
+    if tables and len(tables) == len(table):
+        if len(tables) > 1:
+            raise ConfigError(
+                f"preset file {path} holds {len(tables)} presets ({', '.join(table)}); keep one table"
+            )
+        return tables[0]
+    return table
+
+
+def preset_values(agent: str, preset: str) -> dict[str, Any]:
+    """The settings a preset sets (without its description): by name, or from a ``.toml`` file."""
+    if is_preset_file(preset):
+        values = read_preset_file(preset)
+    else:
+        table = preset_table(agent)
+        if preset not in table:
+            raise ConfigError(
+                f"unknown preset {preset!r} for {agent}; choose one of: {', '.join(table)} "
+                "(or give a path to a .toml preset file)"
+            )
+        values = table[preset]
+    return {k: v for k, v in values.items() if k != "description"}
+
+
 def _coerce(value: Any, annotation: Any, key: str) -> Any:
     """Check ``value`` against a field's type, converting strings from the command line."""
     hint = typing.get_type_hints(type("_", (), {"__annotations__": {"x": annotation}}))["x"]
@@ -108,11 +155,11 @@ def build_config(cls: type, values: dict[str, Any]) -> Any:
 def resolve_config(
     agent: str, config_cls: type, preset: str, overrides: dict[str, Any] | None = None
 ) -> tuple[Any, TrainSettings]:
-    """Agent config and train settings: dataclass defaults < preset < overrides, validated."""
-    table = preset_table(agent)
-    if preset not in table:
-        raise ConfigError(f"unknown preset {preset!r} for {agent}; choose one of: {', '.join(table)}")
-    values = {k: v for k, v in table[preset].items() if k != "description"}
+    """Agent config and train settings: dataclass defaults < preset < overrides, validated.
+
+    ``preset`` is a preset name of the agent or a path to a ``.toml`` preset file.
+    """
+    values = preset_values(agent, preset)
     values.update(overrides or {})
     agent_keys = {f.name for f in fields(config_cls)}
     train_keys = {f.name for f in fields(TrainSettings)}

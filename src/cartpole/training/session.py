@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import signal
 import sys
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -114,8 +114,8 @@ class RunSetup:
         )
 
 
-def make_callbacks(setup: RunSetup, quiet: bool) -> list[Callback]:
-    """The standard callbacks, in the order they must see events."""
+def make_callbacks(setup: RunSetup, quiet: bool, extra: Sequence[Callback] = ()) -> list[Callback]:
+    """The standard callbacks, in the order they must see events; ``extra`` ones see them last."""
     run, settings = setup.run, setup.settings
     callbacks: list[Callback] = [BudgetCallback(setup.budget), EvalCallback(setup.env, setup.seed, settings)]
     if settings.stop_when_solved:
@@ -131,7 +131,7 @@ def make_callbacks(setup: RunSetup, quiet: bool) -> list[Callback]:
         callbacks.append(TensorBoardCallback(run, metrics))
     if not quiet:
         callbacks.append(ProgressCallback(setup.budget, setup.spec.iteration))
-    return callbacks
+    return callbacks + list(extra)
 
 
 def final_verdict(setup: RunSetup) -> EvalReport:
@@ -153,9 +153,11 @@ def final_verdict(setup: RunSetup) -> EvalReport:
     return report
 
 
-def run_loop(setup: RunSetup, learner: Any, state: LoopState | None, quiet: bool) -> TrainOutcome:
+def run_loop(
+    setup: RunSetup, learner: Any, state: LoopState | None, quiet: bool, extra: Sequence[Callback] = ()
+) -> TrainOutcome:
     """Drive the loop with the standard callbacks; compute the verdict unless interrupted."""
-    loop = TrainingLoop(learner, make_callbacks(setup, quiet), state)
+    loop = TrainingLoop(learner, make_callbacks(setup, quiet, extra), state)
     with stop_on_signals(loop) as received:
         loop.run()
     if received:
@@ -177,10 +179,12 @@ def train(
     quiet: bool = True,
     command: list[str] | None = None,
     tensorboard: bool = False,
+    callbacks: Sequence[Callback] = (),
 ) -> TrainOutcome:
     """Train ``agent`` on ``env_id`` in a new run folder and return the outcome.
 
     With ``tensorboard`` the metrics also go to ``<run>/tensorboard/`` (needs the tensorboard extra).
+    ``callbacks`` see every event after the standard ones (experiments time solves, sweeps prune).
     """
     if tensorboard:
         require_tensorboard()  # before a run folder is made
@@ -213,14 +217,16 @@ def train(
         "tensorboard": tensorboard,
     }
     run.write_config(record)
-    return run_loop(RunSetup.from_record(run, record), learner, None, quiet)
+    return run_loop(RunSetup.from_record(run, record), learner, None, quiet, callbacks)
 
 
 class AlreadyFinished(Exception):
     """The run to resume has finished; there is nothing to do."""
 
 
-def resume(run_path: Path | str, *, quiet: bool = True, device: str = "auto") -> TrainOutcome:
+def resume(
+    run_path: Path | str, *, quiet: bool = True, device: str = "auto", callbacks: Sequence[Callback] = ()
+) -> TrainOutcome:
     """Continue a run from ``checkpoints/latest.pt`` with its recorded config and budget."""
     run = RunDir.open(Path(run_path))
     record = run.config()
@@ -240,4 +246,4 @@ def resume(run_path: Path | str, *, quiet: bool = True, device: str = "auto") ->
     learner.load_state_dict(checkpoint.tensors, checkpoint.meta["learner"])
     state = LoopState.from_dict(checkpoint.meta["loop"])
     run.truncate_metrics_after(state.env_steps)
-    return run_loop(setup, learner, state, quiet)
+    return run_loop(setup, learner, state, quiet, callbacks)
