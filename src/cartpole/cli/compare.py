@@ -25,9 +25,13 @@ def add_parser(sub: Any) -> None:
     parser.add_argument("--seeds", type=int, default=5, metavar="N", help="seeds per entry (default: 5)")
     parser.add_argument("--first-seed", type=int, default=0, metavar="S", help="seeds S..S+N-1 (default: 0)")
     parser.add_argument("--jobs", type=int, default=1, metavar="J", help="runs at a time (default: 1)")
-    parser.add_argument("--env", default="CartPole-v1", metavar="ID", help="Gymnasium env id (default: CartPole-v1)")
+    parser.add_argument(
+        "--env", default="CartPole-v1", metavar="ID", help="Gymnasium env id (default: CartPole-v1)"
+    )
     parser.add_argument("--budget", metavar="B", help="budget of every run (default: each preset's own)")
-    parser.add_argument("--name", metavar="NAME", help="experiment name (default: the entries joined by '_vs_')")
+    parser.add_argument(
+        "--name", metavar="NAME", help="experiment name (default: the entries joined by '_vs_')"
+    )
     parser.add_argument("--runs-dir", default="runs", metavar="DIR", help="(default: runs)")
     parser.set_defaults(run=run)
 

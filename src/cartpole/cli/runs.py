@@ -76,7 +76,7 @@ def presets_command(args: argparse.Namespace) -> int:
 
     from cartpole.agents.registry import agent_names, get_agent
     from cartpole.cli.main import UsageError
-    from cartpole.experiments.sweep import sweep_presets
+    from cartpole.experiments.best import sweep_presets
     from cartpole.training.config import preset_source, preset_table
 
     names = agent_names()

@@ -135,7 +135,11 @@ class Experiment:
         path = self.folder / "tasks" / f"{entry.slug}__s{seed}.json"
         path.parent.mkdir(parents=True, exist_ok=True)
         write_json_atomic(path, task.__dict__)
-        return Job(python_module(WORKER, str(path)), self.folder / "logs" / f"{entry.slug}__s{seed}.log", (entry, seed))
+        return Job(
+            python_module(WORKER, str(path)),
+            self.folder / "logs" / f"{entry.slug}__s{seed}.log",
+            (entry, seed),
+        )
 
     def run(self, jobs: int, progress: Callable[[str, int, int, int], None] | None = None) -> list[str]:
         """Run every pending seed, ``jobs`` at a time; return problems (failed workers) as lines.

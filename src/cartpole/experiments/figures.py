@@ -9,7 +9,7 @@ import numpy as np
 
 from cartpole.experiments.entries import Entry
 from cartpole.experiments.stats import CONFIDENCE, RESAMPLES
-from cartpole.plotting import default_window, load_run, moving_average
+from cartpole.plotting import load_run
 
 GRID_POINTS = 300
 COLORS = ["C0", "C1", "C2", "C3", "C4", "C5", "C6", "C8", "C9"]
@@ -38,8 +38,9 @@ def mean_band(curves: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def plot_curves(groups: dict[str, list[Path]], out: Path, env_id: str) -> Path | None:
-    """Training return (moving average) against env steps: per entry the mean over its runs and a 95%
-    CI band. A run that stopped early (solved) keeps its last value, so early finishers stay in."""
+    """Evaluation return (the greedy policy's mean over its evaluation episodes) against env steps:
+    per entry the mean over its runs and a 95% CI band. A run that stopped early (solved) keeps its
+    last value, so early finishers stay in the mean."""
     from matplotlib.figure import Figure
 
     figure = Figure(figsize=(9, 5.5), layout="constrained")
@@ -48,14 +49,12 @@ def plot_curves(groups: dict[str, list[Path]], out: Path, env_id: str) -> Path |
     threshold = None
     for index, (label, paths) in enumerate(groups.items()):
         runs = [load_run(p) for p in paths]
-        runs = [r for r in runs if r.returns.size]
+        runs = [r for r in runs if r.eval_mean.size]
         if not runs:
             continue
         threshold = threshold or runs[0].threshold
-        window = default_window(runs[0].unit)
-        grid = np.linspace(0, max(r.steps[-1] for r in runs), GRID_POINTS)
-        averages = [moving_average(r.returns, window) for r in runs]
-        curves = np.stack([np.interp(grid, r.steps, y, left=y[0]) for r, y in zip(runs, averages, strict=True)])
+        grid = np.linspace(0, max(r.eval_steps[-1] for r in runs), GRID_POINTS)
+        curves = np.stack([np.interp(grid, r.eval_steps, r.eval_mean) for r in runs])
         mean, low, high = mean_band(curves)
         color = COLORS[index % len(COLORS)]
         ax.fill_between(grid, low, high, color=color, alpha=0.2, linewidth=0)
@@ -65,9 +64,11 @@ def plot_curves(groups: dict[str, list[Path]], out: Path, env_id: str) -> Path |
     if not drawn:
         return None
     if threshold is not None:
-        ax.axhline(threshold, color="0.3", linestyle="--", linewidth=1, label=f"solved threshold {threshold:g}")
+        ax.axhline(
+            threshold, color="0.3", linestyle="--", linewidth=1, label=f"solved threshold {threshold:g}"
+        )
     ax.set_xlabel("env steps")
-    ax.set_ylabel("training return (moving average)")
+    ax.set_ylabel("evaluation return (greedy policy)")
     ax.set_title(f"{env_id}: mean over runs, {CONFIDENCE:.0%} bootstrap CI")
     ax.grid(True, alpha=0.3)
     ax.set_xlim(left=0)

@@ -79,10 +79,12 @@ def run_jobs(
     jobs: Sequence[Job],
     workers: int,
     on_done: Callable[[Job, int], None],
+    tick: Callable[[], None] | None = None,
 ) -> None:
     """Run ``jobs``, ``workers`` at a time (workers inherit this environment, PYTHONPATH included).
 
-    ``on_done(job, exit code)`` is called in this process as each ends. KeyboardInterrupt (Ctrl-C,
+    ``on_done(job, exit code)`` is called in this process as each ends, ``tick()`` every poll (about
+    five times a second). KeyboardInterrupt (Ctrl-C,
     SIGTERM) stops every worker cleanly, then propagates.
     """
     queue = list(jobs)
@@ -98,6 +100,8 @@ def run_jobs(
                 if not running:
                     return
                 time.sleep(POLL_SECONDS)
+                if tick:
+                    tick()
                 for process in [p for p in running if p.poll() is not None]:
                     on_done(running.pop(process), int(process.returncode))
         except KeyboardInterrupt:
