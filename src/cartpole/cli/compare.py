@@ -44,9 +44,11 @@ def run(args: argparse.Namespace) -> int:
     from rich.console import Console
 
     from cartpole.experiments.compare import Experiment
-    from cartpole.experiments.entries import parse_entries
+    from cartpole.experiments.entries import ExperimentError, parse_entries
     from cartpole.experiments.report import write_report
 
+    if args.jobs < 1:
+        raise ExperimentError(f"--jobs must be >= 1, got {args.jobs}")
     entries = parse_entries(args.entries)
     experiment = Experiment.open(
         Path(args.runs_dir),
