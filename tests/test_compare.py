@@ -26,6 +26,21 @@ def run_folders(folder: Path) -> list[Path]:
     return sorted(p for p in (folder / "runs").iterdir() if (p / "config.json").is_file())
 
 
+def test_compare_writes_its_report(tmp_path):
+    runs_dir = tmp_path / "runs"
+    done = run_cli(
+        "compare", "cem", "--seeds", "2", "--jobs", "2", "--budget", "2gen", "--runs-dir", str(runs_dir)
+    )
+    assert done.returncode == 0, done.stderr
+    folder = runs_dir / "experiments" / "cem"
+    (entry,) = json.loads((folder / "report.json").read_text())["entries"]
+    assert entry["entry"] == "cem" and entry["runs"] == 2 and entry["seeds"] == [0, 1]
+    for key in ("env_steps_to_solve", "cpu_seconds_to_solve", "wall_seconds_to_solve"):
+        assert entry[key]["median"] > 0 and entry[key]["censored"] == 2 - entry["solved"]
+    assert (folder / "curves.png").is_file() and "| cem | 2 |" in (folder / "report.md").read_text()
+
+
+@pytest.mark.slow
 def test_compare_reports_resumes_and_adds_seeds(tmp_path):
     runs_dir = tmp_path / "runs"
     args = ["compare", "cem", "random-search:tutorial", "--jobs", "2", "--runs-dir", str(runs_dir)]
@@ -54,6 +69,7 @@ def test_compare_reports_resumes_and_adds_seeds(tmp_path):
     assert all(e["runs"] == 3 for e in json.loads((folder / "report.json").read_text())["entries"])
 
 
+@pytest.mark.slow
 def test_ctrl_c_stops_every_worker_and_a_rerun_resumes(tmp_path):
     # Hill climbing with a tiny step keeps training to its 6-second budget; latest.pt every generation.
     preset = tmp_path / "slow.toml"

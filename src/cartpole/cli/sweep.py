@@ -49,7 +49,7 @@ def add_parser(sub: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     from rich.console import Console
 
-    from cartpole.experiments.sweep import make_spec, run_sweep
+    from cartpole.experiments.sweep import make_spec, prepare_sweep, run_sweep
 
     spec = make_spec(
         Path(args.runs_dir),
@@ -64,14 +64,15 @@ def run(args: argparse.Namespace) -> int:
         storage=args.storage,
         sampler_seed=args.sampler_seed,
     )
+    study = prepare_sweep(spec, args.workers)
     console = Console(soft_wrap=True, stderr=True)
     console.print(f"study {spec.name} in {spec.storage_label}", highlight=False)
     interrupted = False
     with SweepProgress(console, spec.trials) as progress:
         try:
-            study = run_sweep(spec, args.workers, progress.update)
+            run_sweep(spec, study, args.workers, progress.update)
         except KeyboardInterrupt:
-            interrupted, study = True, None
+            interrupted = True
     best = spec.path / "best.toml"
     out = Console(soft_wrap=True)
     if best.is_file():
@@ -81,7 +82,6 @@ def run(args: argparse.Namespace) -> int:
             "interrupted: the study is consistent; re-run the same command to go on", highlight=False
         )
         return 130
-    assert study is not None
     return 0
 
 

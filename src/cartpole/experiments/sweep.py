@@ -21,6 +21,7 @@ import json
 import signal
 import statistics
 import sys
+import warnings
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -181,14 +182,19 @@ def open_storage(spec: SweepSpec, attempts: int = 5) -> Any:
         spec.path.mkdir(parents=True, exist_ok=True)
         return optuna.storages.JournalStorage(JournalFileBackend(str(spec.path / "journal.log")))
     backend, where = describe_url(spec.storage)
+    url = spec.storage
+    if url.startswith("postgresql://"):  # SQLAlchemy 2.1's default driver is psycopg 3; ours is psycopg2
+        url = "postgresql+psycopg2://" + url.removeprefix("postgresql://")
     engine: dict[str, Any] = {"pool_pre_ping": True}
     if backend == "postgresql":
         engine["connect_args"] = {"connect_timeout": 10}
     for attempt in range(attempts):
         try:
-            return optuna.storages.RDBStorage(
-                spec.storage, engine_kwargs=engine, heartbeat_interval=30, grace_period=120
-            )
+            with warnings.catch_warnings():  # heartbeats are "experimental" in Optuna, and what we need
+                warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+                return optuna.storages.RDBStorage(
+                    url, engine_kwargs=engine, heartbeat_interval=30, grace_period=120
+                )
         except ModuleNotFoundError as err:
             raise ExperimentError(
                 f"--storage {backend}:// needs its driver ({err.name}); pip install 'cartpole[postgres]'"
@@ -210,14 +216,19 @@ def open_study(spec: SweepSpec, storage: Any) -> Any:
     import optuna
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
-    study = optuna.create_study(
-        study_name=spec.name,
-        storage=storage,
-        direction="minimize",
-        load_if_exists=True,
-        sampler=sampler_for(spec, 0),
-        pruner=BoundPruner(),
-    )
+    try:  # load first: creating an existing study would still append to a journal
+        study = optuna.load_study(
+            study_name=spec.name, storage=storage, sampler=sampler_for(spec, 0), pruner=BoundPruner()
+        )
+    except KeyError:
+        study = optuna.create_study(
+            study_name=spec.name,
+            storage=storage,
+            direction="minimize",
+            load_if_exists=True,  # another machine may create it at the same moment
+            sampler=sampler_for(spec, 0),
+            pruner=BoundPruner(),
+        )
     recorded = study.user_attrs.get(STUDY_ATTR)
     if recorded is None:
         study.set_user_attr(STUDY_ATTR, spec.identity)
@@ -428,15 +439,20 @@ def local_lock(spec: SweepSpec) -> Iterator[bool]:
         lock.release()
 
 
-def run_sweep(spec: SweepSpec, workers: int, progress: Callable[[dict[str, int], Any], None] | None) -> Any:
-    """Check the storage and study, run ``workers`` worker processes, write best.toml; the study.
+def prepare_sweep(spec: SweepSpec, workers: int) -> Any:
+    """Check the worker count, the storage and the study (ExperimentError, nothing written); the study."""
+    if workers < 1:
+        raise ExperimentError(f"--workers must be >= 1, got {workers}")
+    return open_study(spec, open_storage(spec))
+
+
+def run_sweep(
+    spec: SweepSpec, study: Any, workers: int, progress: Callable[[dict[str, int], Any], None] | None
+) -> Any:
+    """Run ``workers`` worker processes on the prepared ``study``, then write best.toml; the study.
 
     KeyboardInterrupt stops every worker (each marks its trial failed) and propagates after best.toml.
     """
-    if workers < 1:
-        raise ExperimentError(f"--workers must be >= 1, got {workers}")
-    storage = open_storage(spec)
-    study = open_study(spec, storage)
     spec_path = write_spec(spec)
     with local_lock(spec) as alone:
         if alone and spec.storage is None:
