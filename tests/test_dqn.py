@@ -22,12 +22,14 @@ from cartpole.agents.dqn import (
     policy_from_checkpoint,
     td_targets,
 )
+from cartpole.agents.presets import preset_names
 from cartpole.agents.registry import get_agent
+from cartpole.core.errors import ConfigError
 from cartpole.envs import env_info
 from cartpole.evaluation import ScoredPolicy
 from cartpole.runs import Checkpoint, load_checkpoint, save_checkpoint
 from cartpole.training import train
-from cartpole.training.config import ConfigError, preset_names, resolve_config
+from cartpole.training.config import resolve_config
 
 CARTPOLE = env_info("CartPole-v1")
 PRESETS = ("default", "tutorial-keras", "tutorial-pytorch")

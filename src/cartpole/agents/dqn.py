@@ -29,13 +29,12 @@ import torch.nn.functional as F
 from torch import nn
 
 from cartpole.agents.adam import FusedAdam
+from cartpole.agents.learner import LearnResult
 from cartpole.agents.registry import AgentSpec
 from cartpole.agents.replay_buffer import ReplayBuffer
+from cartpole.core.config import build_config, require
 from cartpole.envs import EnvInfo, make_vec_env
 from cartpole.runs import Checkpoint, CheckpointError
-from cartpole.training.config import build_config, require
-from cartpole.training.loop import LearnResult
-from cartpole.training.seeding import seed_everything
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {"relu": nn.ReLU, "tanh": nn.Tanh, "elu": nn.ELU, "gelu": nn.GELU}
 SCHEDULES = ("linear", "exponential", "multiplicative")
@@ -45,6 +44,15 @@ LOSSES = ("huber", "mse")
 # ----------------------------------------------------------------------------------------------
 # 1. Configuration
 # ----------------------------------------------------------------------------------------------
+
+
+def seed_everything(seed: int) -> np.random.Generator:
+    """Seed torch's and Python's global generators; return a numpy Generator for the caller."""
+    import random
+
+    random.seed(seed)
+    torch.manual_seed(seed)
+    return np.random.default_rng(seed)
 
 
 @dataclass
@@ -331,7 +339,7 @@ class DQNLearner:
         self.device = torch.device(device)
         if config.torch_threads:
             torch.set_num_threads(config.torch_threads)
-        self.rng = seed_everything(seed)
+        self.rng = seed_everything(seed)  # global seeding: agents owning their generators is on its way
         self.q_net = QNetwork(env.obs_dim, env.n_actions, config).to(self.device).eval()
         self.target_net = copy.deepcopy(self.q_net) if config.target_network else None
         self.parameters = list(self.q_net.parameters())
@@ -635,6 +643,7 @@ AGENT = AgentSpec(
     make_learner=make_learner,
     policy_from_checkpoint=policy_from_checkpoint,
     iteration="step",
+    score_label="Q-values",
 )
 
 __all__ = ["AGENT", "DQNConfig", "DQNLearner", "QNetwork", "QNetworkPolicy", "td_targets"]

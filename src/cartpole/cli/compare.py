@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
             interrupted, problems = True, []
     for line in problems:
         console.print(f"[red]{line}[/]", highlight=False)
-    report, written = write_report(experiment)
+    _, written = write_report(experiment)
     out = Console(soft_wrap=True)
     out.print((experiment.folder / "report.md").read_text(encoding="utf-8"), markup=False, highlight=False)
     out.print("wrote " + ", ".join(str(p) for p in written), highlight=False)

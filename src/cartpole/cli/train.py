@@ -12,7 +12,7 @@ DEFAULT_AGENT = "dqn"
 
 
 def parse_overrides(pairs: list[str]) -> dict[str, Any]:
-    from cartpole.cli.main import UsageError
+    from cartpole.cli.errors import UsageError
 
     overrides: dict[str, Any] = {}
     for pair in pairs:
@@ -98,7 +98,7 @@ def add_parser(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from cartpole.cli.main import UsageError
+    from cartpole.cli.errors import UsageError
     from cartpole.training import AlreadyFinished, parse_budget, resume, train
 
     console = Console(soft_wrap=True)

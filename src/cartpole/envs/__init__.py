@@ -12,7 +12,10 @@ from typing import Literal
 
 import gymnasium as gym
 
+from cartpole.envs.registration import register_fast_envs
 from cartpole.envs.spec import EnvInfo, UnsupportedEnvError, env_info
+
+register_fast_envs()  # cheap: string entry points, nothing compiled until an env is made
 
 Simulator = Literal["fast", "gymnasium"]
 SIMULATORS: tuple[Simulator, ...] = ("fast", "gymnasium")
@@ -34,9 +37,6 @@ def make_vec_env(env_id: str, num_envs: int, *, simulator: Simulator = "gymnasiu
     """A vector env of ``num_envs`` copies of ``env_id`` with Gymnasium's next-step autoreset."""
     env_info(env_id)  # validates the id and its spaces with a clear message
     if resolve_simulator(env_id, simulator) == "fast":
-        from cartpole.envs.fast import register_fast_envs
-
-        register_fast_envs()
         return gym.make_vec(fast_env_id(env_id), num_envs=num_envs, vectorization_mode="vector_entry_point")
     return gym.make_vec(env_id, num_envs=num_envs)
 

@@ -22,8 +22,10 @@ def best_value(study: Any) -> Any:
 
 def best_preset(spec: SweepSpec, trial: Any) -> dict[str, Any]:
     """The best trial as a complete preset: the sweep's preset with the trial's settings."""
+    from cartpole.agents.presets import preset_values
     from cartpole.agents.registry import get_agent
-    from cartpole.training.config import config_to_dict, preset_values, resolve_config
+    from cartpole.core.config import config_to_dict
+    from cartpole.training.config import resolve_config
 
     config, settings = resolve_config(spec.agent, get_agent(spec.agent).config_cls, spec.preset, trial.params)
     resolved = config_to_dict(config) | config_to_dict(settings)

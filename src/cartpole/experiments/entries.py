@@ -5,13 +5,15 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
+from cartpole.agents.presets import is_preset_file
 from cartpole.agents.registry import agent_names, get_agent
-from cartpole.training.config import ConfigError, is_preset_file, resolve_config
+from cartpole.core.errors import ConfigError, InputError
+from cartpole.training.config import resolve_config
 
 DEFAULT_PRESET = "default"
 
 
-class ExperimentError(ConfigError):
+class ExperimentError(InputError):
     """Bad input to an experiment or a sweep: shown as one line, exit code 2, nothing saved is lost."""
 
 

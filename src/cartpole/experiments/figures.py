@@ -91,7 +91,7 @@ def plot_solve_steps(
     figure = Figure(figsize=(9, 4.8), layout="constrained")
     ax = figure.add_subplot()
     rng = np.random.default_rng(0)
-    for index, (entry, runs) in enumerate(records.items()):
+    for index, runs in enumerate(records.values()):
         color = COLORS[index % len(COLORS)]
         solved = [r for r in runs if r.get("solved_in_training")]
         unsolved = [r for r in runs if not r.get("solved_in_training")]

@@ -15,8 +15,9 @@ from pathlib import Path
 from typing import Any
 
 from cartpole.agents.registry import get_agent
+from cartpole.core.errors import ConfigError
 from cartpole.experiments.entries import ExperimentError
-from cartpole.training.config import ConfigError, TrainSettings, resolve_config
+from cartpole.training.config import TrainSettings, resolve_config
 
 RANGE_KEYS = {"low", "high", "log", "step"}
 

@@ -150,11 +150,11 @@ def make_record(task: Task, outcome: TrainOutcome, clock: SolveClock) -> dict[st
 
 def main(argv: list[str]) -> int:
     """Run the task in ``argv[0]``; exit 0 when finished, 130 when interrupted."""
-    from cartpole.training.config import ConfigError
+    from cartpole.core.errors import InputError
 
     try:
         record = run_task(Task.load(Path(argv[0])))
-    except ConfigError as err:
+    except InputError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     return 0 if record["state"] == FINISHED else 130

@@ -14,6 +14,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from cartpole.core.errors import InputError
 from cartpole.runs.atomic import write_json_atomic
 
 CONFIG = "config.json"
@@ -27,7 +28,7 @@ NOT_RUNS = ("experiments", "sweeps")
 RUN_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*__[A-Za-z0-9._-]+__s\d+__\d{8}-\d{6}(-\d+)?$")
 
 
-class RunError(ValueError):
+class RunError(InputError, ValueError):
     """A run folder is missing or unreadable."""
 
 

@@ -8,14 +8,15 @@ import time
 from collections.abc import Callable
 from typing import Any, TextIO
 
+from cartpole.agents.learner import LearnResult
 from cartpole.agents.registry import AgentSpec
+from cartpole.core.seeding import eval_seed
 from cartpole.envs import EnvInfo
 from cartpole.evaluation import MIN_EPISODES_FOR_SOLVED, EvalReport, Policy, evaluate
 from cartpole.runs import Checkpoint, RunDir, save_checkpoint
 from cartpole.training.budget import Budget
 from cartpole.training.config import TrainSettings
-from cartpole.training.loop import Callback, LearnResult, TrainingLoop
-from cartpole.training.seeding import eval_seed
+from cartpole.training.loop import Callback, TrainingLoop
 
 
 class BudgetCallback(Callback):
@@ -308,7 +309,7 @@ TENSORBOARD_EXTRA = "pip install 'cartpole[tensorboard]'"
 
 def require_tensorboard() -> None:
     """Raise ConfigError with the install line when the ``tensorboard`` package is missing."""
-    from cartpole.training.config import ConfigError
+    from cartpole.core.errors import ConfigError
 
     try:
         import tensorboard  # noqa: F401

@@ -7,20 +7,13 @@ config dataclass or of :class:`TrainSettings`; anything else is an error that na
 
 from __future__ import annotations
 
-import dataclasses
-import tomllib
-import types
-import typing
 from dataclasses import dataclass, fields
-from importlib import resources
-from pathlib import Path
 from typing import Any
 
+from cartpole.agents.presets import preset_values
+from cartpole.core.config import build_config, require
+from cartpole.core.errors import ConfigError
 from cartpole.training.budget import parse_budget
-
-
-class ConfigError(ValueError):
-    """A preset, an override or a config value is wrong."""
 
 
 @dataclass
@@ -51,107 +44,6 @@ class TrainSettings:
         require(self.checkpoint_every >= 1, "checkpoint_every must be >= 1")
 
 
-def require(condition: bool, message: str) -> None:
-    """Raise ConfigError(message) unless ``condition``: the one-line check configs use."""
-    if not condition:
-        raise ConfigError(message)
-
-
-def preset_table(agent: str) -> dict[str, dict[str, Any]]:
-    """All presets of ``agent`` as read from its TOML file."""
-    text = resources.files("cartpole.agents").joinpath("presets", f"{agent}.toml").read_text()
-    return tomllib.loads(text)
-
-
-def preset_names(agent: str) -> list[str]:
-    return list(preset_table(agent))
-
-
-def preset_source(agent: str) -> str:
-    """Where ``agent``'s named presets are read from (a file path, for ``cartpole presets``)."""
-    return str(resources.files("cartpole.agents").joinpath("presets", f"{agent}.toml"))
-
-
-def is_preset_file(preset: str) -> bool:
-    """A preset given as a path to a TOML file (``best.toml``, ``my/preset.toml``) rather than a name."""
-    return preset.endswith(".toml")
-
-
-def read_preset_file(path: str | Path) -> dict[str, Any]:
-    """The settings of a preset file: one table of settings (the form ``cartpole sweep`` writes as
-    ``best.toml``), or a file holding exactly one named table of them."""
-    path = Path(path)
-    try:
-        table = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"preset file {path} does not exist") from None
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
-        raise ConfigError(f"preset file {path} is not readable TOML: {err}") from None
-    tables = [v for v in table.values() if isinstance(v, dict)]
-    if tables and len(tables) == len(table):
-        if len(tables) > 1:
-            raise ConfigError(
-                f"preset file {path} holds {len(tables)} presets ({', '.join(table)}); keep one table"
-            )
-        return tables[0]
-    return table
-
-
-def preset_values(agent: str, preset: str) -> dict[str, Any]:
-    """The settings a preset sets (without its description): by name, or from a ``.toml`` file."""
-    if is_preset_file(preset):
-        values = read_preset_file(preset)
-    else:
-        table = preset_table(agent)
-        if preset not in table:
-            raise ConfigError(
-                f"unknown preset {preset!r} for {agent}; choose one of: {', '.join(table)} "
-                "(or give a path to a .toml preset file)"
-            )
-        values = table[preset]
-    return {k: v for k, v in values.items() if k != "description"}
-
-
-def _coerce(value: Any, annotation: Any, key: str) -> Any:
-    """Check ``value`` against a field's type, converting strings from the command line."""
-    hint = typing.get_type_hints(type("_", (), {"__annotations__": {"x": annotation}}))["x"]
-    options = typing.get_args(hint) if isinstance(hint, types.UnionType) else (hint,)
-    if value is None or (isinstance(value, str) and value.lower() == "none"):
-        if type(None) in options:
-            return None
-        raise ConfigError(f"{key} cannot be none")
-    for option in options:
-        origin = typing.get_origin(option) or option
-        try:
-            if origin is bool:
-                if isinstance(value, bool):
-                    return value
-                if isinstance(value, str) and value.lower() in ("true", "false", "1", "0"):
-                    return value.lower() in ("true", "1")
-            elif origin in (int, float):
-                if isinstance(value, bool):
-                    continue
-                if origin is int and isinstance(value, float) and not value.is_integer():
-                    continue
-                return origin(float(value)) if origin is int else origin(value)
-            elif origin is str:
-                return str(value)
-            elif origin in (list, tuple):
-                items = value if isinstance(value, list | tuple) else str(value).split(",")
-                (item_type,) = typing.get_args(option)[:1] or (str,)
-                return origin(_coerce(v, item_type, key) for v in items if v != "")
-        except (TypeError, ValueError):
-            continue
-    raise ConfigError(f"{key}={value!r} is not a valid {hint}")
-
-
-def build_config(cls: type, values: dict[str, Any]) -> Any:
-    """An instance of dataclass ``cls`` from ``values`` (unknown keys were filtered before)."""
-    kinds = {f.name: f.type for f in fields(cls)}
-    kwargs = {k: _coerce(v, kinds[k], k) for k, v in values.items()}
-    return cls(**kwargs)
-
-
 def resolve_config(
     agent: str, config_cls: type, preset: str, overrides: dict[str, Any] | None = None
 ) -> tuple[Any, TrainSettings]:
@@ -175,8 +67,3 @@ def resolve_config(
         validate()
     settings.validate()
     return config, settings
-
-
-def config_to_dict(config: Any) -> dict[str, Any]:
-    """A dataclass config as JSON-able data (tuples become lists)."""
-    return dataclasses.asdict(config)

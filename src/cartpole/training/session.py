@@ -13,8 +13,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from cartpole import __version__
 from cartpole.agents.registry import AgentSpec, get_agent
+from cartpole.core.config import build_config, config_to_dict
+from cartpole.core.errors import ConfigError
+from cartpole.core.seeding import MAX_TRAIN_SEED, final_eval_seed
+from cartpole.core.version import __version__
 from cartpole.envs import EnvInfo, env_info
 from cartpole.evaluation import MIN_EPISODES_FOR_SOLVED, EvalReport, evaluate
 from cartpole.runs import CheckpointError, RunDir, load_checkpoint
@@ -30,15 +33,8 @@ from cartpole.training.callbacks import (
     TensorBoardCallback,
     require_tensorboard,
 )
-from cartpole.training.config import (
-    ConfigError,
-    TrainSettings,
-    build_config,
-    config_to_dict,
-    resolve_config,
-)
+from cartpole.training.config import TrainSettings, resolve_config
 from cartpole.training.loop import Callback, LoopState, TrainingLoop
-from cartpole.training.seeding import MAX_TRAIN_SEED, final_eval_seed
 
 
 @dataclass
