@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from cartpole.runs.atomic import write_atomic
+from cartpole.runs.atomic import write_text_atomic
 
 if TYPE_CHECKING:
     from cartpole.experiments.sweep import SweepSpec
@@ -50,7 +50,7 @@ def write_best(spec: SweepSpec, study: Any) -> Path | None:
         return None
     text = tomli_w.dumps(best_preset(spec, best))
     path = spec.path / "best.toml"
-    write_atomic(path, lambda handle: handle.write(text.encode()), durable=False)
+    write_text_atomic(path, text)
     return path
 
 

@@ -8,7 +8,7 @@ from typing import Any
 from cartpole.experiments.compare import Experiment
 from cartpole.experiments.entries import Entry
 from cartpole.experiments.stats import CONFIDENCE, censored_summary, iqm_summary
-from cartpole.runs.atomic import write_atomic, write_json_atomic
+from cartpole.runs.atomic import write_json_atomic, write_text_atomic
 
 TIMES = (
     ("env_steps_to_solve", "solve_steps", "env_steps"),
@@ -123,5 +123,5 @@ def write_report(experiment: Experiment) -> tuple[dict[str, Any], list[Path]]:
     written = [p for p in figures if p is not None]
     write_json_atomic(folder / "report.json", report)
     text = markdown(report, [str(p) for p in written])
-    write_atomic(folder / "report.md", lambda handle: handle.write(text.encode()), durable=False)
+    write_text_atomic(folder / "report.md", text)
     return report, [folder / "report.json", folder / "report.md", *written]

@@ -368,9 +368,11 @@ def trial_cost(spec: SweepSpec, trial: Any, params: dict[str, Any], stop: list[i
             stop.append(outcome.signal)
             raise Interrupted
         state = outcome.state
-        cost = state.solved_at_step if state.solved else UNSOLVED_FACTOR * state.env_steps
-        costs.append(float(cost))
-        trial.set_user_attr(f"cost_seed{index}", float(cost))
+        cost = float(
+            state.solved_at_step if state.solved_at_step is not None else UNSOLVED_FACTOR * state.env_steps
+        )
+        costs.append(cost)
+        trial.set_user_attr(f"cost_seed{index}", cost)
         if reporter.pruned:
             raise optuna.TrialPruned(f"pruned at seed {index}, {state.env_steps} env steps")
     return float(statistics.median(costs))
