@@ -59,7 +59,13 @@ def plot_curves(groups: dict[str, list[Path]], out: Path, env_id: str) -> Path |
         color = COLORS[index % len(COLORS)]
         ax.fill_between(grid, low, high, color=color, alpha=0.2, linewidth=0)
         solved = sum(r.solved for r in runs)
-        ax.plot(grid, mean, color=color, linewidth=2, label=f"{label}: {len(runs)} runs, {solved} solved")
+        ax.plot(
+            grid,
+            mean,
+            color=color,
+            linewidth=2,
+            label=f"{label}: {len(runs)} runs, final verdict solved {solved}",
+        )
         drawn = True
     if not drawn:
         return None
