@@ -135,3 +135,36 @@ def test_a_study_cannot_change_its_agent_or_space(tmp_path, capsys):
     assert main(["sweep", "cem", *base, "--space", space]) == 2
     assert "another search space" in capsys.readouterr().err
     assert journal.read_bytes() == before, "the study is untouched"
+
+
+@pytest.mark.slow
+def test_ctrl_c_leaves_the_study_consistent_and_a_rerun_finishes_it(tmp_path):
+    import signal
+    import time
+
+    preset = write(tmp_path / "slow.toml", "stop_when_solved = false\ncheckpoint_every = 1\n")
+    space = write(tmp_path / "space.toml", "[noise]\nlow = 0.0001\nhigh = 0.0002\n")
+    runs_dir = tmp_path / "runs"
+    args = ["sweep", "hill-climbing", "--preset", preset, "--space", space, "--trials", "2",
+            "--workers", "2", "--seeds-per-trial", "1", "--study", "c", "--budget", "5s",
+            "--runs-dir", str(runs_dir)]  # fmt: skip
+    process = subprocess.Popen(
+        [sys.executable, "-m", "cartpole", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    folder = runs_dir / "sweeps" / "c"
+    deadline = time.monotonic() + 120
+    while len(list(folder.glob("runs/*/checkpoints/latest.pt"))) < 2 and time.monotonic() < deadline:
+        time.sleep(0.2)
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=120)
+    assert process.returncode == 130, stderr
+    study = load(folder, "c")
+    states = [t.state for t in study.get_trials()]
+    assert optuna.trial.TrialState.RUNNING not in states and optuna.trial.TrialState.FAIL in states
+    assert all(
+        t.user_attrs.get("interrupted") for t in study.get_trials(states=(optuna.trial.TrialState.FAIL,))
+    )
+
+    again = run_cli(*args)
+    assert again.returncode == 0, again.stderr
+    assert len(finished(load(folder, "c"))) == 2
