@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from cartpole.core.errors import InputError
-from cartpole.runs.atomic import write_json_atomic
+from cartpole.runs.atomic import write_json_atomic, write_text_atomic
 
 CONFIG = "config.json"
 STATUS = "status.json"
@@ -163,9 +163,7 @@ class RunDir:
         """Drop rows logged after env step ``step`` (and any half-written line), for a resume."""
         kept = [row for row in self.metrics() if row.get("step", 0) <= step]
         text = "".join(json.dumps(row) + "\n" for row in kept)
-        from cartpole.runs.atomic import write_atomic
-
-        write_atomic(self.metrics_path, lambda handle: handle.write(text.encode()))
+        write_text_atomic(self.metrics_path, text, durable=True)
 
 
 @dataclass(frozen=True)
