@@ -174,7 +174,7 @@ def open_storage(spec: SweepSpec, attempts: int = 5) -> Any:
     import time
 
     import optuna
-    from sqlalchemy.exc import SQLAlchemyError
+    from sqlalchemy.exc import OperationalError, SQLAlchemyError
 
     if spec.storage is None:
         from optuna.storages.journal import JournalFileBackend
@@ -199,12 +199,11 @@ def open_storage(spec: SweepSpec, attempts: int = 5) -> Any:
             raise ExperimentError(
                 f"--storage {backend}:// needs its driver ({err.name}); pip install 'cartpole[postgres]'"
             ) from None
+        except OperationalError as err:  # no server there, or a wrong host, port, user or database
+            reason = str(err.orig or err).strip().splitlines()[0]
+            raise ExperimentError(f"cannot reach the {backend} study storage at {where}: {reason}") from None
         except SQLAlchemyError as err:
             reason = str(getattr(err, "orig", None) or err).strip().splitlines()[0]
-            if "Connection refused" in reason or "could not connect" in reason or "timeout" in reason:
-                raise ExperimentError(
-                    f"cannot reach the {backend} study storage at {where}: {reason}"
-                ) from None
             if attempt == attempts - 1:  # e.g. two machines creating the tables at the same moment
                 raise ExperimentError(f"the {backend} study storage at {where} failed: {reason}") from None
             time.sleep(1.0 + attempt)
