@@ -54,6 +54,9 @@ def test_sweep_two_workers_then_more_trials_and_best_toml_trains(tmp_path, capsy
                 "x",
             )
         )
+    first = study.get_trials()[0]  # a new study starts from the preset's own values
+    assert first.params == {"population": 32, "episodes_per_candidate": 2, "elite_fraction": 0.2,
+                            "init_std": 0.5, "extra_std": 0.02}  # fmt: skip
     best = tomllib.loads((folder / "best.toml").read_text())
     winner = min(complete, key=lambda t: t.value)
     assert best["population"] == winner.params["population"] and best["budget"] == "3gen"

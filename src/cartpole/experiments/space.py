@@ -47,6 +47,20 @@ class Param:
             return trial.suggest_int(self.name, int(self.low), int(self.high), step=step, log=self.log)
         return trial.suggest_float(self.name, float(self.low), float(self.high), step=self.step, log=self.log)
 
+    def holds(self, value: Any) -> bool:
+        """Whether ``value`` is one this parameter can suggest (a choice, or in the range on its grid)."""
+        if self.choices:
+            return value in self.choices
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            return False
+        assert self.low is not None and self.high is not None
+        if not self.low <= value <= self.high:
+            return False
+        return (
+            self.step is None
+            or abs((value - self.low) / self.step - round((value - self.low) / self.step)) < 1e-9
+        )
+
     def extremes(self) -> list[Any]:
         return list(self.choices) if self.choices else [self.low, self.high]
 
@@ -147,3 +161,19 @@ def space_description(space: dict[str, Param]) -> dict[str, Any]:
         else {"low": p.low, "high": p.high, "log": p.log, "step": p.step}
         for name, p in sorted(space.items())
     }
+
+
+def preset_point(agent: str, preset: str, space: dict[str, Param]) -> dict[str, Any]:
+    """The preset's own values of the searched settings that the space can suggest (lists as "a,b")."""
+    from cartpole.core.config import config_to_dict
+
+    config, settings = resolve_config(agent, get_agent(agent).config_cls, preset)
+    values = config_to_dict(config) | config_to_dict(settings)
+    point = {}
+    for name, param in space.items():
+        value = values[name]
+        if isinstance(value, list | tuple):
+            value = ",".join(str(v) for v in value)
+        if param.holds(value):
+            point[name] = value
+    return point

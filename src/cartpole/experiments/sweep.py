@@ -34,7 +34,7 @@ from cartpole.experiments.best import best_value, write_best
 from cartpole.experiments.compare import check_name
 from cartpole.experiments.entries import ExperimentError
 from cartpole.experiments.processes import Job, python_module, run_jobs
-from cartpole.experiments.space import Param, load_space, space_description
+from cartpole.experiments.space import Param, load_space, preset_point, space_description
 from cartpole.runs.atomic import write_json_atomic
 from cartpole.training import Callback, TrainingLoop
 from cartpole.training.budget import parse_budget
@@ -45,6 +45,8 @@ UNSOLVED_FACTOR = 2
 EVALS_PER_SEED = 100_000
 """Pruning steps: seed i's evaluation e is step i * EVALS_PER_SEED + e, so steps rise across seeds."""
 STUDY_ATTR = "cartpole"
+STARTUP_TRIALS = 5
+"""Random trials before TPE models the results (Optuna's default is 10: too many for short sweeps)."""
 DONE_STATES = ("COMPLETE", "PRUNED")
 
 
@@ -228,6 +230,8 @@ def open_study(spec: SweepSpec, storage: Any) -> Any:
             sampler=sampler_for(spec, 0),
             pruner=BoundPruner(),
         )
+        if not study.get_trials(deepcopy=False):  # a new study starts from the preset itself
+            study.enqueue_trial(preset_point(spec.agent, spec.preset, spec.params()), skip_if_exists=True)
     recorded = study.user_attrs.get(STUDY_ATTR)
     if recorded is None:
         study.set_user_attr(STUDY_ATTR, spec.identity)
@@ -269,7 +273,9 @@ def sampler_for(spec: SweepSpec, trial_number: int) -> Any:
     """TPE seeded per trial: the same study gives the same suggestions, whichever worker runs a trial."""
     import optuna
 
-    return optuna.samplers.TPESampler(seed=spec.sampler_seed + trial_number, constant_liar=True)
+    return optuna.samplers.TPESampler(
+        seed=spec.sampler_seed + trial_number, constant_liar=True, n_startup_trials=STARTUP_TRIALS
+    )
 
 
 def count_trials(study: Any) -> dict[str, int]:
