@@ -171,3 +171,11 @@ def test_train_accepts_a_preset_file_from_any_path(tmp_path, capsys):
     assert main(["train", "cem", "--preset", str(two), "--runs-dir", str(tmp_path / "r3")]) == 2
     assert "holds 2 presets" in capsys.readouterr().err
     assert not (tmp_path / "r3").exists()
+
+
+@pytest.mark.parametrize("command", ["compare", "sweep"])
+def test_help_is_complete(command, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main([command, "--help"])
+    assert exit_info.value.code == 0
+    assert f"usage: cartpole {command}" in capsys.readouterr().out
