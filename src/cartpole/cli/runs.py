@@ -24,9 +24,16 @@ def add_parser(sub: Any) -> None:
     presets = sub.add_parser(
         "presets",
         help="list agents and their presets",
-        description="Every agent, its presets and what each preset sets.",
+        description=(
+            "Every agent, its presets, what each preset sets and the file it comes from; then the "
+            "presets that sweeps under --runs-dir wrote (sweeps/NAME/best.toml). Any .toml preset file "
+            "can be given to `cartpole train AGENT --preset FILE.toml`."
+        ),
     )
     presets.add_argument("agent", nargs="?", metavar="AGENT", help="show only this agent's presets")
+    presets.add_argument(
+        "--runs-dir", default="runs", metavar="DIR", help="where to look for sweeps (default: runs)"
+    )
     presets.set_defaults(run=presets_command)
 
 
@@ -101,18 +108,30 @@ def run_as_json(summary: RunSummary, runs_dir: Path) -> dict[str, Any]:
 def presets_command(args: argparse.Namespace) -> int:
     from rich.console import Console
 
-    from cartpole.agents.presets import preset_table
+    from cartpole.agents.presets import preset_source, preset_table
     from cartpole.agents.registry import agent_names, get_agent
     from cartpole.cli.errors import UsageError
+    from cartpole.experiments.best import sweep_presets
 
     names = agent_names()
     if args.agent and args.agent not in names:
         raise UsageError(f"unknown agent {args.agent!r}; choose one of: {', '.join(names)}")
     console = Console(soft_wrap=True)
-    for name in [args.agent] if args.agent else names:
+    shown = [args.agent] if args.agent else names
+    for name in shown:
         console.print(f"[bold]{name}[/]: {get_agent(name).summary}")
+        console.print(f"  from {preset_source(name)}", highlight=False)
         for preset, values in preset_table(name).items():
-            console.print(f"  [cyan]{preset}[/]: {values.get('description', '')}")
-            settings = ", ".join(f"{k}={v}" for k, v in values.items() if k != "description")
-            console.print(f"    {settings}", highlight=False)
+            _print_preset(console, preset, values)
+    found = [p for p in sweep_presets(Path(args.runs_dir)) if p.agent in shown]
+    if found:
+        console.print(f"[bold]sweep presets[/] in {args.runs_dir}/ (use --preset FILE.toml):")
+    for item in found:
+        _print_preset(console, f"{item.path} ({item.agent})", item.values)
     return 0
+
+
+def _print_preset(console: Any, name: str, values: dict[str, Any]) -> None:
+    console.print(f"  [cyan]{name}[/]: {values.get('description', '')}", highlight=False)
+    settings = ", ".join(f"{k}={v}" for k, v in values.items() if k != "description")
+    console.print(f"    {settings}", highlight=False)

@@ -54,8 +54,9 @@ def add_parser(sub: Any) -> None:
     parser.add_argument(
         "--preset",
         default="default",
-        metavar="NAME",
-        help="hyperparameter preset of the agent (default: default)",
+        metavar="NAME|FILE.toml",
+        help="hyperparameter preset of the agent, by name or as a .toml preset file such as a sweep's "
+        "best.toml (default: default)",
     )
     parser.add_argument(
         "--set",

@@ -28,7 +28,7 @@ from typing import IO, Any
 
 from cartpole.core.errors import InputError
 from cartpole.core.names import CheckpointName, RunState
-from cartpole.runs.atomic import write_json_atomic
+from cartpole.runs.atomic import write_json_atomic, write_text_atomic
 
 CONFIG = "config.json"
 STATUS = "status.json"
@@ -42,6 +42,8 @@ HEARTBEAT_SECONDS = 5.0
 """How often a training process refreshes the heartbeat in ``status.json``."""
 STALE_SECONDS = 60.0
 """A "running" status whose heartbeat is older than this has lost its process: it shows as crashed."""
+NOT_RUNS = ("experiments", "sweeps")
+"""Folders of a runs folder that hold experiments and sweeps (their run folders inside), not one run."""
 RUN_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*__[A-Za-z0-9._-]+__s\d+__\d{8}-\d{6}(-\d+)?$")
 
 
@@ -304,12 +306,7 @@ class RunDir:
         """Drop rows logged after env step ``step`` (and any half-written line), for a resume."""
         kept = [row for row in self.metrics() if row.get("step", 0) <= step]
         text = "".join(json.dumps(row) + "\n" for row in kept)
-        from cartpole.runs.atomic import write_atomic
-
-        def write(handle: IO[bytes]) -> None:
-            handle.write(text.encode())
-
-        write_atomic(self.metrics_path, write)
+        write_text_atomic(self.metrics_path, text, durable=True)
 
 
 class LiveStatus:
@@ -503,7 +500,11 @@ def list_runs(runs_dir: Path) -> list[RunSummary]:
             return []
         if not runs_dir.is_dir():
             raise RunError(f"{runs_dir} is not a folder of runs: give the folder that holds run folders")
-        folders = [p for p in runs_dir.iterdir() if p.is_dir() and not p.name.startswith(".")]
+        folders = [
+            p
+            for p in runs_dir.iterdir()
+            if p.is_dir() and not p.name.startswith(".") and p.name not in NOT_RUNS
+        ]
     except OSError as err:
         raise RunError(f"cannot list {runs_dir}: {err.strerror or err}") from err
     summaries = [summarize_run(p) for p in folders]

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import signal
 import sys
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from pathlib import Path
@@ -151,8 +151,10 @@ class RunSetup:
         )
 
 
-def make_callbacks(setup: RunSetup, status: LiveStatus, quiet: bool) -> list[Callback]:
-    """The standard callbacks, in the order they must see events."""
+def make_callbacks(
+    setup: RunSetup, status: LiveStatus, quiet: bool, extra: Sequence[Callback] = ()
+) -> list[Callback]:
+    """The standard callbacks, in the order they must see events; ``extra`` ones see them last."""
     run, settings = setup.run, setup.settings
     callbacks: list[Callback] = [BudgetCallback(setup.budget), EvalCallback(setup.env, setup.seed, settings)]
     if settings.stop_when_solved:
@@ -170,7 +172,7 @@ def make_callbacks(setup: RunSetup, status: LiveStatus, quiet: bool) -> list[Cal
         callbacks.append(TensorBoardCallback(run, metrics))
     if not quiet:
         callbacks.append(ProgressCallback(setup.budget, setup.spec.iteration))
-    return callbacks
+    return callbacks + list(extra)
 
 
 def final_verdict(setup: RunSetup) -> EvalReport:
@@ -192,7 +194,9 @@ def final_verdict(setup: RunSetup) -> EvalReport:
     return report
 
 
-def run_loop(setup: RunSetup, learner: Any, state: LoopState | None, quiet: bool) -> TrainOutcome:
+def run_loop(
+    setup: RunSetup, learner: Any, state: LoopState | None, quiet: bool, extra: Sequence[Callback] = ()
+) -> TrainOutcome:
     """Drive the loop with the standard callbacks, then give the verdict unless interrupted.
 
     ``status.json`` says "running" (with a heartbeat) until ``latest.pt`` and the verdict are on disk;
@@ -200,7 +204,7 @@ def run_loop(setup: RunSetup, learner: Any, state: LoopState | None, quiet: bool
     it trains on, or, when training was complete, only gives the verdict.
     """
     with LiveStatus(setup.run) as status:
-        loop = TrainingLoop(learner, make_callbacks(setup, status, quiet), state)
+        loop = TrainingLoop(learner, make_callbacks(setup, status, quiet, extra), state)
         try:
             with stop_on_signals(loop) as received:
                 loop.run()
@@ -240,10 +244,12 @@ def train(
     quiet: bool = True,
     command: list[str] | None = None,
     tensorboard: bool = False,
+    callbacks: Sequence[Callback] = (),
 ) -> TrainOutcome:
     """Train ``agent`` on ``env_id`` in a new run folder and return the outcome.
 
     With ``tensorboard`` the metrics also go to ``<run>/tensorboard/`` (needs the tensorboard extra).
+    ``callbacks`` see every event after the standard ones (experiments time solves, sweeps prune).
     """
     if tensorboard:
         require_tensorboard()  # before a run folder is made
@@ -277,14 +283,16 @@ def train(
     run = RunDir.create(Path(runs_dir), env_id, agent, seed)
     with run.lock():
         run.write_config(record)
-        return run_loop(RunSetup.from_record(run, record), learner, None, quiet)
+        return run_loop(RunSetup.from_record(run, record), learner, None, quiet, callbacks)
 
 
 class AlreadyFinished(Exception):
     """The run to resume has finished; there is nothing to do."""
 
 
-def resume(run_path: Path | str, *, quiet: bool = True, device: str = "auto") -> TrainOutcome:
+def resume(
+    run_path: Path | str, *, quiet: bool = True, device: str = "auto", callbacks: Sequence[Callback] = ()
+) -> TrainOutcome:
     """Continue a run from ``checkpoints/latest.pt`` with its recorded config and budget.
 
     Any run that has no final verdict is accepted: interrupted, failed, crashed (its process was
@@ -304,7 +312,7 @@ def resume(run_path: Path | str, *, quiet: bool = True, device: str = "auto") ->
         learner = setup.spec.make_learner(setup.config, setup.env, setup.seed, resolve_device(device))
         state = restore(run, setup, learner)
         run.truncate_metrics_after(state.env_steps if state else 0)
-        return run_loop(setup, learner, state, quiet)
+        return run_loop(setup, learner, state, quiet, callbacks)
 
 
 RESUMABLE_STOPS = (StopReason.INTERRUPTED, StopReason.FAILED, StopReason.BUDGET)
