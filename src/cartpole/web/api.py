@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+from pathlib import Path
 from typing import Annotated, Any
 
 from fastapi import APIRouter, HTTPException, Query, Request
@@ -43,7 +45,7 @@ class RunRow(BaseModel):
 
 
 class RunsOut(BaseModel):
-    runs_dir: str
+    runs_dir: str = Field(description="the runs folder as given to `cartpole serve` (its name if absolute)")
     runs: list[RunRow]
 
 
@@ -79,6 +81,34 @@ def folder(request: Request) -> RunsFolder:
     return request.app.state.runs
 
 
+def shown_root(runs: RunsFolder) -> str:
+    """The runs folder as the pages show it: as given when relative, else only its name (where it is
+    on this machine is nobody else's business)."""
+    return runs.root.name if runs.root.is_absolute() else str(runs.root)
+
+
+def relative_paths(value: Any, runs: RunsFolder) -> Any:
+    """``value`` (text, or lists and dicts of it) with every path inside the runs folder made relative
+    to it, and the runs folder itself replaced by how the pages show it."""
+    if isinstance(value, str):
+        for root in _spellings(runs.root):
+            value = value.replace(root + "/", "").replace(root, shown_root(runs))
+        return value
+    if isinstance(value, list):
+        return [relative_paths(v, runs) for v in value]
+    if isinstance(value, dict):
+        return {k: relative_paths(v, runs) for k, v in value.items()}
+    return value
+
+
+def _spellings(root: Path) -> list[str]:
+    """The runs folder's absolute path as written (resolved and not), longest first."""
+    names = {str(root.absolute())}
+    with contextlib.suppress(OSError):
+        names.add(str(root.resolve()))
+    return sorted((n for n in names if n != "/"), key=len, reverse=True)
+
+
 def open_run(request: Request, name: str) -> RunDir:
     try:
         return folder(request).run(name)
@@ -91,7 +121,7 @@ def info(request: Request) -> dict[str, Any]:
     """Version, the runs folder, and the physics a page may change (defaults and ranges)."""
     return {
         "version": __version__,
-        "runs_dir": str(folder(request).root),
+        "runs_dir": shown_root(folder(request)),
         "physics": {
             "defaults": default_physics(),
             "limits": PHYSICS_LIMITS,
@@ -104,13 +134,15 @@ def info(request: Request) -> dict[str, Any]:
 @router.get("/runs", response_model=RunsOut)
 def runs(request: Request) -> dict[str, Any]:
     """Every run folder, newest first; half-written or corrupt ones are listed with their problem."""
-    return {"runs_dir": str(folder(request).root), "runs": folder(request).summaries()}
+    runs = folder(request)
+    return {"runs_dir": shown_root(runs), "runs": relative_paths(runs.summaries(), runs)}
 
 
 @router.get("/runs/{name}")
 def run_detail(request: Request, name: str) -> dict[str, Any]:
     """One run: summary, config, status, evaluation report, checkpoints, env threshold."""
-    return folder(request).detail(open_run(request, name))
+    runs = folder(request)
+    return relative_paths(runs.detail(open_run(request, name)), runs)
 
 
 @router.get("/runs/{name}/metrics", response_model=MetricsOut)
