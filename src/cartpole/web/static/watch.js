@@ -107,16 +107,21 @@ function renderPrefs(i) {
   const row = e.scores[i];
   const scale = watch.maxScore || 1;
   const signed = row.some((v) => v < 0);
-  const bars = ["← left", "right →"].map((label, a) => {
+  const label = CP.escapeHTML(e.score_label);
+  const bars = ["← left", "right →"].map((side, a) => {
+    return `<div class="pref ${e.actions[i] === a ? "chosen" : ""}" title="${label} of ${side}"><span>${side}</span>
+      <div class="track"><div class="fill"></div></div>
+      <span class="val">${row[a].toFixed(2)}</span></div>`;
+  });
+  box.innerHTML = `<div class="small muted">${label} (the agent picks the larger)</div>${bars.join("")}`;
+  // Geometry through the CSSOM: the Content-Security-Policy forbids inline style attributes.
+  box.querySelectorAll(".fill").forEach((fill, a) => {
     const v = row[a];
     const w = Math.min(50, (Math.abs(v) / scale) * 50) * (signed ? 1 : 2);
-    const left = signed ? (v >= 0 ? 50 : 50 - w) : 0;
-    const color = a === 1 ? CartPoleDraw.COLORS.right : CartPoleDraw.COLORS.left;
-    return `<div class="pref ${e.actions[i] === a ? "chosen" : ""}"><span>${label}</span>
-      <div class="track"><div class="fill" style="left:${left}%;width:${w}%;background:${color}"></div></div>
-      <span class="val">${v.toFixed(2)}</span></div>`;
+    fill.style.left = `${signed ? (v >= 0 ? 50 : 50 - w) : 0}%`;
+    fill.style.width = `${w}%`;
+    fill.style.background = a === 1 ? CartPoleDraw.COLORS.right : CartPoleDraw.COLORS.left;
   });
-  box.innerHTML = `<div class="small muted">${CP.escapeHTML(e.score_label)} (the agent picks the larger)</div>${bars.join("")}`;
 }
 
 function tick(now) {
