@@ -14,7 +14,7 @@ from cartpole.agents.registry import get_agent
 from cartpole.core.version import __version__
 from cartpole.envs import env_info
 from cartpole.runs import CheckpointError, RunDir
-from cartpole.web.episodes import MAX_NUDGE, UNLIMITED_STEPS, PolicyCache, play_episode, sim_limits
+from cartpole.web.episodes import MAX_NUDGE, UNLIMITED_STEPS, EpisodesBusy, EpisodeWorkers
 from cartpole.web.physics import PHYSICS_LABELS, PHYSICS_LIMITS, PhysicsError, default_physics, is_cartpole
 from cartpole.web.runs_folder import NotFound, RunsFolder
 
@@ -182,9 +182,13 @@ NudgeChanges = Annotated[list[float] | None, Query(description="rad/s added to t
 @router.get(
     "/runs/{name}/checkpoints/{checkpoint}/episode",
     response_model=EpisodeOut,
-    responses={404: {"description": "no such run or checkpoint"}, 409: {"description": "not CartPole"}},
+    responses={
+        404: {"description": "no such run or checkpoint"},
+        409: {"description": "not CartPole, or the checkpoint cannot be loaded"},
+        503: {"description": "too many episodes asked for at once: retry"},
+    },
 )
-def episode(
+async def episode(
     request: Request,
     name: str,
     checkpoint: str,
@@ -197,7 +201,8 @@ def episode(
     nudge_at: NudgeSteps = None,
     nudge: NudgeChanges = None,
 ) -> JSONResponse:
-    """The greedy episode of a checkpoint from a seed's start state, with optional physics and nudges."""
+    """The greedy episode of a checkpoint from a seed's start state, with optional physics and nudges
+    (computed in a worker process: the server goes on answering meanwhile)."""
     run = open_run(request, name)
     try:
         path = folder(request).checkpoint(run, checkpoint)
@@ -210,22 +215,16 @@ def episode(
     overrides = {k: v for k, v in {**given, "force_mag": force_mag}.items() if v is not None}
     max_steps = max_episode_steps(env_id)
     nudges = nudges_from_query(nudge_at or [], nudge or [], max_steps)
-    cache: PolicyCache = request.app.state.policies
+    workers: EpisodeWorkers = request.app.state.episodes
     try:
-        policy = cache.get(path)
-        result, sim = play_episode(policy, env_id, seed, overrides, nudges)
+        result = await workers.episode(path, env_id, seed, overrides, nudges, score_label(agent))
     except CheckpointError as err:
         raise HTTPException(409, f"checkpoint {checkpoint} cannot be loaded: {err}") from err
     except PhysicsError as err:
         raise HTTPException(422, str(err)) from err
-    label = score_label(agent)
-    body = {
-        "run": run.name,
-        "checkpoint": checkpoint,
-        "agent": agent,
-        **result.to_dict(sim_limits(sim), label),
-    }
-    return JSONResponse(body)
+    except EpisodesBusy as err:
+        raise HTTPException(503, str(err), headers={"Retry-After": "1"}) from err
+    return JSONResponse({"run": run.name, "checkpoint": checkpoint, "agent": agent, **result})
 
 
 def score_label(agent: str | None) -> str:

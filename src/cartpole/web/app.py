@@ -20,7 +20,7 @@ from starlette.middleware.trustedhost import TrustedHostMiddleware
 
 from cartpole.core.version import __version__
 from cartpole.web import api, live
-from cartpole.web.episodes import PolicyCache
+from cartpole.web.episodes import EpisodeWorkers
 from cartpole.web.runs_folder import RunsFolder
 from cartpole.web.security import SameOriginWebSockets, SecurityHeaders, URLLengthLimit, allowed_hosts
 
@@ -44,7 +44,7 @@ def create_app(runs_dir: Path | str = "runs", allow_hosts: Iterable[str] = ()) -
         lifespan=_warm_up,
     )
     app.state.runs = RunsFolder(Path(runs_dir))
-    app.state.policies = PolicyCache()
+    app.state.episodes = EpisodeWorkers.shared()
     app.add_exception_handler(HTTPException, _without_machine_paths)
     # Outermost last: headers on every answer, then the URL size, the Host, the WebSocket Origin.
     app.add_middleware(SameOriginWebSockets)
@@ -71,6 +71,7 @@ async def _warm_up(app: FastAPI) -> AsyncIterator[None]:
     """Load the agents' modules and the simulator's compiled kernels in the background at start, so
     the first Watch or Play request does not wait seconds for imports and numba's cache."""
     threading.Thread(target=_load_heavy_modules, name="cartpole-web-warm-up", daemon=True).start()
+    app.state.episodes.start()
     yield
 
 

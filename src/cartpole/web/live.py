@@ -76,7 +76,7 @@ async def live_metrics(websocket: WebSocket, name: str, offset: int = 0) -> None
         reader.cancel()
 
 
-async def _follow(websocket: WebSocket, run: RunDir, offset: int, reader: asyncio.Future[str]) -> None:
+async def _follow(websocket: WebSocket, run: RunDir, offset: int, reader: asyncio.Future[str | None]) -> None:
     seen_metrics = seen_status = None
     while True:
         stamp = _stamp(run.path / "status.json")
@@ -121,7 +121,7 @@ class Step(BaseModel):
 
 
 PLAY_TYPES = ("reset", "step")
-PlayMessage = TypeAdapter(Annotated[Reset | Step, Field(discriminator="type")])
+PlayMessage: TypeAdapter[Reset | Step] = TypeAdapter(Annotated[Reset | Step, Field(discriminator="type")])
 
 
 class PlaySession:

@@ -13,6 +13,7 @@ play step's round trip.
 from __future__ import annotations
 
 from collections.abc import Iterable
+from typing import Any
 from urllib.parse import urlsplit
 
 from starlette.datastructures import Headers
@@ -37,7 +38,10 @@ instead of a reset connection (h11's default is 16 KB)."""
 MAX_WS_MESSAGE_BYTES = 64 * 1024
 """Largest WebSocket message uvicorn accepts; the app's own limit per message is smaller."""
 
-SERVER_OPTIONS = {"h11_max_incomplete_event_size": MAX_HEADER_BYTES, "ws_max_size": MAX_WS_MESSAGE_BYTES}
+SERVER_OPTIONS: dict[str, Any] = {
+    "h11_max_incomplete_event_size": MAX_HEADER_BYTES,
+    "ws_max_size": MAX_WS_MESSAGE_BYTES,
+}
 """uvicorn options for the app (``uvicorn.run(app, host, port, **SERVER_OPTIONS)``)."""
 
 CONTENT_SECURITY_POLICY = "; ".join(
