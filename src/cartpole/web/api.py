@@ -42,6 +42,9 @@ class RunRow(BaseModel):
     rule: str | None = Field(description='e.g. "mean 498.2 >= 475 over 100 episodes, CartPole-v1"')
     problem: str | None
     watchable: bool = Field(description="CartPole run: its checkpoints can be watched")
+    has_checkpoint: bool = Field(
+        default=False, description="it has a checkpoint to watch (a file, not a link)"
+    )
 
 
 class RunsOut(BaseModel):

@@ -77,6 +77,7 @@ class RunsFolder:
             row = _as_shown(summary)
             row["rule"] = solved_rule(RunDir(path).eval_report())
             row["watchable"] = bool(summary.env_id and is_cartpole(summary.env_id))
+            row["has_checkpoint"] = bool(self.checkpoints(RunDir(path)))
             rows.append(row)
         return rows
 

@@ -157,10 +157,24 @@ async function reload(keepFrame) {
   render();
 }
 
+// Why a seed typed by the reader cannot be used, or "" if it can (no silent clamping).
+function seedProblem(text) {
+  const value = Number(text);
+  if (String(text).trim() === "" || !Number.isInteger(value)) return "seed must be a whole number";
+  if (value < 0) return "seed must be >= 0";
+  if (value > Number.MAX_SAFE_INTEGER) return `seed must be <= ${Number.MAX_SAFE_INTEGER}`;
+  return "";
+}
+
 function nudge(direction) {
   const e = watch.episode;
   if (!e) return;
-  const step = Math.min(Math.floor(watch.frame), e.limits.max_steps - 1);
+  const step = Math.floor(watch.frame);
+  if (step >= e.length) {
+    // The episode is over: a push now would change nothing that is shown, so none is counted.
+    el("message").innerHTML = '<div class="error">The episode is over: rewind or restart to nudge.</div>';
+    return;
+  }
   const change = direction * Number(el("nudge-size").value);
   watch.nudges = watch.nudges.filter((n) => n.step < step);
   watch.nudges.push({ step, change });
@@ -190,7 +204,12 @@ function wire() {
   });
   el("nudge-size").addEventListener("input", (ev) => (el("nudge-size-out").textContent = ev.target.value));
   el("seed-go").addEventListener("click", () => {
-    watch.seed = Math.max(0, Math.floor(Number(el("seed").value) || 0));
+    const problem = seedProblem(el("seed").value);
+    if (problem) {
+      el("message").innerHTML = `<div class="error">${CP.escapeHTML(problem)}</div>`;
+      return;
+    }
+    watch.seed = Number(el("seed").value);
     watch.nudges = [];
     reload(false).then(() => setPlaying(true));
   });
@@ -220,6 +239,11 @@ function wire() {
 }
 
 async function start() {
+  if (!runName) {
+    el("title").textContent = "Watch";
+    el("message").innerHTML = '<div class="error">No run named in the address. Pick a run and a checkpoint on the <a href="/">runs page</a>.</div>';
+    return;
+  }
   el("back").href = `/run?name=${encodeURIComponent(runName)}`;
   el("title").textContent = `Watch ${checkpoint} of ${runName}`;
   el("seed").value = String(watch.seed);
