@@ -505,6 +505,7 @@ def training_returns(agent: str, seed: int, env_steps: int, env_id: str = "CartP
     return returns
 
 
+@pytest.mark.learning
 def test_ppo_default_learns_over_seeds() -> None:
     """Random play lasts ~22 steps; after 12k env steps (most seeds solve at 14k-22k) the default
     preset's recent training episodes average ~90-150 over two seeds: asserted with margin, > 60."""
@@ -513,6 +514,7 @@ def test_ppo_default_learns_over_seeds() -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.learning
 @pytest.mark.parametrize(("agent", "seeds", "needed"), [("ppo", 5, 4), ("a2c", 5, 4), ("reinforce", 5, 3)])
 def test_default_preset_verifiably_solves_most_seeds(
     agent: str, seeds: int, needed: int, tmp_path: Path
@@ -525,6 +527,7 @@ def test_default_preset_verifiably_solves_most_seeds(
 
 
 @pytest.mark.slow
+@pytest.mark.learning
 def test_ppo_acrobot_return_improves() -> None:
     """Unchanged code on another Box/Discrete env (Gymnasium's vector env): Acrobot-v1's training
     return rises from ~-500 (random) within 30k env steps."""
