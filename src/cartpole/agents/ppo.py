@@ -42,7 +42,8 @@ from cartpole.envs import EnvInfo
 
 @dataclass
 class PPOConfig(PolicyGradientConfig):
-    """Hyperparameters of PPO. Defaults are the ``default`` preset's values for CartPole-v1."""
+    """Hyperparameters of PPO. `cartpole train ppo` uses the ``default`` preset (presets/ppo.toml), not
+    these field defaults."""
 
     n_steps: int = 32
     """Batched steps per rollout (a rollout holds n_steps x num_envs rows)."""
