@@ -147,7 +147,9 @@ def make_sweep(runs_dir: Path, name: str = "dqn-2seeds") -> str:
         attrs: dict[str, Any] = {}
         for seed, cost in enumerate(costs):
             attrs[f"cost_seed{seed}"] = cost
-            attrs[f"run_seed{seed}"] = str(folder / "runs" / f"CartPole-v1__dqn__s{seed}__20261123-1000{seed}0")
+            attrs[f"run_seed{seed}"] = str(
+                folder / "runs" / f"CartPole-v1__dqn__s{seed}__20261123-1000{seed}0"
+            )
         study.add_trial(
             create_trial(
                 state=state,
@@ -160,7 +162,7 @@ def make_sweep(runs_dir: Path, name: str = "dqn-2seeds") -> str:
         )
     (folder / "best.toml").write_text(
         f'description = "cartpole sweep {name} (dqn, from preset dqn-base.toml): trial 2"\n'
-        "lr = 0.002\nbatch_size = 128\nbudget = \"30000\"\n",
+        'lr = 0.002\nbatch_size = 128\nbudget = "30000"\n',
         "utf-8",
     )
     return name

@@ -11,7 +11,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 sys.path.insert(0, str(Path(__file__).parent))
-from conftest_web import local_client, make_experiment, make_sweep  # noqa: E402
+from conftest_web import local_client, make_experiment, make_sweep
 
 EXPERIMENT = "cem-vs-dqn"
 SWEEP = "dqn-2seeds"
@@ -148,7 +148,9 @@ def test_a_new_trial_in_the_journal_is_seen(tmp_path: Path):
     make_sweep(tmp_path, SWEEP)
     client = local_client(tmp_path)
     assert len(client.get(f"/api/sweeps/{SWEEP}").json()["trials"]) == 4
-    storage = optuna.storages.JournalStorage(JournalFileBackend(str(tmp_path / "sweeps" / SWEEP / "journal.log")))
+    storage = optuna.storages.JournalStorage(
+        JournalFileBackend(str(tmp_path / "sweeps" / SWEEP / "journal.log"))
+    )
     optuna.load_study(study_name=SWEEP, storage=storage).enqueue_trial({"lr": 1e-3, "batch_size": 40})
     trials = client.get(f"/api/sweeps/{SWEEP}").json()["trials"]
     assert [t["state"] for t in trials][-1] == "WAITING"

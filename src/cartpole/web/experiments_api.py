@@ -24,7 +24,9 @@ from cartpole.web.runs_folder import NotFound
 
 router = APIRouter(prefix="/api")
 
-NOT_FOUND = {404: {"description": "no such experiment or sweep (or a name that is not allowed)"}}
+NOT_FOUND: dict[int | str, dict[str, Any]] = {
+    404: {"description": "no such experiment or sweep (or a name that is not allowed)"}
+}
 Name = Annotated[str, Path(max_length=200, description="the folder's name (letters, digits, '.', '_', '-')")]
 
 

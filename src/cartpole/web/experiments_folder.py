@@ -284,7 +284,8 @@ class ExperimentsFolder:
         except ValidationError as err:
             first = err.errors()[0]
             where = ".".join(str(p) for p in first["loc"]) or "the top level"
-            return None, f"report.json does not have the form `cartpole compare` writes ({where}: {first['msg']})"
+            why = f"{where}: {first['msg']}"
+            return None, f"report.json does not have the form `cartpole compare` writes ({why})"
         for entry in report.entries:
             entry.entry = shown_path(entry.entry, self.root)
             entry.preset = shown_path(entry.preset, self.root)
@@ -355,7 +356,7 @@ class ExperimentsFolder:
                     trials = [self._trial(t) for t in self._studies.trials(journal, study_name)]
                 except NoStudy as err:
                     problem = f"journal.log {err}"
-                except Exception as err:  # noqa: BLE001 - anything Optuna raises on a damaged journal
+                except Exception as err:  # anything Optuna raises on a damaged journal
                     problem = _problem("journal.log", err)
             else:
                 problem = problem or "no journal.log yet: the sweep has not started a trial"
@@ -457,7 +458,9 @@ def read_trials(journal: Path, study_name: str) -> list[Any]:
     names = optuna.study.get_all_study_names(storage)
     if study_name not in names:
         if len(names) != 1:
-            raise NoStudy(f"holds no study named {study_name} ({len(names)} others)" if names else "holds no study yet")
+            raise NoStudy(
+                f"holds no study named {study_name} ({len(names)} others)" if names else "holds no study yet"
+            )
         study_name = names[0]
     study = optuna.load_study(study_name=study_name, storage=storage)
     return list(study.get_trials(deepcopy=False))
