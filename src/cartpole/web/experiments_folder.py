@@ -428,33 +428,46 @@ class NoStudy(LookupError):
 
 
 class StudyCache:
-    """Trials of journal files, read again only when a file changes (size or time)."""
+    """Trials of journal files. A file that did not change is not read again; one that grew is read
+    from where the last read stopped (Optuna's JournalStorage reads only new lines when reused), so a
+    page following a long sweep does not parse its whole journal every few seconds."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
-        self._cache: dict[tuple[Path, str], tuple[tuple[int, int], list[Any]]] = {}
+        self._storages: dict[Path, tuple[int, Any]] = {}
+        self._trials: dict[tuple[Path, str], tuple[tuple[int, int], list[Any]]] = {}
 
     def trials(self, journal: Path, study_name: str) -> list[Any]:
         stat = journal.stat()
         stamp = (stat.st_size, stat.st_mtime_ns)
-        key = (journal, study_name)
         with self._lock:
-            cached = self._cache.get(key)
+            cached = self._trials.get((journal, study_name))
             if cached and cached[0] == stamp:
                 return cached[1]
-            trials = read_trials(journal, study_name)
-            self._cache[key] = (stamp, trials)
+            size, storage = self._storages.get(journal, (0, None))
+            if storage is None or stat.st_size < size:  # new, or rewritten: read from the start
+                storage = open_journal(journal)
+            self._storages.pop(journal, None)  # kept again only if the read succeeds
+            trials = read_trials(storage, study_name)
+            self._storages[journal] = (stat.st_size, storage)
+            self._trials[(journal, study_name)] = (stamp, trials)
             return trials
 
 
-def read_trials(journal: Path, study_name: str) -> list[Any]:
-    """Every trial of ``study_name`` in an Optuna journal file (optuna's public API; nothing written).
-
-    NoStudy if the journal holds no such study (and not exactly one other)."""
+def open_journal(journal: Path) -> Any:
+    """Optuna's storage over a journal file (it opens the file to append, and writes nothing)."""
     import optuna
     from optuna.storages.journal import JournalFileBackend
 
-    storage = optuna.storages.JournalStorage(JournalFileBackend(str(journal)))
+    return optuna.storages.JournalStorage(JournalFileBackend(str(journal)))
+
+
+def read_trials(storage: Any, study_name: str) -> list[Any]:
+    """Every trial of ``study_name`` in an Optuna storage (optuna's public API).
+
+    NoStudy if the storage holds no such study (and not exactly one other)."""
+    import optuna
+
     names = optuna.study.get_all_study_names(storage)
     if study_name not in names:
         if len(names) != 1:
