@@ -377,7 +377,7 @@ def test_experiment_page_shows_counts_cis_and_the_curves(desktop: Page):
     page.locator("#report-table").wait_for()
     assert page.locator("#report-table tbody tr").count() == 3
     cem = page.inner_text('tr[data-entry="cem"]')
-    assert "10 / 10" in cem and "33,014 [24,506, 49,99" in cem and "498.6 [491.7, 500.0]" in cem
+    assert "10 / 10" in cem and "33,014\nCI [24,506, 49,99" in cem and "498.6\nCI [491.7, 500.0]" in cem
     random_search = page.inner_text('tr[data-entry="random-search:tutorial"]')
     assert "5 / 10" in random_search and "≥" in random_search  # a median that unsolved runs hold up
     assert "CartPole-v1 · 3 entries × 10 seeds" in page.inner_text("#subtitle")
@@ -386,7 +386,7 @@ def test_experiment_page_shows_counts_cis_and_the_curves(desktop: Page):
         image.wait_for()
         page.wait_for_function(f"() => document.querySelector('#figure-{figure}').naturalWidth > 100")
     assert "cartpole compare cem dqn" in page.inner_text("#made")
-    assert f"--runs-dir experiments/{EXPERIMENT}/runs" in page.inner_text("#made")
+    assert f"--runs-dir runs/experiments/{EXPERIMENT}/runs" in page.inner_text("#made")
 
 
 def test_sweep_page_shows_trials_best_preset_and_dashboard(desktop: Page):

@@ -17,16 +17,16 @@ function timeCell(stats, digits) {
   if (!stats || stats.median === null) return "–";
   const bound = stats.median_is_lower_bound ? '<abbr title="at least half the runs never solved: the true median is at least this">≥</abbr> ' : "";
   let text = `${bound}<b>${number(stats.median, digits)}</b>`;
-  if (stats.ci95) text += ` <span class="ci">[${number(stats.ci95[0], digits)}, ${number(stats.ci95[1], digits)}]</span>`;
+  if (stats.ci95) text += `<span class="rule">CI [${number(stats.ci95[0], digits)}, ${number(stats.ci95[1], digits)}]</span>`;
   if (stats.iqr) text += `<span class="rule">IQR ${number(stats.iqr[0], digits)}–${number(stats.iqr[1], digits)}</span>`;
-  if (stats.censored) text += `<span class="rule">${stats.censored} unsolved, counted at their budget</span>`;
+  if (stats.censored) text += `<span class="rule">${stats.censored} unsolved, at their budget</span>`;
   return text;
 }
 
 function returnCell(stats) {
   if (!stats || stats.iqm === null) return "–";
   let text = `<b>${number(stats.iqm, 1)}</b>`;
-  if (stats.ci95) text += ` <span class="ci">[${number(stats.ci95[0], 1)}, ${number(stats.ci95[1], 1)}]</span>`;
+  if (stats.ci95) text += `<span class="rule">CI [${number(stats.ci95[0], 1)}, ${number(stats.ci95[1], 1)}]</span>`;
   return text + `<span class="rule">min ${number(stats.min, 1)}, max ${number(stats.max, 1)}</span>`;
 }
 
@@ -75,11 +75,12 @@ function renderFigures(figures) {
 }
 
 function renderMade(d) {
+  const folder = `${runsDir}/${d.runs_folder}`;
   const command = d.command ? `<p class="small muted">Made by</p><pre class="mono small wrap">${CP.escapeHTML(d.command.join(" "))}</pre>` : "";
   document.getElementById("made").innerHTML = `${command}
     <p class="small">Re-running the same command resumes it (finished runs are kept; a larger <code>--seeds</code> adds seeds).
-    Its run folders are in <code>${CP.escapeHTML(d.runs_folder)}</code>; to look at them one by one:</p>
-    <pre class="mono small wrap">cartpole serve --runs-dir ${CP.escapeHTML(d.runs_folder)}</pre>`;
+    Its run folders are in <code>${CP.escapeHTML(folder)}</code>; to look at them one by one:</p>
+    <pre class="mono small wrap">cartpole serve --runs-dir ${CP.escapeHTML(folder)}</pre>`;
 }
 
 function render(d) {
@@ -99,8 +100,19 @@ function showError(message, seconds) {
   if (seconds === null) document.getElementById("report").innerHTML = "";
 }
 
-if (!name) {
-  document.querySelector("main").innerHTML = '<div class="error">No experiment named in the address. Pick one on the <a href="/experiments">experiments page</a>.</div>';
-} else {
+let runsDir = "runs";
+
+async function start() {
+  if (!name) {
+    document.querySelector("main").innerHTML = '<div class="error">No experiment named in the address. Pick one on the <a href="/experiments">experiments page</a>.</div>';
+    return;
+  }
+  try {
+    runsDir = (await CP.getJSON("/api/info")).runs_dir;
+  } catch (_) {
+    // the poll below retries and says what is wrong
+  }
   CP.poll(`/api/experiments/${encodeURIComponent(name)}`, render, showError, 5000);
 }
+
+start();

@@ -17,11 +17,11 @@ function experimentRow(e) {
   const link = `<a href="/experiment?name=${encodeURIComponent(e.name)}">${CP.escapeHTML(e.name)}</a>`;
   return `<tr data-experiment="${CP.escapeHTML(e.name)}">
     <td class="name">${link}${problemLine(e.problem)}</td>
-    <td>${CP.escapeHTML(e.env_id ?? "–")}</td>
+    <td class="hide-narrow">${CP.escapeHTML(e.env_id ?? "–")}</td>
     <td>${e.entries.map((x) => `<code>${CP.escapeHTML(x)}</code>`).join(" ") || "–"}</td>
     <td class="num">${e.seeds ?? "–"}</td>
     <td class="num">${CP.fmtInt(e.runs)}</td>
-    <td class="small muted">${CP.fmtDate(e.updated)}</td>
+    <td class="small muted hide-narrow">${CP.fmtDate(e.updated)}</td>
   </tr>`;
 }
 
@@ -31,11 +31,11 @@ function sweepRow(s) {
   return `<tr data-sweep="${CP.escapeHTML(s.name)}">
     <td class="name">${link}${problemLine(s.problem)}</td>
     <td>${CP.escapeHTML(s.agent ?? "?")}</td>
-    <td>${CP.escapeHTML(s.env_id ?? "–")}</td>
+    <td class="hide-narrow">${CP.escapeHTML(s.env_id ?? "–")}</td>
     <td class="num">${s.trials_asked ?? "–"}</td>
-    <td>${CP.escapeHTML(s.storage)}</td>
+    <td class="hide-narrow">${CP.escapeHTML(s.storage)}</td>
     <td>${best}</td>
-    <td class="small muted">${CP.fmtDate(s.updated)}</td>
+    <td class="small muted hide-narrow">${CP.fmtDate(s.updated)}</td>
   </tr>`;
 }
 
@@ -43,15 +43,15 @@ function render(body) {
   document.getElementById("error").innerHTML = "";
   const experiments = document.getElementById("experiments");
   experiments.innerHTML = body.experiments.length
-    ? `<div class="table-wrap"><table id="experiments-table"><thead><tr><th>experiment</th><th>env</th><th>entries</th>
-        <th class="num">seeds</th><th class="num">runs</th><th>report written</th></tr></thead>
+    ? `<div class="table-wrap"><table id="experiments-table"><thead><tr><th>experiment</th><th class="hide-narrow">env</th><th>entries</th>
+        <th class="num">seeds</th><th class="num">runs</th><th class="hide-narrow">report written</th></tr></thead>
         <tbody>${body.experiments.map(experimentRow).join("")}</tbody></table></div>`
     : `<div class="empty" id="no-experiments"><h2>No comparisons yet</h2><p>Compare agents over several seeds (each run in its own process):</p>
         <pre>cartpole compare cem dqn --seeds 5${runsDirFlag()}</pre><p>Its report appears here when the runs end.</p></div>`;
   const sweeps = document.getElementById("sweeps");
   sweeps.innerHTML = body.sweeps.length
-    ? `<div class="table-wrap"><table id="sweeps-table"><thead><tr><th>sweep</th><th>agent</th><th>env</th>
-        <th class="num">trials asked</th><th>storage</th><th>best preset</th><th>last change</th></tr></thead>
+    ? `<div class="table-wrap"><table id="sweeps-table"><thead><tr><th>sweep</th><th>agent</th><th class="hide-narrow">env</th>
+        <th class="num">trials asked</th><th class="hide-narrow">storage</th><th>best preset</th><th class="hide-narrow">last change</th></tr></thead>
         <tbody>${body.sweeps.map(sweepRow).join("")}</tbody></table></div>`
     : `<div class="empty" id="no-sweeps"><h2>No sweeps yet</h2><p>Tune an agent's settings with Optuna:</p>
         <pre>cartpole sweep dqn --trials 12 --seeds-per-trial 2 --study my-sweep${runsDirFlag()}</pre></div>`;
