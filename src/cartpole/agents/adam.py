@@ -1,24 +1,36 @@
-"""Adam for small nets: torch's fused Adam kernel, called without ``torch.optim``'s wrapper.
+"""Adam for small nets: the update and state of ``torch.optim.Adam(fused=True)``, without its costs.
 
-``torch.optim.Adam(fused=True)`` runs one kernel, ``torch._fused_adam_``, per step. For a net as small
-as a CartPole Q-network two costs around that kernel dominate, and this class avoids both:
+For a net as small as a CartPole Q-network two costs around Adam's one fused kernel dominate:
 
-- ``Optimizer.step()``'s wrapper (hooks, profiler scopes, regrouping the tensors by device on every
-  call) costs ~5x the kernel itself;
 - constructing *any* ``torch.optim`` optimizer imports ``torch._dynamo`` (its ``add_param_group`` is
-  wrapped to disable dynamo), ~1.8 s of CPU once per process: a fifth of a whole CartPole training run.
+  wrapped to disable dynamo), ~1.8 s of CPU once per process;
+- ``Optimizer.step()``'s wrapper (hooks, profiler scopes) costs several times the kernel itself.
 
-The state is exactly ``torch.optim.Adam``'s (``step``, ``exp_avg``, ``exp_avg_sq`` per parameter, in the
-same dtypes and devices) and the update is the same kernel, so the result is bitwise that of
-``torch.optim.Adam(fused=True).step()`` (tested). If a torch version refuses the direct call (the op
-is private), a real ``torch.optim.Adam`` is built over the same state tensors and used from then on.
+The public path, used by default, avoids the first: torch's functional Adam,
+``torch.optim.adam.adam(..., fused=True)`` (public, in ``torch.optim.adam.__all__``), which imports
+nothing more, updates the same state tensors (``step``, ``exp_avg``, ``exp_avg_sq`` per parameter,
+in the same dtypes and devices) and runs the same kernel, so the result is bitwise that of
+``torch.optim.Adam(fused=True).step()`` (tested).
+
+PRIVATE_PATH_NOTE
 """
 
 from __future__ import annotations
 
+import os
+from collections.abc import Iterable
 from typing import Any
 
 import torch
+from torch.optim.adam import adam as functional_adam
+
+PRIVATE_TORCH_VARIABLE = "CARTPOLE_PRIVATE_TORCH"
+"""Set it to 0 to run the public path only (the benchmark's A/B switch)."""
+
+
+def private_torch_enabled() -> bool:
+    """False when the environment says ``CARTPOLE_PRIVATE_TORCH=0``: the one place the switch is read."""
+    return os.environ.get(PRIVATE_TORCH_VARIABLE, "1").strip() != "0"
 
 
 class FusedAdam:
@@ -26,7 +38,7 @@ class FusedAdam:
 
     def __init__(
         self,
-        parameters: list[torch.Tensor],
+        parameters: Iterable[torch.Tensor],
         lr: float,
         betas: tuple[float, float] = (0.9, 0.999),
         eps: float = 1e-8,
@@ -37,54 +49,33 @@ class FusedAdam:
         self.steps = [torch.zeros((), dtype=torch.float32, device=p.device) for p in self.parameters]
         self.exp_avgs = [torch.zeros_like(p, memory_format=torch.preserve_format) for p in self.parameters]
         self.exp_avg_sqs = [torch.zeros_like(p, memory_format=torch.preserve_format) for p in self.parameters]
-        self._torch_optimizer: torch.optim.Adam | None = None
-        """Set once the direct kernel call was refused (or asked for): every step goes through it."""
+        self.use_private_kernel = private_torch_enabled()
+        """Call the fused kernel directly; turned off for good the first time torch refuses the call."""
 
     def zero_grad(self) -> None:
-        for parameter in self.parameters:  # = Optimizer.zero_grad(), without its ~40 us of wrapper
+        for parameter in self.parameters:  # as Optimizer.zero_grad(set_to_none=True)
             parameter.grad = None
 
+    @torch.no_grad()
     def step(self) -> None:
-        """One Adam update of every parameter that has a gradient."""
-        if self._torch_optimizer is not None:
-            self._torch_optimizer.step()
+        """One Adam update of every parameter that has a gradient (as torch.optim, the others and
+        their state are left alone)."""
+        kept = [i for i, p in enumerate(self.parameters) if p.grad is not None]
+        if not kept:
             return
-        grads = [p.grad for p in self.parameters]
-        if all(g is not None for g in grads):
-            params, steps = self.parameters, self.steps
-            exp_avgs, exp_avg_sqs = self.exp_avgs, self.exp_avg_sqs
-        else:  # as torch.optim: a parameter without a gradient is left alone, its state too
-            kept = [i for i, g in enumerate(grads) if g is not None]
-            params, grads = [self.parameters[i] for i in kept], [grads[i] for i in kept]
-            exp_avgs, exp_avg_sqs = [self.exp_avgs[i] for i in kept], [self.exp_avg_sqs[i] for i in kept]
-            steps = [self.steps[i] for i in kept]
-            if not kept:
+        params = [self.parameters[i] for i in kept]
+        grads = [p.grad for p in params if p.grad is not None]
+        exp_avgs, exp_avg_sqs = [self.exp_avgs[i] for i in kept], [self.exp_avg_sqs[i] for i in kept]
+        steps = [self.steps[i] for i in kept]
+        if self.use_private_kernel:
+            if fused_adam_kernel(params, grads, exp_avgs, exp_avg_sqs, steps, self.lr, self.betas, self.eps):
                 return
-        torch._foreach_add_(steps, 1)
-        try:
-            torch._fused_adam_(
-                params, grads, exp_avgs, exp_avg_sqs, [], steps,  # type: ignore[arg-type]
-                lr=self.lr, beta1=self.betas[0], beta2=self.betas[1], weight_decay=0.0, eps=self.eps,
-                amsgrad=False, maximize=False,
-            )  # fmt: skip
-        except (AttributeError, TypeError, RuntimeError):
-            # A private op: if this torch names or shapes it differently, use the public optimizer
-            # from now on (the kernel refused before touching any tensor).
-            torch._foreach_sub_(steps, 1)
-            self.torch_optimizer().step()
-
-    def torch_optimizer(self) -> torch.optim.Adam:
-        """The equivalent ``torch.optim.Adam``, over these same state tensors; steps use it from now on."""
-        if self._torch_optimizer is None:
-            optimizer = torch.optim.Adam(
-                self.parameters, lr=self.lr, betas=self.betas, eps=self.eps, fused=True
-            )
-            for parameter, step, exp_avg, exp_avg_sq in zip(
-                self.parameters, self.steps, self.exp_avgs, self.exp_avg_sqs, strict=True
-            ):
-                optimizer.state[parameter] = {"step": step, "exp_avg": exp_avg, "exp_avg_sq": exp_avg_sq}
-            self._torch_optimizer = optimizer
-        return self._torch_optimizer
+            self.use_private_kernel = False
+        functional_adam(
+            params, grads, exp_avgs, exp_avg_sqs, [], steps, fused=True,
+            amsgrad=False, beta1=self.betas[0], beta2=self.betas[1], lr=self.lr, weight_decay=0.0,
+            eps=self.eps, maximize=False,
+        )  # fmt: skip
 
     def state_dict(self) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
         """Tensors keyed ``"{index}.step|exp_avg|exp_avg_sq"`` (``torch.optim``'s state layout) and the
@@ -97,10 +88,8 @@ class FusedAdam:
         return tensors, {"lr": self.lr, "betas": list(self.betas), "eps": self.eps}
 
     def load_state_dict(self, tensors: dict[str, torch.Tensor]) -> None:
-        """Restore what ``state_dict`` gave, or a ``torch.optim.Adam`` state flattened the same way.
-
-        Copies in place, so a torch optimizer built over these tensors stays in step.
-        """
+        """Restore what ``state_dict`` gave, or a ``torch.optim.Adam`` state flattened the same way
+        (copies in place)."""
         for index in range(len(self.parameters)):
             if f"{index}.step" not in tensors:  # torch.optim keeps no state for a never-updated parameter
                 self.steps[index].zero_()
@@ -110,3 +99,41 @@ class FusedAdam:
             self.steps[index].copy_(tensors[f"{index}.step"])
             self.exp_avgs[index].copy_(tensors[f"{index}.exp_avg"])
             self.exp_avg_sqs[index].copy_(tensors[f"{index}.exp_avg_sq"])
+
+
+# ----------------------------------------------------------------------------------------------
+# The private path
+# ----------------------------------------------------------------------------------------------
+
+
+def fused_adam_kernel(
+    params: list[torch.Tensor],
+    grads: list[torch.Tensor],
+    exp_avgs: list[torch.Tensor],
+    exp_avg_sqs: list[torch.Tensor],
+    steps: list[torch.Tensor],
+    lr: float,
+    betas: tuple[float, float],
+    eps: float,
+) -> bool:
+    """The step the public path takes, as one direct call of the private op ``torch._fused_adam_``
+    (what ``torch.optim.adam.adam(fused=True)`` calls after its checks and its per-call grouping of
+    the tensors by device and dtype). False, with nothing changed, if this torch refuses the call.
+
+    PRIVATE_GAIN_NOTE
+    """
+    kernel = getattr(torch, "_fused_adam_", None)
+    if kernel is None:
+        return False
+    for step in steps:
+        step += 1
+    try:
+        kernel(
+            params, grads, exp_avgs, exp_avg_sqs, [], steps,
+            lr=lr, beta1=betas[0], beta2=betas[1], weight_decay=0.0, eps=eps, amsgrad=False, maximize=False,
+        )  # fmt: skip
+    except (TypeError, RuntimeError):  # named or shaped differently in this torch: refused before any update
+        for step in steps:
+            step -= 1
+        return False
+    return True
