@@ -318,8 +318,9 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(result))
         return 0
 
+    from cartpole.agents.presets import preset_names
     from cartpole.agents.registry import get_agent
-    from cartpole.training.config import preset_names, resolve_config
+    from cartpole.training.config import resolve_config
 
     tasks: list[dict[str, Any]] = []
     seeds = range(args.first_seed, args.first_seed + args.seeds)

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import io
-import json
+import os
+import time
 from typing import Any
 
 import numpy as np
@@ -11,16 +12,19 @@ import pytest
 import torch
 
 from cartpole.agents.registry import get_agent
+from cartpole.core.names import StopReason
 from cartpole.envs import env_info
 from cartpole.evaluation import EvalReport
-from cartpole.runs import RunDir, load_checkpoint
+from cartpole.runs import LiveStatus, RunDir, load_checkpoint
 from cartpole.training import Budget, Callback, LearnResult, LoopState, TrainingLoop, TrainSettings
 from cartpole.training.callbacks import (
     BudgetCallback,
     CheckpointCallback,
+    CheckpointSchedule,
     EvalCallback,
     MetricsCallback,
     ProgressCallback,
+    StatusCallback,
     StopWhenSolved,
     TensorBoardCallback,
 )
@@ -74,7 +78,7 @@ class InterruptedAt(FakeLearner):
 
     def learn(self) -> LearnResult:
         if self.calls + 1 == self.at and self.loop is not None:
-            self.loop.request_stop("interrupted (SIGINT)")
+            self.loop.request_stop(StopReason.INTERRUPTED, "interrupted (SIGINT)")
         return super().learn()
 
 
@@ -110,20 +114,22 @@ def test_loop_counts_and_stops_when_a_callback_says_so():
     state = TrainingLoop(FakeLearner(), [StopAfter(3)]).run()
     assert (state.env_steps, state.episodes, state.iterations) == (30, 3, 3)
     assert list(state.recent_returns) == [10.0, 20.0, 30.0]
-    assert state.stop_reason == "stopped by a callback"
+    assert state.stop_reason == StopReason.CALLBACK and state.stop_detail == "stopped by a callback"
 
 
 def test_request_stop_finishes_the_step_and_failure_is_recorded():
     learner = InterruptedAt(2)
     loop = learner.loop = TrainingLoop(learner, [StopAfter(100)])
-    assert loop.run().stop_reason == "interrupted (SIGINT)"
+    assert loop.run().stop_reason == StopReason.INTERRUPTED
+    assert loop.state.stop_detail == "interrupted (SIGINT)"
     assert loop.state.env_steps == 20  # the step in progress is finished, then it stops
 
     broken = TrainingLoop(FakeLearner(), [])
     broken.learner.learn = lambda: 1 / 0  # type: ignore[method-assign]
     with pytest.raises(ZeroDivisionError):
         broken.run()
-    assert broken.state.stop_reason == "failed"
+    assert broken.state.stop_reason == StopReason.FAILED
+    assert broken.state.stop_detail == "failed: ZeroDivisionError: division by zero"
 
 
 # --- budget ---------------------------------------------------------------------------------------
@@ -140,18 +146,25 @@ def test_request_stop_finishes_the_step_and_failure_is_recorded():
 def test_budget_stops_at_the_first_limit_reached(budget, iterations, unit):
     state = TrainingLoop(FakeLearner(), [BudgetCallback(budget)]).run()
     assert state.iterations == iterations
-    assert state.stop_reason is not None and unit in state.stop_reason
+    assert state.stop_reason == StopReason.BUDGET and unit in (state.stop_detail or "")
 
 
 def test_budget_in_seconds():
     loop = TrainingLoop(FakeLearner(), [BudgetCallback(Budget(seconds=0.05))])
     state = loop.run()
-    assert state.elapsed >= 0.05 and "seconds" in (state.stop_reason or "")
+    assert state.elapsed >= 0.05 and "seconds" in (state.stop_detail or "")
 
 
 def test_budget_counts_sessions_before_a_resume():
     state = LoopState(env_steps=40, iterations=4)
     assert TrainingLoop(FakeLearner(), [BudgetCallback(Budget(env_steps=50))], state).run().iterations == 5
+
+
+def test_a_resume_whose_budget_is_spent_takes_no_step():
+    """Killed after its last step but before its verdict: the resumed loop only ends."""
+    learner = FakeLearner()
+    state = TrainingLoop(learner, [BudgetCallback(Budget(env_steps=50))], LoopState(env_steps=50)).run()
+    assert learner.calls == 0 and state.env_steps == 50 and state.stop_reason == StopReason.BUDGET
 
 
 # --- evaluation -----------------------------------------------------------------------------------
@@ -203,7 +216,7 @@ def test_stop_when_solved():
     assert loop.record_eval(report(300.0)) is True
     assert loop.record_eval(report(480.0, episodes=20)) is True  # 20 episodes cannot solve
     assert loop.record_eval(report(480.0)) is False
-    assert loop.state.stop_reason == "solved" and loop.state.solved
+    assert loop.state.stop_reason == StopReason.SOLVED and loop.state.solved
     assert loop.state.evaluations == 3 and loop.state.best_eval_mean == 480.0
 
 
@@ -215,24 +228,21 @@ def test_checkpoints_latest_every_k_best_and_solved(run):
     meta = {"agent": "cem", "env_id": "CartPole-v1", "seed": 0, "preset": "default", "config": {}}
     saves: list[tuple[str, int]] = []
 
-    class Recorded(CheckpointCallback):
-        def save(self, loop: TrainingLoop, name: str, resume: bool) -> None:
-            saves.append((name, loop.state.env_steps))
-            super().save(loop, name, resume)
-
-    checkpoints = Recorded(run, spec, meta, every=30)
+    checkpoints = Recorded(run, spec, meta, only_every(env_steps=30), saves=saves)
     loop = TrainingLoop(FakeLearner(), [StopAfter(7), checkpoints])
     loop.run()
-    assert [s for s in saves if s[0] == "latest"] == [("latest", 30), ("latest", 60), ("latest", 70)]
+    assert latest_steps(saves) == [30, 60, 70]  # every 30 steps, and at the end
     latest = load_checkpoint(run.checkpoint_path("latest"))
     assert latest.meta["step"] == 70 and latest.meta["resumable"] is True
     assert latest.meta["loop"]["iterations"] == 7 and latest.meta["learner"]["calls"] == 7
+    assert latest.meta["loop"]["stop_reason"] == "callback"  # a resume knows training was complete
 
     assert not run.checkpoint_path("best").exists()
     loop.record_eval(report(200.0))
     loop.record_eval(report(100.0))  # worse: best stays
     best = load_checkpoint(run.checkpoint_path("best"))
-    assert best.meta["resumable"] is False and json.loads((run.path / "eval.json").read_text())["mean"] == 200
+    assert best.meta["resumable"] is False and run.best_eval_report()["mean"] == 200
+    assert not (run.path / "eval.json").exists()  # in-training evaluations are not the verdict
     assert not run.checkpoint_path("solved").exists()
     loop.learner.calls = 99
     loop.record_eval(report(490.0))
@@ -242,11 +252,71 @@ def test_checkpoints_latest_every_k_best_and_solved(run):
     assert load_checkpoint(run.checkpoint_path("best")).meta["learner"]["calls"] == 100
 
 
+class Recorded(CheckpointCallback):
+    """Notes (name, env steps) of every save."""
+
+    def __init__(self, *args: Any, saves: list[tuple[str, int]], **kwargs: Any):
+        super().__init__(*args, **kwargs)
+        self.saves = saves
+
+    def save(self, loop: TrainingLoop, name: str, resume: bool) -> None:
+        self.saves.append((name, loop.state.env_steps))
+        super().save(loop, name, resume)
+
+
+def only_every(env_steps: int = 0, seconds: float = 1e9, fraction: float = 1.0, budget: Budget | None = None):
+    return CheckpointSchedule(budget or Budget(env_steps=10**9), fraction, seconds, env_steps)
+
+
+def latest_steps(saves: list[tuple[str, int]]) -> list[int]:
+    return [step for name, step in saves if name == "latest"]
+
+
+@pytest.mark.parametrize(
+    ("budget", "steps"),
+    [
+        (Budget(env_steps=100), [28, 56, 84, 105]),  # every 25% of 100 steps, 7 steps per call
+        (Budget(iterations=8), [14, 28, 42, 56]),  # every 2 of 8 iterations
+    ],
+)
+def test_latest_every_share_of_the_budget(run, budget, steps):
+    saves: list[tuple[str, int]] = []
+    schedule = only_every(fraction=0.25, budget=budget)
+    checkpoints = Recorded(run, get_agent("cem"), {"agent": "cem"}, schedule, saves=saves)
+    TrainingLoop(FakeLearner(steps=7), [BudgetCallback(budget), checkpoints]).run()
+    assert latest_steps(saves) == steps
+
+
+def test_latest_every_few_seconds_of_wall_time(run):
+    class Slow(FakeLearner):
+        def learn(self) -> LearnResult:
+            time.sleep(0.02)
+            return super().learn()
+
+    saves: list[tuple[str, int]] = []
+    checkpoints = Recorded(run, get_agent("cem"), {"agent": "cem"}, only_every(seconds=0.05), saves=saves)
+    TrainingLoop(Slow(), [StopAfter(20), checkpoints]).run()  # 0.4 s or more
+    assert 4 <= len(latest_steps(saves)) - 1 <= 20  # besides the save at the end
+
+
+def test_default_checkpoint_cadence_is_a_tenth_of_the_budget_and_a_minute():
+    from cartpole.agents.registry import agent_names
+    from cartpole.agents.presets import preset_names
+    from cartpole.training.config import resolve_config
+
+    for agent in agent_names():
+        for preset in preset_names(agent):
+            _, settings = resolve_config(agent, get_agent(agent).config_cls, preset)
+            schedule = CheckpointSchedule.from_settings(Budget(env_steps=1), settings)
+            assert schedule.fraction <= 0.1 and schedule.seconds <= 60, (agent, preset)
+
+
 def test_latest_checkpoint_writes_pending_metric_rows_first(run):
     """A kill -9 right after ``latest`` is saved finds every metric row up to its step on disk."""
     metrics = MetricsCallback(run)
     metrics.FLUSH_SECONDS = 1e12  # never flush on time: only the checkpoint makes it write
-    checkpoints = CheckpointCallback(run, get_agent("cem"), {"agent": "cem"}, every=20, metrics=metrics)
+    schedule = only_every(env_steps=20)
+    checkpoints = CheckpointCallback(run, get_agent("cem"), {"agent": "cem"}, schedule, metrics=metrics)
     seen: list[tuple[int, list[int]]] = []
 
     class KillAfterLatest(Callback):
@@ -266,7 +336,7 @@ def test_latest_checkpoint_writes_pending_metric_rows_first(run):
 # --- metrics --------------------------------------------------------------------------------------
 
 
-def test_metrics_rows_status_and_sps(run):
+def test_metrics_rows_and_sps(run):
     metrics = MetricsCallback(run)
     loop = TrainingLoop(FakeLearner(), [StopAfter(3), metrics])
     loop.run()
@@ -276,8 +346,6 @@ def test_metrics_rows_status_and_sps(run):
     assert rows[0]["train/episode_length"] == 10 and rows[0]["train/epsilon"] == 0.5
     assert rows[-1]["train/loss"] == pytest.approx(1 / 3)
     assert all("time" in r for r in rows) and any("time/sps" in r for r in rows)
-    status = run.status()
-    assert status["state"] == "finished" and status["env_steps"] == 30
 
     metrics.on_eval(loop, report(480.0))
     metrics.on_end(loop)
@@ -286,13 +354,22 @@ def test_metrics_rows_status_and_sps(run):
     assert eval_row["eval/episodes"] == 100 and eval_row["eval/std_return"] == 0
 
 
-def test_metrics_per_generation_rows_and_interrupted_status(run):
+def test_metrics_per_generation_rows(run):
     learner = InterruptedAt(1, per_generation=True)
     loop = learner.loop = TrainingLoop(learner, [StopAfter(2), MetricsCallback(run)])
     loop.run()
     rows = run.metrics()
     assert [(r["train/iteration"], r["train/mean_return"], r["episode"]) for r in rows] == [(1, 1.0, 2)]
-    assert run.status()["state"] == "interrupted"
+
+
+def test_status_stays_running_with_counters_and_the_stop_reason(run):
+    """The loop's end is not the run's end: only the session writes an end state (after the verdict)."""
+    with LiveStatus(run) as live:
+        TrainingLoop(FakeLearner(), [BudgetCallback(Budget(env_steps=30)), StatusCallback(live)]).run()
+    status = run.status()
+    assert status["state"] == "running" and status["env_steps"] == 30
+    assert status["stop_reason"] == "budget" and status["stop_detail"] == "budget reached (30 env steps)"
+    assert status["pid"] == os.getpid() and status["host"] and status["heartbeat"] > 0
 
 
 # --- progress -------------------------------------------------------------------------------------

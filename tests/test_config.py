@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import pytest
 
+from cartpole.agents.presets import preset_names
 from cartpole.agents.registry import agents
 from cartpole.training import Budget, ConfigError, parse_budget
-from cartpole.training.config import preset_names, resolve_config
+from cartpole.training.config import resolve_config
 
 
 @pytest.mark.parametrize("agent", ["random-search", "hill-climbing", "cem"])

@@ -67,7 +67,7 @@ def test_episode_batches_beyond_the_batch_size(always_left, monkeypatch):
 
 
 def test_default_seed_is_fresh_and_above_training_seeds(always_left):
-    from cartpole.training.seeding import EVAL_SEED_LOW
+    from cartpole.core.seeding import EVAL_SEED_LOW
 
     first = evaluate(always_left, episodes=3)
     second = evaluate(always_left, episodes=3)

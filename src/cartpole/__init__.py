@@ -1,14 +1,12 @@
-"""cartpole: train agents on CartPole, prove they solve it, watch them, play it yourself."""
+"""cartpole: train agents on CartPole, prove they solve it, watch them, play it yourself.
+
+Importing the package registers our fast simulator with Gymnasium as ``cartpole/CartPole-v1`` and
+``cartpole/CartPole-v0`` (see :mod:`cartpole.envs.registration`).
+"""
 
 from __future__ import annotations
 
-from importlib.metadata import PackageNotFoundError, version
-
-try:
-    __version__ = version("cartpole")
-except PackageNotFoundError:  # running from a source tree that was not installed
-    __version__ = "0.0.0+unknown"
-
+from cartpole.core.version import __version__
 from cartpole.evaluation import EvalReport, Policy, ScoredPolicy, evaluate
 
 

@@ -119,7 +119,7 @@ def start_states(env_id: str, seeds: list[int]) -> np.ndarray:
         states = []
         for seed in seeds:
             env.reset(seed=seed)
-            states.append(np.array(env.unwrapped.state, dtype=np.float64))
+            states.append(np.array(env.unwrapped.state, dtype=np.float64))  # type: ignore[attr-defined]
         return np.stack(states)
     finally:
         env.close()
@@ -128,7 +128,7 @@ def start_states(env_id: str, seeds: list[int]) -> np.ndarray:
 def _reset_to_seeds(env: gym.vector.VectorEnv, env_id: str, seeds: list[int]) -> np.ndarray:
     """Reset ``env`` so that env i starts where Gymnasium's single env does for ``seeds[i]``."""
     if not env_info(env_id).is_cartpole:
-        observations, _ = env.reset(seed=seeds)  # sync vector env: env i seeded with seeds[i]
+        observations, _ = env.reset(seed=seeds)  # type: ignore[arg-type]  # env i seeded with seeds[i]
         return observations
     env.reset(seed=seeds[0])
     states = start_states(env_id, seeds)
@@ -136,7 +136,7 @@ def _reset_to_seeds(env: gym.vector.VectorEnv, env_id: str, seeds: list[int]) ->
     if hasattr(base, "set_state"):  # our fast simulator
         base.set_state(states)
     else:  # Gymnasium's CartPoleVectorEnv keeps its state as [4, num_envs] float64
-        base.state = states.T.copy()
+        base.state = states.T.copy()  # type: ignore[attr-defined]
     return states.astype(np.float32)  # CartPole's observation is its state, as float32
 
 
@@ -180,7 +180,7 @@ def evaluate(
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     info = env_info(env_id)
     if seed is None:
-        from cartpole.training.seeding import fresh_eval_seed
+        from cartpole.core.seeding import fresh_eval_seed
 
         seed = fresh_eval_seed()
     used = resolve_simulator(env_id, simulator)

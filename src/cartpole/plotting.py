@@ -23,6 +23,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from cartpole.core.errors import InputError
 from cartpole.runs import RunDir, RunError, summarize_run
 
 XAxis = Literal["steps", "episodes"]
@@ -35,7 +36,7 @@ BOOTSTRAP_SAMPLES = 2000
 GRID_POINTS = 400
 
 
-class PlotError(ValueError):
+class PlotError(InputError, ValueError):
     """Nothing to plot, or an output file type we cannot write."""
 
 

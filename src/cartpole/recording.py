@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from cartpole.core.errors import InputError
 from cartpole.evaluation import Policy
 from cartpole.runs.atomic import replace_atomically
 
@@ -26,7 +27,7 @@ DEFAULT_FPS = 50
 """CartPole's ``metadata["render_fps"]``; used when an env does not say."""
 
 
-class RecordingError(ValueError):
+class RecordingError(InputError, ValueError):
     """A video cannot be made: unknown format, missing optional dependency, or no rgb_array mode."""
 
 

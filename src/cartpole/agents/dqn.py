@@ -37,14 +37,14 @@ import torch.nn.functional as F
 from torch import nn
 
 from cartpole.agents.adam import FusedAdam
+from cartpole.agents.learner import LearnResult
 from cartpole.agents.q_network import ACTIVATIONS, QNetwork, QNetworkPolicy
 from cartpole.agents.registry import AgentSpec
 from cartpole.agents.replay_buffer import ReplayBuffer
 from cartpole.agents.resumable_envs import make_resumable_vec_env, restore_vector_env_state, vector_env_state
-from cartpole.envs import EnvInfo
+from cartpole.core.config import build_config, require
+from cartpole.envs import EnvInfo, check_simulator
 from cartpole.runs import Checkpoint, CheckpointError
-from cartpole.training.config import build_config, require
-from cartpole.training.loop import LearnResult
 
 SCHEDULES = ("linear", "exponential", "multiplicative")
 LOSSES = ("huber", "mse")
@@ -147,7 +147,7 @@ class DQNConfig:
         require(self.epsilon_decay_steps >= 1, "epsilon_decay_steps must be >= 1")
         require(0.0 < self.epsilon_decay_rate <= 1.0, "epsilon_decay_rate must be in (0, 1]")
         require(self.short_episode_length >= 0, "short_episode_length must be >= 0")
-        require(self.simulator in ("fast", "gymnasium"), "simulator must be fast or gymnasium")
+        check_simulator(self.simulator)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -221,7 +221,7 @@ class DQNLearner:
         self.optimizer = FusedAdam(self.parameters, lr=config.lr)
         self.buffer = ReplayBuffer(config.buffer_size, env.obs_dim, self.device)
 
-        self.envs = make_resumable_vec_env(env.env_id, config.num_envs, config.simulator)  # type: ignore[arg-type]
+        self.envs = make_resumable_vec_env(env.env_id, config.num_envs, check_simulator(config.simulator))
         self.observations, _ = self.envs.reset(seed=seed)
         n = config.num_envs
         self.autoreset = np.zeros(n, dtype=bool)
@@ -463,6 +463,7 @@ AGENT = AgentSpec(
     make_learner=make_learner,
     policy_from_checkpoint=policy_from_checkpoint,
     iteration="step",
+    score_label="Q-values",
 )
 
 __all__ = [

@@ -17,11 +17,11 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from cartpole.agents.learner import LearnResult
 from cartpole.agents.registry import AgentSpec
+from cartpole.core.config import require
 from cartpole.envs import EnvInfo, make_vec_env
 from cartpole.runs import Checkpoint
-from cartpole.training.config import require
-from cartpole.training.loop import LearnResult
 
 
 class LinearPolicy:
@@ -286,6 +286,7 @@ def _spec(cls: type[LinearSearch], summary: str) -> AgentSpec:
         make_learner=cls,
         policy_from_checkpoint=policy_from_checkpoint,
         iteration="generation",
+        score_label="linear score",
     )
 
 

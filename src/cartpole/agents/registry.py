@@ -13,7 +13,7 @@ from cartpole.evaluation import Policy
 from cartpole.runs import Checkpoint, CheckpointError, RunDir, load_checkpoint
 
 if TYPE_CHECKING:
-    from cartpole.training.loop import Learner
+    from cartpole.agents.learner import Learner
 
 
 @dataclass(frozen=True)
@@ -29,6 +29,8 @@ class AgentSpec:
     """Rebuild the greedy policy from a checkpoint's tensors and metadata."""
     iteration: str = "step"
     """What one ``learn()`` call is, in words: "generation" or "step"."""
+    score_label: str = "score"
+    """What its policy's ``scores()`` are, for people ("Q-values", "action probabilities", ...)."""
 
 
 AGENT_MODULES = {

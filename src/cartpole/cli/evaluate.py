@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
     from rich.table import Table
 
     from cartpole.agents.registry import open_policy
-    from cartpole.cli.main import UsageError
+    from cartpole.cli.errors import UsageError
     from cartpole.evaluation import evaluate
 
     if args.episodes < 1:

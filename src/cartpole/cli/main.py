@@ -6,16 +6,12 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from cartpole import __version__
 from cartpole.cli import evaluate as eval_cmd
 from cartpole.cli import runs as runs_cmd
 from cartpole.cli import train as train_cmd
-
-EXIT_BAD_INPUT = 2
-
-
-class UsageError(Exception):
-    """Bad input found after parsing: printed as one line, exit code 2."""
+from cartpole.cli.errors import EXIT_BAD_INPUT
+from cartpole.core.errors import InputError
+from cartpole.core.version import __version__
 
 
 class Parser(argparse.ArgumentParser):
@@ -54,21 +50,12 @@ def _optional_commands() -> list:
     return found
 
 
-def known_errors() -> tuple[type[BaseException], ...]:
-    """Errors that mean bad input: shown as one line, never as a traceback."""
-    from cartpole.envs import UnsupportedEnvError
-    from cartpole.runs import CheckpointError, RunError
-    from cartpole.training import ConfigError
-
-    return (UsageError, ConfigError, UnsupportedEnvError, CheckpointError, RunError, FileNotFoundError)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         return int(args.run(args) or 0)
-    except known_errors() as err:
+    except (InputError, FileNotFoundError) as err:
         print(f"cartpole {args.command}: error: {err}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:

@@ -42,7 +42,7 @@ def add_parser(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from cartpole.cli.main import UsageError
+    from cartpole.cli.errors import UsageError
     from cartpole.plotting import PlotError, expand_run_paths, plot_runs
 
     if args.window is not None and args.window < 1:

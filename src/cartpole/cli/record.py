@@ -47,7 +47,8 @@ def load_saved_policy(path_text: str) -> tuple[Path, Any, str]:
 def run(args: argparse.Namespace) -> int:
     from rich.console import Console
 
-    from cartpole.cli.main import UsageError
+    from cartpole.cli.errors import UsageError
+    from cartpole.core.seeding import fresh_eval_seed
     from cartpole.recording import (
         RecordingError,
         check_video_path,
@@ -55,7 +56,6 @@ def run(args: argparse.Namespace) -> int:
         render_episodes,
         write_video,
     )
-    from cartpole.training.seeding import fresh_eval_seed
 
     if args.episodes < 1:
         raise UsageError(f"--episodes must be >= 1, got {args.episodes}")
@@ -100,7 +100,7 @@ def write_eval_video(
     policy: Any, checkpoint: Path, env_id: str, seed: int, episodes: int, out_text: str
 ) -> Path:
     """The video of ``cartpole eval --render``: its first episodes, from the report's own seeds."""
-    from cartpole.cli.main import UsageError
+    from cartpole.cli.errors import UsageError
     from cartpole.recording import RecordingError, check_video_path, render_episodes, write_video
 
     out = Path(out_text) if out_text else default_eval_video_path(checkpoint, seed)

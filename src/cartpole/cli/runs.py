@@ -67,9 +67,9 @@ def list_runs_command(args: argparse.Namespace) -> int:
 def presets_command(args: argparse.Namespace) -> int:
     from rich.console import Console
 
+    from cartpole.agents.presets import preset_table
     from cartpole.agents.registry import agent_names, get_agent
-    from cartpole.cli.main import UsageError
-    from cartpole.training.config import preset_table
+    from cartpole.cli.errors import UsageError
 
     names = agent_names()
     if args.agent and args.agent not in names:

@@ -27,7 +27,7 @@ def add_parser(sub: Any) -> None:
 
 
 def serve(args: argparse.Namespace) -> int:
-    from cartpole.cli.main import UsageError
+    from cartpole.cli.errors import UsageError
 
     try:
         import uvicorn

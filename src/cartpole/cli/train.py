@@ -12,7 +12,7 @@ DEFAULT_AGENT = "dqn"
 
 
 def parse_overrides(pairs: list[str]) -> dict[str, Any]:
-    from cartpole.cli.main import UsageError
+    from cartpole.cli.errors import UsageError
 
     overrides: dict[str, Any] = {}
     for pair in pairs:
@@ -97,7 +97,7 @@ def add_parser(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from cartpole.cli.main import UsageError
+    from cartpole.cli.errors import UsageError
     from cartpole.training import AlreadyFinished, parse_budget, resume, train
 
     console = Console(soft_wrap=True)
@@ -132,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
     console.print(f"run: {outcome.run.path}")
     console.print(
         f"trained {state.env_steps:,} env steps, {state.episodes:,} episodes in {state.elapsed:.1f} s "
-        f"({state.stop_reason})"
+        f"({state.stop_detail})"
     )
     if outcome.signal is not None:
         console.print(

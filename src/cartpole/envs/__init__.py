@@ -12,7 +12,11 @@ from typing import Literal
 
 import gymnasium as gym
 
+from cartpole.core.errors import ConfigError
+from cartpole.envs.registration import register_fast_envs
 from cartpole.envs.spec import EnvInfo, UnsupportedEnvError, env_info
+
+register_fast_envs()  # cheap: string entry points, nothing compiled until an env is made
 
 Simulator = Literal["fast", "gymnasium"]
 SIMULATORS: tuple[Simulator, ...] = ("fast", "gymnasium")
@@ -23,20 +27,26 @@ def fast_env_id(env_id: str) -> str:
     return "cartpole/" + env_id.removeprefix("cartpole/")
 
 
-def resolve_simulator(env_id: str, simulator: Simulator) -> Simulator:
+def check_simulator(name: str, setting: str = "simulator") -> Simulator:
+    """``name`` as a :data:`Simulator`: the one check of simulator names (configs and envs use it).
+
+    ConfigError naming ``setting`` and the choices when it is not one.
+    """
+    if name not in SIMULATORS:
+        raise ConfigError(f"{setting} must be one of {', '.join(SIMULATORS)}, got {name!r}")
+    return name  # narrowed to Simulator by the check above
+
+
+def resolve_simulator(env_id: str, simulator: str) -> Simulator:
     """The simulator that will really run ``env_id``: "fast" only exists for CartPole."""
-    if simulator not in SIMULATORS:
-        raise ValueError(f"unknown simulator {simulator!r}; choose one of {', '.join(SIMULATORS)}")
-    return "fast" if simulator == "fast" and env_info(env_id).is_cartpole else "gymnasium"
+    checked = check_simulator(simulator)
+    return "fast" if checked == "fast" and env_info(env_id).is_cartpole else "gymnasium"
 
 
-def make_vec_env(env_id: str, num_envs: int, *, simulator: Simulator = "gymnasium") -> gym.vector.VectorEnv:
+def make_vec_env(env_id: str, num_envs: int, *, simulator: str = "gymnasium") -> gym.vector.VectorEnv:
     """A vector env of ``num_envs`` copies of ``env_id`` with Gymnasium's next-step autoreset."""
     env_info(env_id)  # validates the id and its spaces with a clear message
     if resolve_simulator(env_id, simulator) == "fast":
-        from cartpole.envs.fast import register_fast_envs
-
-        register_fast_envs()
         return gym.make_vec(fast_env_id(env_id), num_envs=num_envs, vectorization_mode="vector_entry_point")
     return gym.make_vec(env_id, num_envs=num_envs)
 
@@ -46,6 +56,7 @@ __all__ = [
     "EnvInfo",
     "Simulator",
     "UnsupportedEnvError",
+    "check_simulator",
     "env_info",
     "fast_env_id",
     "make_vec_env",

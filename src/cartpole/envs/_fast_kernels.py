@@ -77,10 +77,10 @@ def sin_cos(theta: float) -> tuple[float, float]:
 # numba checks that the overload and its implementations have identical parameters, annotations
 # included, so these three functions are left unannotated.
 @overload(sin_cos, inline="always")
-def _sin_cos_overload(theta):  # type: ignore[no-untyped-def]
+def _sin_cos_overload(theta):
     if isinstance(theta, types.Float) and theta.bitwidth == 32:
 
-        def sin_cos_f32(theta):  # type: ignore[no-untyped-def]
+        def sin_cos_f32(theta):
             j = (theta * _TWO_OVER_PI + _ROUNDER) - _ROUNDER
             r = ((theta - j * _PIO2_1) - j * _PIO2_2) - j * _PIO2_3
             z = r * r
@@ -96,7 +96,7 @@ def _sin_cos_overload(theta):  # type: ignore[no-untyped-def]
 
         return sin_cos_f32
 
-    def sin_cos_libm(theta):  # type: ignore[no-untyped-def]
+    def sin_cos_libm(theta):
         return math.sin(theta), math.cos(theta)
 
     return sin_cos_libm

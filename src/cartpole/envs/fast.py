@@ -144,14 +144,14 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 from numpy.typing import ArrayLike, DTypeLike, NDArray
 
+from cartpole.envs.registration import REFERENCE_IDS, register_fast_envs
+
 KinematicsIntegrator = Literal["euler", "semi-implicit euler"]
 
 #: Gymnasium's bounds for the uniform start state (``reset`` without options).
 DEFAULT_RESET_LOW, DEFAULT_RESET_HIGH = -0.05, 0.05
 
 #: The Gymnasium ids whose dynamics we reproduce; ours are registered as ``cartpole/<id>``.
-REFERENCE_IDS: tuple[str, ...] = ("CartPole-v0", "CartPole-v1")
-_NAMESPACE = "cartpole"
 
 _DTYPES = (np.dtype(np.float32), np.dtype(np.float64))
 
@@ -316,7 +316,7 @@ class CartPoleStepper:
         if not isinstance(action, (int, np.integer)) or action not in (0, 1):
             raise ValueError(f"action must be 0 (push left) or 1 (push right), got {action!r}")
         # int(): a numpy integer of another width would compile a second specialization.
-        return self._kernels.step_single(state, int(action), self._packed, out)  # type: ignore[no-any-return]
+        return self._kernels.step_single(state, int(action), self._packed, out)
 
 
 _FLOAT64 = np.dtype(np.float64)
@@ -570,7 +570,8 @@ class CartPoleEnv(_Physics, gym.Env[NDArray[np.float32], int]):
         self.render_mode = render_mode
         self._sutton_barto_reward = bool(sutton_barto_reward)
         self._init_physics(params, dtype)
-        self.action_space = spaces.Discrete(2)
+        # Gymnasium types Env.action_space as Space[int]; Discrete samples np.int64 (as in its own CartPole).
+        self.action_space = spaces.Discrete(2)  # type: ignore[assignment]
         high = self._params.observation_high()
         self.observation_space = spaces.Box(-high, high, dtype=np.float32)
         self._state: NDArray[np.floating[Any]] | None = None
@@ -655,7 +656,7 @@ class CartPoleEnv(_Physics, gym.Env[NDArray[np.float32], int]):
         renderer.length = self._params.length
         renderer.x_threshold = self._params.x_threshold
         renderer.state = None if self._state is None else self._state.astype(np.float64)
-        return renderer.render()  # type: ignore[no-any-return]
+        return renderer.render()
 
     def close(self) -> None:
         """Close the renderer, if one was opened."""
@@ -672,26 +673,6 @@ def _check_same_thresholds(old: CartPoleParams, new: CartPoleParams) -> None:
         raise ValueError(
             "x_threshold and theta_threshold_radians define the observation space and cannot change "
             "on a live env; make a new env with these params instead"
-        )
-
-
-def register_fast_envs() -> None:
-    """Register ``cartpole/CartPole-v0`` and ``cartpole/CartPole-v1`` with Gymnasium (idempotent).
-
-    Time limits and reward thresholds are copied from Gymnasium's own registrations at runtime, so
-    ``gymnasium.make`` and ``gymnasium.make_vec`` give our envs the same limits as the originals.
-    """
-    for reference_id in REFERENCE_IDS:
-        env_id = f"{_NAMESPACE}/{reference_id}"
-        if env_id in gym.registry:
-            continue
-        reference = gym.spec(reference_id)
-        gym.register(
-            id=env_id,
-            entry_point=f"{__name__}:CartPoleEnv",
-            vector_entry_point=f"{__name__}:CartPoleVectorEnv",
-            max_episode_steps=reference.max_episode_steps,
-            reward_threshold=reference.reward_threshold,
         )
 
 

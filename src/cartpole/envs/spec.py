@@ -13,8 +13,10 @@ from functools import cache
 import gymnasium as gym
 import numpy as np
 
+from cartpole.core.errors import InputError
 
-class UnsupportedEnvError(ValueError):
+
+class UnsupportedEnvError(InputError, ValueError):
     """The env id is unknown, or its spaces are not a Box observation and Discrete actions."""
 
 

@@ -13,7 +13,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from cartpole import __version__
+from cartpole.core.errors import InputError
+from cartpole.core.version import __version__
 from cartpole.runs.atomic import write_atomic
 
 if TYPE_CHECKING:
@@ -24,7 +25,7 @@ FORMAT_VERSION = 1
 SUFFIX = ".pt"
 
 
-class CheckpointError(ValueError):
+class CheckpointError(InputError, ValueError):
     """A checkpoint file is missing, truncated, corrupt, foreign or from an unknown format version."""
 
 

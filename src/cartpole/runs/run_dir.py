@@ -1,32 +1,56 @@
 """Run folders: the record of one training run, which plots, ``cartpole eval`` and the web app read.
 
-Layout (see docs/DESIGN.md): ``config.json``, ``status.json``, ``metrics.jsonl``, ``eval.json`` and
+Layout (see docs/DESIGN.md): ``config.json``, ``status.json``, ``metrics.jsonl``, ``eval.json`` (the
+final verdict, and nothing else), ``best_eval.json`` (the best in-training evaluation) and
 ``checkpoints/{latest,best,solved}.pt``. JSON files are replaced atomically; ``metrics.jsonl`` is only
 appended to, and readers skip a last line that is still being written.
+
+One process trains a run at a time: it holds :meth:`RunDir.lock` and keeps ``status.json`` current
+through :class:`LiveStatus` (pid, host and a heartbeat), so :func:`displayed_state` can tell a run
+whose process is gone ("crashed") from one still running.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import re
+import socket
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from types import TracebackType
+from typing import IO, Any
 
+from cartpole.core.errors import InputError
+from cartpole.core.names import CheckpointName, RunState
 from cartpole.runs.atomic import write_json_atomic
 
 CONFIG = "config.json"
 STATUS = "status.json"
 METRICS = "metrics.jsonl"
 EVAL = "eval.json"
+BEST_EVAL = "best_eval.json"
+LOCK = ".train.lock"
 CHECKPOINTS = "checkpoints"
-CHECKPOINT_NAMES = ("latest", "best", "solved")
+CHECKPOINT_NAMES = tuple(CheckpointName)
+HEARTBEAT_SECONDS = 5.0
+"""How often a training process refreshes the heartbeat in ``status.json``."""
+STALE_SECONDS = 60.0
+"""A "running" status whose heartbeat is older than this has lost its process: it shows as crashed."""
 RUN_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*__[A-Za-z0-9._-]+__s\d+__\d{8}-\d{6}(-\d+)?$")
 
 
-class RunError(ValueError):
+class RunError(InputError, ValueError):
     """A run folder is missing or unreadable."""
+
+
+class RunBusy(RunError):
+    """Another process is training this run folder."""
 
 
 def utc_now() -> str:
@@ -111,16 +135,51 @@ class RunDir:
         try:
             return read_json(self.path / STATUS)
         except (OSError, json.JSONDecodeError):
-            return {"state": "unknown"}
+            return {"state": RunState.UNKNOWN.value}
 
     def write_eval(self, report: dict[str, Any]) -> None:
+        """Write the final verdict (only the session's last step does this)."""
         write_json_atomic(self.path / EVAL, report)
 
     def eval_report(self) -> dict[str, Any] | None:
+        """The final verdict on the saved agent, or None while there is none."""
         try:
             return read_json(self.path / EVAL)
         except (OSError, json.JSONDecodeError):
             return None
+
+    def write_best_eval(self, report: dict[str, Any]) -> None:
+        """Write the best evaluation made during training (not a verdict)."""
+        write_json_atomic(self.path / BEST_EVAL, report)
+
+    def best_eval_report(self) -> dict[str, Any] | None:
+        try:
+            return read_json(self.path / BEST_EVAL)
+        except (OSError, json.JSONDecodeError):
+            return None
+
+    @contextmanager
+    def lock(self) -> Iterator[None]:
+        """Hold the run folder for this process; RunBusy at once if another process holds it.
+
+        An OS lock (``flock``): it goes with the process, so a killed run leaves no stale lock.
+        """
+        from filelock import FileLock, Timeout
+
+        lock = FileLock(self.path / LOCK, timeout=0)
+        try:
+            lock.acquire()
+        except Timeout:
+            status = self.status()
+            holder = f" (pid {status['pid']} on {status['host']})" if {"pid", "host"} <= status.keys() else ""
+            raise RunBusy(
+                f"run {self.name} is being trained by another process{holder}; "
+                "wait for it to end, or stop it, before resuming"
+            ) from None
+        try:
+            yield
+        finally:
+            lock.release()
 
     # Metrics --------------------------------------------------------------------------------------
     @property
@@ -162,7 +221,116 @@ class RunDir:
         text = "".join(json.dumps(row) + "\n" for row in kept)
         from cartpole.runs.atomic import write_atomic
 
-        write_atomic(self.metrics_path, lambda handle: handle.write(text.encode()))
+        def write(handle: IO[bytes]) -> None:
+            handle.write(text.encode())
+
+        write_atomic(self.metrics_path, write)
+
+
+class LiveStatus:
+    """``status.json`` of a run this process trains.
+
+    Every write carries the pid, the host and a heartbeat (Unix seconds). While entered (``with``), a
+    thread rewrites the last status with a fresh heartbeat every ``interval`` seconds, so a long
+    evaluation or verdict still looks alive and a dead process is seen within :data:`STALE_SECONDS`.
+    """
+
+    def __init__(self, run: RunDir, interval: float = HEARTBEAT_SECONDS):
+        self.run, self.interval = run, interval
+        self.fields: dict[str, Any] | None = None
+        self._guard = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def write(self, state: RunState, fields: dict[str, Any]) -> None:
+        """Record ``state`` and ``fields`` (counters, stop reason) with a fresh heartbeat."""
+        with self._guard:
+            self.fields = {"state": RunState(state).value, **fields}
+            self._write()
+
+    def _write(self) -> None:
+        assert self.fields is not None
+        heartbeat = {"pid": os.getpid(), "host": socket.gethostname(), "heartbeat": round(time.time(), 3)}
+        self.run.write_status({**self.fields, **heartbeat})
+
+    def beat(self) -> None:
+        """Rewrite the last status with a fresh heartbeat (a full disk only skips a beat)."""
+        with self._guard:
+            if self.fields is not None:
+                with suppress(OSError):
+                    self._write()
+
+    def _beat_until_stopped(self) -> None:
+        while not self._stop.wait(self.interval):
+            self.beat()
+
+    def __enter__(self) -> LiveStatus:
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._beat_until_stopped, name="status-heartbeat", daemon=True)
+        self._thread.start()
+        return self
+
+    def __exit__(
+        self, kind: type[BaseException] | None, error: BaseException | None, trace: TracebackType | None
+    ) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+
+
+def process_alive(pid: int) -> bool:
+    """Whether process ``pid`` exists on this machine."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # it exists, owned by another user
+        return True
+    except (OSError, OverflowError, ValueError):
+        return False
+    return True
+
+
+def last_heartbeat(status: dict[str, Any]) -> float | None:
+    """Unix time of the status's heartbeat (or, for older runs, of its last update)."""
+    heartbeat = status.get("heartbeat")
+    if isinstance(heartbeat, int | float) and not isinstance(heartbeat, bool):
+        return float(heartbeat)
+    try:
+        return datetime.fromisoformat(str(status["updated"])).timestamp()
+    except (KeyError, ValueError):
+        return None
+
+
+def training_process_alive(status: dict[str, Any], now: float | None = None) -> bool:
+    """Whether the process that wrote a "running" ``status`` is still training: its heartbeat is
+    fresh and, when it ran on this host, its pid still exists."""
+    beat = last_heartbeat(status)
+    now = time.time() if now is None else now
+    if beat is None or now - beat > STALE_SECONDS:
+        return False
+    pid = status.get("pid")
+    if status.get("host") == socket.gethostname() and isinstance(pid, int):
+        return process_alive(pid)
+    return True
+
+
+STOPPED_STATES = frozenset({RunState.FINISHED, RunState.INTERRUPTED, RunState.FAILED, RunState.CRASHED})
+"""States in which no process writes to the run any more (until a ``--resume``)."""
+
+
+def displayed_state(status: dict[str, Any], now: float | None = None) -> RunState:
+    """The state to show for a run's ``status.json``: the written state, except that a run whose
+    training process is gone shows as crashed (``--resume`` continues it). Everything that shows or
+    acts on a run's state (``cartpole runs``, the web app, ``--resume``) asks this function."""
+    try:
+        state = RunState(str(status.get("state")))
+    except ValueError:
+        return RunState.UNKNOWN
+    if state is RunState.RUNNING and not training_process_alive(status, now):
+        return RunState.CRASHED
+    return state
 
 
 @dataclass(frozen=True)
@@ -217,11 +385,11 @@ def summarize_run(path: Path) -> RunSummary:
         seed=config.get("seed"),
         preset=config.get("preset"),
         created=config.get("created"),
-        state=status.get("state", "unknown"),
+        state=displayed_state(status).value,
         env_steps=status.get("env_steps"),
         episodes=status.get("episodes"),
         best_eval_mean=status.get("best_eval_mean"),
-        solved=bool(report["solved"]) if report else bool(status.get("solved", False)),
+        solved=bool(report.get("solved")) if report else False,  # only the final verdict says solved
         verdict=report.get("verdict") if report else None,
     )
 

@@ -1,8 +1,10 @@
 """Training: one loop for every agent, its callbacks, budgets, configs and seeds."""
 
+from cartpole.agents.learner import Learner, LearnResult
+from cartpole.core.errors import ConfigError
 from cartpole.training.budget import Budget, parse_budget
-from cartpole.training.config import ConfigError, TrainSettings
-from cartpole.training.loop import Callback, Learner, LearnResult, LoopState, TrainingLoop
+from cartpole.training.config import TrainSettings
+from cartpole.training.loop import Callback, LoopState, TrainingLoop
 from cartpole.training.session import AlreadyFinished, TrainOutcome, resume, train
 
 __all__ = [

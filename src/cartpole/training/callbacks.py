@@ -6,16 +6,19 @@ import math
 import sys
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any, TextIO
 
+from cartpole.agents.learner import LearnResult
 from cartpole.agents.registry import AgentSpec
-from cartpole.envs import EnvInfo
+from cartpole.core.names import CheckpointName, RunState, StopReason
+from cartpole.core.seeding import eval_seed
+from cartpole.envs import EnvInfo, check_simulator
 from cartpole.evaluation import MIN_EPISODES_FOR_SOLVED, EvalReport, Policy, evaluate
-from cartpole.runs import Checkpoint, RunDir, save_checkpoint
+from cartpole.runs import Checkpoint, LiveStatus, RunDir, save_checkpoint
 from cartpole.training.budget import Budget
 from cartpole.training.config import TrainSettings
-from cartpole.training.loop import Callback, LearnResult, TrainingLoop
-from cartpole.training.seeding import eval_seed
+from cartpole.training.loop import Callback, LoopState, TrainingLoop
 
 
 class BudgetCallback(Callback):
@@ -24,19 +27,35 @@ class BudgetCallback(Callback):
     def __init__(self, budget: Budget):
         self.budget = budget
 
+    def on_start(self, loop: TrainingLoop) -> None:
+        """A resumed run whose budget was already spent (killed before its verdict) trains no more."""
+        self.check(loop)
+
     def on_step(self, loop: TrainingLoop, result: LearnResult) -> bool:
-        state, budget = loop.state, self.budget
-        limits = (
-            (budget.env_steps, state.env_steps, "env steps"),
-            (budget.episodes, state.episodes, "episodes"),
-            (budget.iterations, state.iterations, "iterations"),
-            (budget.seconds, state.elapsed, "seconds"),
-        )
-        for limit, value, unit in limits:
-            if limit is not None and value >= limit:
-                state.stop_reason = f"budget reached ({limit:g} {unit})"
+        return self.check(loop)
+
+    def check(self, loop: TrainingLoop) -> bool:
+        for limit, value, unit in budget_limits(self.budget, loop.state):
+            if value >= limit:
+                loop.state.stop(StopReason.BUDGET, f"budget reached ({limit:g} {unit})")
                 return False
         return True
+
+
+def budget_limits(budget: Budget, state: LoopState) -> list[tuple[float, float, str]]:
+    """(limit, value so far, unit) for each limit the budget sets."""
+    limits = (
+        (budget.env_steps, state.env_steps, "env steps"),
+        (budget.episodes, state.episodes, "episodes"),
+        (budget.iterations, state.iterations, "iterations"),
+        (budget.seconds, state.elapsed, "seconds"),
+    )
+    return [(limit, value, unit) for limit, value, unit in limits if limit is not None]
+
+
+def budget_progress(budget: Budget, state: LoopState) -> float:
+    """The share of the budget spent: 1.0 when its first limit is reached (0.0 with no limit)."""
+    return max((value / limit for limit, value, _ in budget_limits(budget, state)), default=0.0)
 
 
 def report_rank(report: EvalReport) -> tuple[bool, bool, float]:
@@ -63,8 +82,7 @@ class EvalCallback(Callback):
 
     def on_end(self, loop: TrainingLoop) -> None:
         """Judge the final policy too, so every finished run has a best checkpoint and a verdict."""
-        reason = loop.state.stop_reason or ""
-        if reason == "failed" or reason.startswith("interrupted"):
+        if loop.state.stop_reason in (StopReason.FAILED, StopReason.INTERRUPTED):
             return
         if loop.state.evaluations == 0 or loop.state.last_eval_step < loop.state.env_steps:
             loop.state.last_eval_step = loop.state.env_steps
@@ -93,7 +111,7 @@ def screened_evaluation(
         env.env_id,
         settings.eval_episodes,
         seed=eval_seed(seed, 2 * index + 1),
-        simulator=settings.eval_simulator,  # type: ignore[arg-type]
+        simulator=check_simulator(settings.eval_simulator),
     )
 
 
@@ -102,35 +120,69 @@ class StopWhenSolved(Callback):
 
     def on_eval(self, loop: TrainingLoop, report: EvalReport) -> bool:
         if report.solved:
-            loop.state.stop_reason = "solved"
+            loop.state.stop(StopReason.SOLVED, "solved")
             return False
         return True
 
 
+@dataclass(frozen=True)
+class CheckpointSchedule:
+    """When ``latest`` is due: after ``fraction`` of the budget, after ``seconds`` of wall time, or
+    (when > 0) after ``env_steps`` env steps since the last save, whichever comes first. So a kill -9
+    loses at most one interval of work."""
+
+    budget: Budget
+    fraction: float = 0.1
+    seconds: float = 60.0
+    env_steps: int = 0
+
+    @classmethod
+    def from_settings(cls, budget: Budget, settings: TrainSettings) -> CheckpointSchedule:
+        fraction, seconds = settings.checkpoint_fraction, settings.checkpoint_seconds
+        return cls(budget, fraction, seconds, settings.checkpoint_every)
+
+
 class CheckpointCallback(Callback):
-    """Keeps ``latest`` (periodic and at exit), ``best`` (best evaluation) and ``solved``."""
+    """Keeps ``latest`` (on :class:`CheckpointSchedule` and at exit), ``best`` (best
+    evaluation, with its report in ``best_eval.json``) and ``solved`` (first verified solve)."""
 
     def __init__(
         self,
         run: RunDir,
         agent: AgentSpec,
         meta: dict[str, Any],
-        every: int,
+        schedule: CheckpointSchedule,
         metrics: MetricsCallback | None = None,
     ):
-        self.run, self.agent, self.meta, self.every = run, agent, meta, every
+        self.run, self.agent, self.meta, self.schedule = run, agent, meta, schedule
         self.metrics = metrics
         """Flushed before each ``latest``, so a resume from it finds every metric row up to its step."""
-        self.last_save_step = 0
+        self.last_save = (0, 0.0, 0.0)
+        """(env steps, perf_counter time, budget progress) at the last save of ``latest``."""
         self.best: EvalReport | None = None
+        self.latest_loop: dict[str, Any] | None = None
+        """The loop counters in the last ``latest`` written."""
 
     def on_start(self, loop: TrainingLoop) -> None:
-        self.last_save_step = loop.state.env_steps
-        previous = self.run.eval_report() if loop.state.evaluations else None
+        self.mark_saved(loop)
+        previous = self.run.best_eval_report() if loop.state.evaluations else None
         if previous and "returns" in previous:
             self.best = EvalReport.from_dict(previous)
 
-    def save(self, loop: TrainingLoop, name: str, resume: bool) -> None:
+    def mark_saved(self, loop: TrainingLoop) -> None:
+        progress = budget_progress(self.schedule.budget, loop.state)
+        self.last_save = (loop.state.env_steps, time.perf_counter(), progress)
+
+    def due(self, loop: TrainingLoop) -> bool:
+        steps, when, progress = self.last_save
+        schedule = self.schedule
+        return (
+            (schedule.env_steps > 0 and loop.state.env_steps - steps >= schedule.env_steps)
+            or time.perf_counter() - when >= schedule.seconds
+            or budget_progress(schedule.budget, loop.state) - progress >= schedule.fraction
+        )
+
+    def save(self, loop: TrainingLoop, name: CheckpointName, resume: bool) -> None:
         if resume and self.metrics is not None:
             # Rows still pending would be lost by a kill -9 after this save, and a resume from this
             # checkpoint would not log them again: a gap. Write them first.
@@ -144,24 +196,31 @@ class CheckpointCallback(Callback):
             "resumable": resume,
         }
         save_checkpoint(self.run.checkpoint_path(name), Checkpoint(meta=meta, tensors=tensors))
+        if name == CheckpointName.LATEST:
+            self.latest_loop = meta["loop"]
 
     def on_step(self, loop: TrainingLoop, result: LearnResult) -> bool:
-        if loop.state.env_steps - self.last_save_step >= self.every:
-            self.last_save_step = loop.state.env_steps
-            self.save(loop, "latest", resume=True)
+        if self.due(loop):
+            self.save(loop, CheckpointName.LATEST, resume=True)
+            self.mark_saved(loop)
         return True
 
     def on_eval(self, loop: TrainingLoop, report: EvalReport) -> bool:
         if self.best is None or report_rank(report) > report_rank(self.best):
             self.best = report
-            self.save(loop, "best", resume=False)
-            self.run.write_eval(report.to_dict())
-        if report.solved and not self.run.checkpoint_path("solved").exists():
-            self.save(loop, "solved", resume=False)
+            self.save(loop, CheckpointName.BEST, resume=False)
+            self.run.write_best_eval(report.to_dict())
+        if report.solved and not self.run.checkpoint_path(CheckpointName.SOLVED).exists():
+            self.save(loop, CheckpointName.SOLVED, resume=False)
         return True
 
     def on_end(self, loop: TrainingLoop) -> None:
-        self.save(loop, "latest", resume=True)
+        if without_time(loop.state.to_dict()) != without_time(self.latest_loop or {}):
+            self.save(loop, CheckpointName.LATEST, resume=True)  # not already saved by the last step
+
+
+def without_time(loop: dict[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in loop.items() if k != "elapsed"}
 
 
 def finite(scalars: dict[str, float]) -> dict[str, float]:
@@ -170,7 +229,7 @@ def finite(scalars: dict[str, float]) -> dict[str, float]:
 
 
 class MetricsCallback(Callback):
-    """Appends metric rows to ``metrics.jsonl`` and refreshes ``status.json`` every few seconds."""
+    """Appends metric rows to ``metrics.jsonl`` every ``FLUSH_SECONDS`` (and before each ``latest``)."""
 
     FLUSH_SECONDS = 1.0
 
@@ -189,7 +248,6 @@ class MetricsCallback(Callback):
 
     def on_start(self, loop: TrainingLoop) -> None:
         self.last_sps_time, self.last_sps_steps = time.perf_counter(), loop.state.env_steps
-        self.write_status(loop, "running")
 
     def on_episode(self, loop: TrainingLoop, episode_return: float, length: int) -> bool:
         row = self.base_row(loop)
@@ -215,7 +273,6 @@ class MetricsCallback(Callback):
         self.last_sps_time, self.last_sps_steps = now, loop.state.env_steps
         self.write_pending()
         self.last_flush = now
-        self.write_status(loop, "running")
 
     def on_eval(self, loop: TrainingLoop, report: EvalReport) -> bool:
         row = self.base_row(loop)
@@ -233,22 +290,6 @@ class MetricsCallback(Callback):
         self.pending.append(row)
         return True
 
-    def write_status(self, loop: TrainingLoop, state: str) -> None:
-        s = loop.state
-        self.run.write_status(
-            {
-                "state": state,
-                "env_steps": s.env_steps,
-                "episodes": s.episodes,
-                "iterations": s.iterations,
-                "elapsed": round(s.elapsed, 3),
-                "best_eval_mean": s.best_eval_mean,
-                "solved": s.solved,
-                "solved_at_step": s.solved_at_step,
-                "stop_reason": s.stop_reason,
-            }
-        )
-
     def write_pending(self) -> None:
         """Append the pending rows to ``metrics.jsonl`` and pass them to the listeners."""
         rows, self.pending = self.pending, []
@@ -258,9 +299,50 @@ class MetricsCallback(Callback):
 
     def on_end(self, loop: TrainingLoop) -> None:
         self.write_pending()
-        reason = loop.state.stop_reason or ""
-        state = "interrupted" if reason.startswith("interrupted") else "finished"
-        self.write_status(loop, "failed" if reason == "failed" else state)
+
+
+def status_fields(state: LoopState) -> dict[str, Any]:
+    """The loop's counters as ``status.json`` records them."""
+    return {
+        "env_steps": state.env_steps,
+        "episodes": state.episodes,
+        "iterations": state.iterations,
+        "elapsed": round(state.elapsed, 3),
+        "best_eval_mean": state.best_eval_mean,
+        "solved_in_training": state.solved,
+        "solved_at_step": state.solved_at_step,
+        "stop_reason": state.stop_reason.value if state.stop_reason else None,
+        "stop_detail": state.stop_detail,
+    }
+
+
+class StatusCallback(Callback):
+    """Keeps ``status.json`` "running" with fresh counters every ``FLUSH_SECONDS``.
+
+    It never writes an end state: the session does, once ``latest`` and the verdict are on disk.
+    (The heartbeat between writes comes from :class:`~cartpole.runs.LiveStatus`'s thread.)
+    """
+
+    FLUSH_SECONDS = 1.0
+
+    def __init__(self, status: LiveStatus):
+        self.status = status
+        self.last_write = 0.0
+
+    def write(self, loop: TrainingLoop) -> None:
+        self.status.write(RunState.RUNNING, status_fields(loop.state))
+        self.last_write = time.perf_counter()
+
+    def on_start(self, loop: TrainingLoop) -> None:
+        self.write(loop)
+
+    def on_step(self, loop: TrainingLoop, result: LearnResult) -> bool:
+        if time.perf_counter() - self.last_write >= self.FLUSH_SECONDS:
+            self.write(loop)
+        return True
+
+    def on_end(self, loop: TrainingLoop) -> None:
+        self.write(loop)
 
 
 class TensorBoardCallback(Callback):
@@ -308,7 +390,7 @@ TENSORBOARD_EXTRA = "pip install 'cartpole[tensorboard]'"
 
 def require_tensorboard() -> None:
     """Raise ConfigError with the install line when the ``tensorboard`` package is missing."""
-    from cartpole.training.config import ConfigError
+    from cartpole.core.errors import ConfigError
 
     try:
         import tensorboard  # noqa: F401

@@ -6,19 +6,14 @@ config dataclass or of :class:`TrainSettings`; anything else is an error that na
 
 from __future__ import annotations
 
-import dataclasses
-import tomllib
-import types
-import typing
 from dataclasses import dataclass, fields
-from importlib import resources
 from typing import Any
 
+from cartpole.agents.presets import preset_table
+from cartpole.core.config import build_config, require
+from cartpole.core.errors import ConfigError
+from cartpole.envs import check_simulator
 from cartpole.training.budget import parse_budget
-
-
-class ConfigError(ValueError):
-    """A preset, an override or a config value is wrong."""
 
 
 @dataclass
@@ -35,8 +30,12 @@ class TrainSettings:
     """Episodes of the full evaluation (Gymnasium's rule needs >= 100 to call it solved)."""
     eval_simulator: str = "gymnasium"
     """Simulator of the full evaluation: "gymnasium" (the reference) or "fast"."""
-    checkpoint_every: int = 50_000
-    """Env steps between writes of checkpoints/latest.pt (it is also written at the end)."""
+    checkpoint_fraction: float = 0.1
+    """Share of the budget between writes of checkpoints/latest.pt (also written at start and end)."""
+    checkpoint_seconds: float = 60.0
+    """Wall-clock seconds between writes of checkpoints/latest.pt at the most."""
+    checkpoint_every: int = 0
+    """Env steps between writes of checkpoints/latest.pt at the most (0: no step-based cadence)."""
     stop_when_solved: bool = True
     """End training at the first verified solve."""
 
@@ -45,64 +44,10 @@ class TrainSettings:
         require(self.eval_every >= 0, "eval_every must be >= 0")
         require(self.eval_screen_episodes >= 1, "eval_screen_episodes must be >= 1")
         require(self.eval_episodes >= 1, "eval_episodes must be >= 1")
-        require(self.eval_simulator in ("gymnasium", "fast"), "eval_simulator: gymnasium or fast")
-        require(self.checkpoint_every >= 1, "checkpoint_every must be >= 1")
-
-
-def require(condition: bool, message: str) -> None:
-    """Raise ConfigError(message) unless ``condition``: the one-line check configs use."""
-    if not condition:
-        raise ConfigError(message)
-
-
-def preset_table(agent: str) -> dict[str, dict[str, Any]]:
-    """All presets of ``agent`` as read from its TOML file."""
-    text = resources.files("cartpole.agents").joinpath("presets", f"{agent}.toml").read_text()
-    return tomllib.loads(text)
-
-
-def preset_names(agent: str) -> list[str]:
-    return list(preset_table(agent))
-
-
-def _coerce(value: Any, annotation: Any, key: str) -> Any:
-    """Check ``value`` against a field's type, converting strings from the command line."""
-    hint = typing.get_type_hints(type("_", (), {"__annotations__": {"x": annotation}}))["x"]
-    options = typing.get_args(hint) if isinstance(hint, types.UnionType) else (hint,)
-    if value is None or (isinstance(value, str) and value.lower() == "none"):
-        if type(None) in options:
-            return None
-        raise ConfigError(f"{key} cannot be none")
-    for option in options:
-        origin = typing.get_origin(option) or option
-        try:
-            if origin is bool:
-                if isinstance(value, bool):
-                    return value
-                if isinstance(value, str) and value.lower() in ("true", "false", "1", "0"):
-                    return value.lower() in ("true", "1")
-            elif origin in (int, float):
-                if isinstance(value, bool):
-                    continue
-                if origin is int and isinstance(value, float) and not value.is_integer():
-                    continue
-                return origin(float(value)) if origin is int else origin(value)
-            elif origin is str:
-                return str(value)
-            elif origin in (list, tuple):
-                items = value if isinstance(value, list | tuple) else str(value).split(",")
-                (item_type,) = typing.get_args(option)[:1] or (str,)
-                return origin(_coerce(v, item_type, key) for v in items if v != "")
-        except (TypeError, ValueError):
-            continue
-    raise ConfigError(f"{key}={value!r} is not a valid {hint}")
-
-
-def build_config(cls: type, values: dict[str, Any]) -> Any:
-    """An instance of dataclass ``cls`` from ``values`` (unknown keys were filtered before)."""
-    kinds = {f.name: f.type for f in fields(cls)}
-    kwargs = {k: _coerce(v, kinds[k], k) for k, v in values.items()}
-    return cls(**kwargs)
+        check_simulator(self.eval_simulator, "eval_simulator")
+        require(0 < self.checkpoint_fraction <= 1, "checkpoint_fraction must be in (0, 1]")
+        require(0 < self.checkpoint_seconds < float("inf"), "checkpoint_seconds must be > 0")
+        require(self.checkpoint_every >= 0, "checkpoint_every must be >= 0 (0: off)")
 
 
 def resolve_config(
@@ -128,8 +73,3 @@ def resolve_config(
         validate()
     settings.validate()
     return config, settings
-
-
-def config_to_dict(config: Any) -> dict[str, Any]:
-    """A dataclass config as JSON-able data (tuples become lists)."""
-    return dataclasses.asdict(config)

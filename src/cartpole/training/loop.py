@@ -11,52 +11,13 @@ from __future__ import annotations
 import time
 from collections import deque
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import Any
 
 import numpy as np
 
-from cartpole.evaluation import EvalReport, Policy
-
-if TYPE_CHECKING:  # only in annotations: `cartpole presets` and `runs` start without torch
-    import torch
-
-
-@dataclass
-class LearnResult:
-    """What one ``learn()`` call did."""
-
-    env_steps: int
-    """Env transitions collected (summed over vector envs)."""
-    episode_returns: list[float] = field(default_factory=list)
-    """Returns of the training episodes that finished during this call."""
-    episode_lengths: list[int] = field(default_factory=list)
-    """Their lengths, in the same order."""
-    scalars: dict[str, float] = field(default_factory=dict)
-    """Namespaced training metrics, e.g. ``train/loss``, ``train/epsilon``."""
-    summarized_episodes: int = 0
-    """Episodes finished but summarized in ``scalars`` instead of listed one by one (a generation)."""
-    log_scalars: bool = False
-    """Write ``scalars`` as a metrics row for this step (population methods: one row per generation)."""
-
-
-class Learner(Protocol):
-    """What an agent gives the loop."""
-
-    def learn(self) -> LearnResult:
-        """Advance by one unit: a generation, or one batched env step and its gradient steps."""
-        ...
-
-    def policy(self) -> Policy:
-        """The current greedy policy (what evaluation and checkpoints judge)."""
-        ...
-
-    def state_dict(self, resume: bool) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
-        """Tensors and JSON-able data; with ``resume`` everything needed to continue exactly."""
-        ...
-
-    def load_state_dict(self, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None:
-        """Restore what ``state_dict`` gave."""
-        ...
+from cartpole.agents.learner import Learner, LearnResult
+from cartpole.core.names import StopReason
+from cartpole.evaluation import EvalReport
 
 
 @dataclass
@@ -78,11 +39,23 @@ class LoopState:
     recent_returns: deque[float] = field(default_factory=lambda: deque(maxlen=100))
     scalars: dict[str, float] = field(default_factory=dict)
     last_eval: EvalReport | None = None
-    stop_reason: str | None = None
+    stop_reason: StopReason | None = None
+    """Why training stopped (None while it goes on); saved, so a resume knows training was complete."""
+    stop_detail: str | None = None
+    """The same for people, e.g. "budget reached (50000 env steps)"."""
 
     @property
     def mean_recent_return(self) -> float | None:
         return float(np.mean(self.recent_returns)) if self.recent_returns else None
+
+    def stop(self, reason: StopReason, detail: str) -> None:
+        """Record why training stops (the first reason given wins)."""
+        if self.stop_reason is None:
+            self.stop_reason, self.stop_detail = reason, detail
+
+    def clear_stop(self) -> None:
+        """Forget an interruption or failure: a resumed session trains on."""
+        self.stop_reason = self.stop_detail = None
 
     def to_dict(self) -> dict[str, Any]:
         keys = (
@@ -97,12 +70,18 @@ class LoopState:
             "solved_at_step",
             "solved_at_seconds",
         )
-        return {k: getattr(self, k) for k in keys} | {"recent_returns": list(self.recent_returns)}
+        return {k: getattr(self, k) for k in keys} | {
+            "recent_returns": list(self.recent_returns),
+            "stop_reason": self.stop_reason.value if self.stop_reason else None,
+            "stop_detail": self.stop_detail,
+        }
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> LoopState:
-        state = cls(**{k: v for k, v in data.items() if k != "recent_returns"})
+        state = cls(**{k: v for k, v in data.items() if k not in ("recent_returns", "stop_reason")})
         state.recent_returns.extend(data.get("recent_returns", []))
+        reason = data.get("stop_reason")
+        state.stop_reason = StopReason(reason) if reason else None
         return state
 
 
@@ -135,11 +114,11 @@ class TrainingLoop:
         self.learner = learner
         self.callbacks = callbacks
         self.state = state or LoopState()
-        self._stop_requested: str | None = None
+        self._stop_requested: tuple[StopReason, str] | None = None
 
-    def request_stop(self, reason: str) -> None:
+    def request_stop(self, reason: StopReason, detail: str) -> None:
         """Stop after the current step (safe to call from a signal handler)."""
-        self._stop_requested = reason
+        self._stop_requested = (reason, detail)
 
     def record_eval(self, report: EvalReport) -> bool:
         """Note an evaluation in the counters and tell every callback; False if one says stop."""
@@ -175,11 +154,11 @@ class TrainingLoop:
                     keep_going &= all([cb.on_episode(self, ret, length) for cb in self.callbacks])
                 keep_going &= all([cb.on_step(self, result) for cb in self.callbacks])
                 if self._stop_requested:
-                    state.stop_reason = self._stop_requested
-                elif not keep_going and state.stop_reason is None:
-                    state.stop_reason = "stopped by a callback"
-        except BaseException:
-            state.stop_reason = state.stop_reason or "failed"
+                    state.stop(*self._stop_requested)
+                elif not keep_going:
+                    state.stop(StopReason.CALLBACK, "stopped by a callback")
+        except BaseException as error:
+            state.stop(StopReason.FAILED, f"failed: {type(error).__name__}: {error}")
             raise
         finally:
             state.elapsed = time.perf_counter() - started

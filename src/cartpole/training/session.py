@@ -8,37 +8,37 @@ from __future__ import annotations
 import signal
 import sys
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from cartpole import __version__
 from cartpole.agents.registry import AgentSpec, get_agent
-from cartpole.envs import EnvInfo, env_info
+from cartpole.core.config import build_config, config_to_dict
+from cartpole.core.errors import ConfigError
+from cartpole.core.names import CheckpointName, RunState, StopReason
+from cartpole.core.seeding import MAX_TRAIN_SEED, final_eval_seed
+from cartpole.core.version import __version__
+from cartpole.envs import EnvInfo, check_simulator, env_info
 from cartpole.evaluation import MIN_EPISODES_FOR_SOLVED, EvalReport, evaluate
-from cartpole.runs import CheckpointError, RunDir, load_checkpoint
+from cartpole.runs import CheckpointError, LiveStatus, RunDir, displayed_state, load_checkpoint
 from cartpole.runs.run_dir import utc_now
 from cartpole.training.budget import Budget, parse_budget
 from cartpole.training.callbacks import (
     BudgetCallback,
     CheckpointCallback,
+    CheckpointSchedule,
     EvalCallback,
     MetricsCallback,
     ProgressCallback,
+    StatusCallback,
     StopWhenSolved,
     TensorBoardCallback,
     require_tensorboard,
+    status_fields,
 )
-from cartpole.training.config import (
-    ConfigError,
-    TrainSettings,
-    build_config,
-    config_to_dict,
-    resolve_config,
-)
+from cartpole.training.config import TrainSettings, resolve_config
 from cartpole.training.loop import Callback, LoopState, TrainingLoop
-from cartpole.training.seeding import MAX_TRAIN_SEED, final_eval_seed
 
 
 @dataclass
@@ -66,6 +66,9 @@ def resolve_device(device: str) -> str:
     return device
 
 
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
 @contextmanager
 def stop_on_signals(loop: TrainingLoop) -> Iterator[list[int]]:
     """While training, SIGINT/SIGTERM finish the current step and stop cleanly."""
@@ -73,11 +76,36 @@ def stop_on_signals(loop: TrainingLoop) -> Iterator[list[int]]:
 
     def handler(signum: int, frame: Any) -> None:
         received.append(signum)
-        loop.request_stop(f"interrupted ({signal.Signals(signum).name})")
+        loop.request_stop(StopReason.INTERRUPTED, f"interrupted ({signal.Signals(signum).name})")
 
-    previous = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
+    with signal_handler(handler):
         yield received
+
+
+class Interrupted(Exception):
+    """A stop signal arrived while the final verdict was being judged."""
+
+    def __init__(self, signum: int):
+        super().__init__(f"interrupted ({signal.Signals(signum).name})")
+        self.signum = signum
+
+
+@contextmanager
+def interrupt_on_signals() -> Iterator[None]:
+    """While judging the verdict, SIGINT/SIGTERM abandon it at once (raise :class:`Interrupted`)."""
+
+    def handler(signum: int, frame: Any) -> None:
+        raise Interrupted(signum)
+
+    with signal_handler(handler):
+        yield
+
+
+@contextmanager
+def signal_handler(handler: Any) -> Iterator[None]:
+    previous = {s: signal.signal(s, handler) for s in STOP_SIGNALS}
+    try:
+        yield
     finally:
         for s, h in previous.items():
             signal.signal(s, h)
@@ -114,7 +142,7 @@ class RunSetup:
         )
 
 
-def make_callbacks(setup: RunSetup, quiet: bool) -> list[Callback]:
+def make_callbacks(setup: RunSetup, status: LiveStatus, quiet: bool) -> list[Callback]:
     """The standard callbacks, in the order they must see events."""
     run, settings = setup.run, setup.settings
     callbacks: list[Callback] = [BudgetCallback(setup.budget), EvalCallback(setup.env, setup.seed, settings)]
@@ -123,9 +151,11 @@ def make_callbacks(setup: RunSetup, quiet: bool) -> list[Callback]:
     # Metrics before checkpoints: a step's rows are pending before ``latest`` is saved, which writes
     # them first, so a resume from ``latest`` continues the rows without a gap even after a kill -9.
     metrics = MetricsCallback(run)
+    schedule = CheckpointSchedule.from_settings(setup.budget, settings)
     callbacks += [
         metrics,
-        CheckpointCallback(run, setup.spec, setup.meta, settings.checkpoint_every, metrics),
+        CheckpointCallback(run, setup.spec, setup.meta, schedule, metrics),
+        StatusCallback(status),
     ]
     if setup.tensorboard:
         callbacks.append(TensorBoardCallback(run, metrics))
@@ -141,26 +171,50 @@ def final_verdict(setup: RunSetup) -> EvalReport:
     judges it again on any other seeds.
     """
     run, settings = setup.run, setup.settings
-    policy = setup.spec.policy_from_checkpoint(load_checkpoint(run.checkpoint_path("best")))
+    policy = setup.spec.policy_from_checkpoint(load_checkpoint(run.checkpoint_path(CheckpointName.BEST)))
     report = evaluate(
         policy,
         setup.env.env_id,
         max(settings.eval_episodes, MIN_EPISODES_FOR_SOLVED),
         seed=final_eval_seed(setup.seed),
-        simulator=settings.eval_simulator,  # type: ignore[arg-type]
+        simulator=check_simulator(settings.eval_simulator),
     )
     run.write_eval(report.to_dict())
     return report
 
 
 def run_loop(setup: RunSetup, learner: Any, state: LoopState | None, quiet: bool) -> TrainOutcome:
-    """Drive the loop with the standard callbacks; compute the verdict unless interrupted."""
-    loop = TrainingLoop(learner, make_callbacks(setup, quiet), state)
-    with stop_on_signals(loop) as received:
-        loop.run()
-    if received:
-        return TrainOutcome(setup.run, loop.state, None, signal=received[0])
-    return TrainOutcome(setup.run, loop.state, final_verdict(setup))
+    """Drive the loop with the standard callbacks, then give the verdict unless interrupted.
+
+    ``status.json`` says "running" (with a heartbeat) until ``latest.pt`` and the verdict are on disk;
+    only then "finished". A kill, a signal or an error before that leaves a run ``--resume`` accepts:
+    it trains on, or, when training was complete, only gives the verdict.
+    """
+    with LiveStatus(setup.run) as status:
+        loop = TrainingLoop(learner, make_callbacks(setup, status, quiet), state)
+        try:
+            with stop_on_signals(loop) as received:
+                loop.run()
+            if received:
+                status.write(RunState.INTERRUPTED, status_fields(loop.state))
+                return TrainOutcome(setup.run, loop.state, None, signal=received[0])
+            with interrupt_on_signals():
+                report = final_verdict(setup)
+        except Interrupted as stop:
+            loop.state.stop_detail = f"{loop.state.stop_detail}; verdict {stop}"
+            status.write(RunState.INTERRUPTED, status_fields(loop.state))
+            return TrainOutcome(setup.run, loop.state, None, signal=stop.signum)
+        except BaseException:
+            write_failed(status, loop.state)
+            raise
+        status.write(RunState.FINISHED, status_fields(loop.state) | {"solved": report.solved})
+        return TrainOutcome(setup.run, loop.state, report)
+
+
+def write_failed(status: LiveStatus, state: LoopState) -> None:
+    """Record the failure if the disk lets us; if not, "running" with a dead process reads as crashed."""
+    with suppress(OSError):
+        status.write(RunState.FAILED, status_fields(state))
 
 
 def train(
@@ -196,7 +250,6 @@ def train(
     budget = budget or parse_budget(settings.budget)
     device = resolve_device(device)
     learner = spec.make_learner(config, env, seed, device)
-    run = RunDir.create(Path(runs_dir), env_id, agent, seed)
     record = {
         "agent": agent,
         "env_id": env_id,
@@ -212,8 +265,10 @@ def train(
         "created": utc_now(),
         "tensorboard": tensorboard,
     }
-    run.write_config(record)
-    return run_loop(RunSetup.from_record(run, record), learner, None, quiet)
+    run = RunDir.create(Path(runs_dir), env_id, agent, seed)
+    with run.lock():
+        run.write_config(record)
+        return run_loop(RunSetup.from_record(run, record), learner, None, quiet)
 
 
 class AlreadyFinished(Exception):
@@ -221,23 +276,43 @@ class AlreadyFinished(Exception):
 
 
 def resume(run_path: Path | str, *, quiet: bool = True, device: str = "auto") -> TrainOutcome:
-    """Continue a run from ``checkpoints/latest.pt`` with its recorded config and budget."""
+    """Continue a run from ``checkpoints/latest.pt`` with its recorded config and budget.
+
+    Any run that has no final verdict is accepted: interrupted, failed, crashed (its process was
+    killed), or killed between the end of training and the verdict (then only the verdict is given).
+    RunBusy if another process is training it.
+    """
     run = RunDir.open(Path(run_path))
-    record = run.config()
-    status = run.status()
-    if status.get("state") == "finished":
-        raise AlreadyFinished(
-            f"run {run.name} already finished ({status.get('stop_reason') or 'done'}); nothing to resume"
-        )
-    latest = run.checkpoint_path("latest")
-    if not latest.is_file():
-        raise CheckpointError(f"run {run.name} has no checkpoints/latest.pt to resume from")
+    with run.lock():
+        record = run.config()
+        status = run.status()
+        if displayed_state(status) is RunState.FINISHED:
+            raise AlreadyFinished(
+                f"run {run.name} already finished ({status.get('stop_detail') or 'done'}); nothing to resume"
+            )
+        setup = RunSetup.from_record(run, record)
+        learner = setup.spec.make_learner(setup.config, setup.env, setup.seed, resolve_device(device))
+        state = restore(run, learner)
+        run.truncate_metrics_after(state.env_steps if state else 0)
+        return run_loop(setup, learner, state, quiet)
+
+
+RESUMABLE_STOPS = (StopReason.INTERRUPTED, StopReason.FAILED, StopReason.BUDGET)
+"""Stops a resume trains on from (the budget is checked again at start: a spent one stops at once).
+After the others (solved, a callback's stop) a resume only gives the final verdict."""
+
+
+def restore(run: RunDir, learner: Any) -> LoopState | None:
+    """Load ``latest.pt`` into ``learner`` and return the loop counters to go on from; None (start
+    over, as the run's seed makes it the same run) for a run killed before its first ``latest``."""
+    latest = run.checkpoint_path(CheckpointName.LATEST)
+    if not latest.exists():
+        return None
     checkpoint = load_checkpoint(latest)
     if not checkpoint.meta.get("resumable"):
         raise CheckpointError(f"{latest} is not a resumable checkpoint")
-    setup = RunSetup.from_record(run, record)
-    learner = setup.spec.make_learner(setup.config, setup.env, setup.seed, resolve_device(device))
     learner.load_state_dict(checkpoint.tensors, checkpoint.meta["learner"])
     state = LoopState.from_dict(checkpoint.meta["loop"])
-    run.truncate_metrics_after(state.env_steps)
-    return run_loop(setup, learner, state, quiet)
+    if state.stop_reason in RESUMABLE_STOPS:
+        state.clear_stop()
+    return state

@@ -8,7 +8,9 @@ from fastapi import APIRouter, HTTPException, Query, Request
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, Field
 
-from cartpole import __version__
+from cartpole.agents.registry import get_agent
+from cartpole.core.names import RunState
+from cartpole.core.version import __version__
 from cartpole.envs import env_info
 from cartpole.runs import CheckpointError, RunDir
 from cartpole.web.episodes import MAX_NUDGE, UNLIMITED_STEPS, PolicyCache, play_episode, sim_limits
@@ -30,7 +32,7 @@ class RunRow(BaseModel):
     seed: int | None
     preset: str | None
     created: str | None
-    state: str = Field(description="running, finished, interrupted, failed, unknown, corrupt or incomplete")
+    state: str = Field(description=f"one of: {', '.join(RunState)} (crashed: its process is gone)")
     env_steps: int | None
     episodes: int | None
     best_eval_mean: float | None
@@ -124,8 +126,9 @@ def metrics(
 
 
 def physics_query(name: str) -> Any:
+    """The query parameter of one physics override, with its limits and label."""
     low, high = PHYSICS_LIMITS[name]
-    return Annotated[float | None, Query(ge=low, le=high, description=PHYSICS_LABELS[name])]
+    return Query(ge=low, le=high, description=PHYSICS_LABELS[name])
 
 
 def nudges_from_query(steps: list[int], changes: list[float], max_steps: int) -> dict[int, float]:
@@ -155,11 +158,11 @@ def episode(
     name: str,
     checkpoint: str,
     seed: Annotated[int, Query(ge=0, le=MAX_SEED, description="start state = Gymnasium reset(seed)")] = 0,
-    gravity: physics_query("gravity") = None,
-    length: physics_query("length") = None,
-    masspole: physics_query("masspole") = None,
-    masscart: physics_query("masscart") = None,
-    force_mag: physics_query("force_mag") = None,
+    gravity: Annotated[float | None, physics_query("gravity")] = None,
+    length: Annotated[float | None, physics_query("length")] = None,
+    masspole: Annotated[float | None, physics_query("masspole")] = None,
+    masscart: Annotated[float | None, physics_query("masscart")] = None,
+    force_mag: Annotated[float | None, physics_query("force_mag")] = None,
     nudge_at: NudgeSteps = None,
     nudge: NudgeChanges = None,
 ) -> JSONResponse:
@@ -184,7 +187,7 @@ def episode(
         raise HTTPException(409, f"checkpoint {checkpoint} cannot be loaded: {err}") from err
     except PhysicsError as err:
         raise HTTPException(422, str(err)) from err
-    label = "Q-values" if agent == "dqn" else "linear score"
+    label = score_label(agent)
     body = {
         "run": run.name,
         "checkpoint": checkpoint,
@@ -192,6 +195,14 @@ def episode(
         **result.to_dict(sim_limits(sim), label),
     }
     return JSONResponse(body)
+
+
+def score_label(agent: str | None) -> str:
+    """What the agent's per-action scores mean, as the agent itself says."""
+    try:
+        return get_agent(str(agent)).score_label
+    except ValueError:  # an agent this version does not know
+        return "score"
 
 
 def run_env(run: RunDir) -> tuple[str, str | None]:

@@ -16,7 +16,7 @@ from fastapi import FastAPI
 from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 
-from cartpole import __version__
+from cartpole.core.version import __version__
 from cartpole.web import api, live
 from cartpole.web.episodes import PolicyCache
 from cartpole.web.runs_folder import RunsFolder

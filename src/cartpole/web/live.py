@@ -2,8 +2,10 @@
 
 Metrics (``/ws/runs/{name}/metrics?offset=N``): the server sends ``{"type": "metrics", "offset",
 "rows"}`` whenever ``metrics.jsonl`` grows and ``{"type": "status", "status"}`` whenever
-``status.json`` changes; once the run has stopped and every row is sent it sends ``{"type": "end"}``
-and closes. The client sends nothing (anything it sends closes the socket with a reason).
+``status.json`` changes or the displayed state does (``status.state`` is
+:func:`~cartpole.runs.displayed_state`: a run whose process died shows "crashed"); once the run has
+stopped and every row is sent it sends ``{"type": "end", "state"}`` and closes. The client sends
+nothing (anything it sends closes the socket with a reason).
 
 Play (``/ws/play?env=CartPole-v1``): one simulated cart-pole per connection. Client messages:
 ``{"type": "reset", "seed"?: int, "physics"?: {...}}``, ``{"type": "step", "action": 0|1}``;
@@ -25,7 +27,9 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Query, WebSocket, WebSocketDisconnect
 from pydantic import BaseModel, Field, TypeAdapter, ValidationError
 
-from cartpole.runs import RunDir
+from cartpole.core.names import RunState
+from cartpole.runs import RunDir, displayed_state
+from cartpole.runs.run_dir import STOPPED_STATES
 from cartpole.web.api import MAX_SEED
 from cartpole.web.physics import CartPoleSim, PhysicsError, is_cartpole, start_state
 from cartpole.web.runs_folder import NotFound, RunsFolder
@@ -33,7 +37,6 @@ from cartpole.web.runs_folder import NotFound, RunsFolder
 router = APIRouter()
 
 POLL_SECONDS = 0.4
-STOPPED = ("finished", "interrupted", "failed")
 POLICY_VIOLATION = 1008
 
 
@@ -70,14 +73,19 @@ async def live_metrics(websocket: WebSocket, name: str, offset: int = 0) -> None
         reader.cancel()
 
 
-async def _follow(websocket: WebSocket, run: RunDir, offset: int, reader: asyncio.Future[str]) -> None:
+async def _follow(websocket: WebSocket, run: RunDir, offset: int, reader: asyncio.Future[str | None]) -> None:
     seen_metrics = seen_status = None
+    state = shown = RunState.UNKNOWN
     while True:
         stamp = _stamp(run.path / "status.json")
         status = None
-        if stamp != seen_status:
+        changed = stamp != seen_status
+        if changed or state is RunState.RUNNING:  # a running run can crash with nothing written
             seen_status, status = stamp, run.status()
-            await websocket.send_json({"type": "status", "status": status})
+            state = displayed_state(status)
+            if changed or state is not shown:
+                shown = state
+                await websocket.send_json({"type": "status", "status": {**status, "state": state.value}})
         stamp = _stamp(run.metrics_path)
         if stamp != seen_metrics:
             seen_metrics = stamp
@@ -85,8 +93,8 @@ async def _follow(websocket: WebSocket, run: RunDir, offset: int, reader: asynci
             if rows:
                 await websocket.send_json({"type": "metrics", "offset": offset, "rows": rows})
             offset = next_offset
-        if status is not None and status.get("state") in STOPPED and stamp == _stamp(run.metrics_path):
-            await websocket.send_json({"type": "end", "state": status.get("state")})
+        if status is not None and state in STOPPED_STATES and stamp == _stamp(run.metrics_path):
+            await websocket.send_json({"type": "end", "state": state.value})
             await websocket.close(code=1000, reason="run stopped")
             return
         done, _ = await asyncio.wait({reader}, timeout=POLL_SECONDS)
@@ -112,7 +120,7 @@ class Step(BaseModel):
     action: Literal[0, 1]
 
 
-PlayMessage = TypeAdapter(Annotated[Reset | Step, Field(discriminator="type")])
+PlayMessage: TypeAdapter[Reset | Step] = TypeAdapter(Annotated[Reset | Step, Field(discriminator="type")])
 
 
 class PlaySession:

@@ -111,7 +111,8 @@ class CartPoleSim:
     def set_physics(self, overrides: dict[str, Any]) -> None:
         """Apply validated overrides on top of the env's defaults (an empty dict restores them)."""
         checked = check_overrides(overrides)
-        self.stepper.set_params(replace(CartPoleParams(), **checked))
+        # checked holds only float fields; mypy cannot tell which keys **checked has.
+        self.stepper.set_params(replace(CartPoleParams(), **checked))  # type: ignore[arg-type]
         self.overrides = checked
 
     def physics(self) -> dict[str, float]:

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from cartpole.envs import env_info
-from cartpole.runs import RunDir, RunError, RunSummary, list_runs, summarize_run
+from cartpole.runs import RunDir, RunError, RunSummary, displayed_state, list_runs, summarize_run
 from cartpole.web.physics import is_cartpole
 
 SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,199}$")
@@ -88,7 +88,7 @@ class RunsFolder:
         return {
             **summary,
             "config": config,
-            "status": run.status(),
+            "status": shown_status(run),
             "eval": report,
             "rule": solved_rule(report),
             "threshold": threshold,
@@ -112,6 +112,12 @@ def _as_shown(summary: RunSummary) -> dict[str, Any]:
     if row["problem"]:
         row["problem"] = row["problem"].replace(path, summary.name)
     return row
+
+
+def shown_status(run: RunDir) -> dict[str, Any]:
+    """``status.json`` with the displayed state (a run whose process died is "crashed")."""
+    status = run.status()
+    return {**status, "state": displayed_state(status).value}
 
 
 def solved_rule(report: dict[str, Any] | None) -> str | None:

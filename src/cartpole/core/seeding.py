@@ -32,12 +32,3 @@ def final_eval_seed(run_seed: int) -> int:
 def fresh_eval_seed() -> int:
     """A seed from OS entropy in the evaluation range, for verdicts on never-seen episodes."""
     return EVAL_SEED_LOW + random.SystemRandom().randrange(EVAL_SEED_SPAN - 10**6)
-
-
-def seed_everything(seed: int) -> np.random.Generator:
-    """Seed torch's and Python's global generators; return a numpy Generator for the caller."""
-    import torch  # here, not at the top: the seed ranges above are used without torch
-
-    random.seed(seed)
-    torch.manual_seed(seed)
-    return np.random.default_rng(seed)

@@ -1,0 +1,227 @@
+"""Crash safety: kill -9 training runs at random moments, resume each, and measure the work lost.
+
+Usage (from the repository root)::
+
+    python benchmarks/kill_resume.py                 # 20 trials: `cartpole train` and `cartpole train cem`
+    python benchmarks/kill_resume.py --trials 6 --jobs 3 --device cpu
+
+Each trial starts ``cartpole train [cem] --seed N --quiet`` with default settings (the preset's budget
+and checkpoint cadence) in a fresh runs folder, waits until its ``config.json`` exists, sleeps a random
+time (uniform over the agent's measured training time, so a kill can land anywhere from the first step
+to the final verdict), sends SIGKILL, then runs ``cartpole train --resume RUN`` to the end.
+
+Work lost = the env steps the killed process had recorded on disk (``status.json``, ``metrics.jsonl``)
+minus the steps in ``checkpoints/latest.pt`` (0 when there was none yet): a lower bound of the true
+loss by at most one second of training (the metrics flush interval). A trial passes when the resume
+exits 0 with status "finished" and a final verdict (``eval.json``) and the loss is at most one
+checkpoint interval (10% of the budget or 60 s of training, whichever is less).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import random
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+AGENTS = ("dqn", "cem")
+
+
+@dataclass
+class Trial:
+    index: int
+    agent: str
+    seed: int
+    kill_after: float
+    """Seconds after config.json appeared."""
+    status_at_kill: str = ""
+    steps_at_kill: int = 0
+    steps_in_latest: int = 0
+    interval_steps: float = 0.0
+    """One checkpoint interval, in env steps, as the run went (10% of budget or 60 s of training)."""
+    resume_rc: int | None = None
+    finished: bool = False
+    verdict: str | None = None
+    final_steps: int = 0
+    stop_detail: str | None = None
+
+    @property
+    def lost(self) -> int:
+        return max(0, self.steps_at_kill - self.steps_in_latest)
+
+    @property
+    def passed(self) -> bool:
+        return (
+            self.resume_rc == 0
+            and self.finished
+            and self.verdict is not None
+            and self.lost <= self.interval_steps
+        )
+
+
+def cartpole(*args: str) -> list[str]:
+    return [sys.executable, "-m", "cartpole", *args]
+
+
+def train_args(agent: str, seed: int, runs_dir: Path, device: str | None) -> list[str]:
+    args = ["train", *(() if agent == "dqn" else (agent,)), "--seed", str(seed), "--quiet"]
+    args += ["--runs-dir", str(runs_dir)]
+    return args + (["--device", device] if device else [])
+
+
+def wait_for_config(runs_dir: Path, process: subprocess.Popen[bytes], timeout: float = 300) -> Path | None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and process.poll() is None:
+        found = list(runs_dir.glob("*/config.json"))
+        if found:
+            return found[0].parent
+        time.sleep(0.01)
+    found = list(runs_dir.glob("*/config.json"))
+    return found[0].parent if found else None
+
+
+def read_json(path: Path) -> dict[str, Any]:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError):
+        return {}
+
+
+def steps_on_disk(run: Path) -> int:
+    """The most env steps the run's files show: status.json's counter or the last metrics row."""
+    steps = int(read_json(run / "status.json").get("env_steps") or 0)
+    try:
+        lines = (run / "metrics.jsonl").read_text().split("\n")[:-1]
+    except OSError:
+        lines = []
+    for line in reversed(lines):
+        try:
+            return max(steps, int(json.loads(line)["step"]))
+        except (json.JSONDecodeError, KeyError, TypeError, ValueError):
+            continue
+    return steps
+
+
+def latest_steps(run: Path) -> tuple[int, dict[str, Any]]:
+    from cartpole.runs import load_checkpoint
+
+    path = run / "checkpoints" / "latest.pt"
+    if not path.exists():
+        return 0, {}
+    meta = load_checkpoint(path).meta
+    return int(meta["step"]), meta["loop"]
+
+
+def checkpoint_interval_steps(run: Path) -> float:
+    """One checkpoint interval in env steps: 10% of the budget, or 60 s at the run's speed if sooner."""
+    config = read_json(run / "config.json")
+    settings, budget = config["settings"], config["budget"]
+    status = read_json(run / "status.json")
+    steps, elapsed = status.get("env_steps") or 0, status.get("elapsed") or 0.0
+    per_second = steps / elapsed if elapsed else float("inf")
+    by_time = settings.get("checkpoint_seconds", 60.0) * per_second
+    fraction = settings.get("checkpoint_fraction", 0.1)
+    if "env_steps" in budget:
+        by_budget = fraction * budget["env_steps"]
+    else:  # generations: a generation's steps vary; use the run's mean steps per generation
+        iterations = status.get("iterations") or 1
+        by_budget = fraction * budget.get("iterations", iterations) * steps / iterations
+    return min(by_budget, by_time)
+
+
+def measure_duration(agent: str, device: str | None) -> float:
+    """Seconds from config.json to the process's exit, for one uninterrupted run (seed 1000)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        process = subprocess.Popen(cartpole(*train_args(agent, 1000, Path(tmp), device)))
+        if wait_for_config(Path(tmp), process) is None:
+            raise SystemExit(f"{agent}: the calibration run made no run folder")
+        start = time.monotonic()
+        process.wait()
+        return time.monotonic() - start
+
+
+def run_trial(trial: Trial, base: Path, device: str | None) -> Trial:
+    runs_dir = base / f"trial-{trial.index:02d}"
+    process = subprocess.Popen(cartpole(*train_args(trial.agent, trial.seed, runs_dir, device)))
+    run = wait_for_config(runs_dir, process)
+    time.sleep(trial.kill_after)
+    process.send_signal(signal.SIGKILL)
+    process.wait()
+    if run is None:
+        raise RuntimeError(f"trial {trial.index}: no run folder")
+    trial.status_at_kill = read_json(run / "status.json").get("state", "none")
+    trial.steps_at_kill = steps_on_disk(run)
+    trial.steps_in_latest, _ = latest_steps(run)
+    trial.interval_steps = checkpoint_interval_steps(run)
+    resumed = subprocess.run(
+        cartpole("train", "--resume", str(run), "--quiet"), capture_output=True, text=True
+    )
+    trial.resume_rc = resumed.returncode
+    status = read_json(run / "status.json")
+    trial.finished = status.get("state") == "finished"
+    trial.verdict = read_json(run / "eval.json").get("verdict")
+    trial.final_steps = int(status.get("env_steps") or 0)
+    trial.stop_detail = status.get("stop_detail")
+    if resumed.returncode != 0:
+        print(f"trial {trial.index}: resume failed:\n{resumed.stdout}{resumed.stderr}", file=sys.stderr)
+    return trial
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--trials", type=int, default=20)
+    parser.add_argument("--jobs", type=int, default=1, help="trials at once (default 1)")
+    parser.add_argument("--seed", type=int, default=0, help="seeds the kill times")
+    parser.add_argument("--device", default=None, help="passed to `cartpole train` (default: its own)")
+    parser.add_argument("--json", metavar="FILE", help="also write every trial as JSON")
+    args = parser.parse_args()
+
+    durations = {agent: measure_duration(agent, args.device) for agent in AGENTS}
+    rng = random.Random(args.seed)
+    trials = [
+        Trial(i, AGENTS[i % len(AGENTS)], i, rng.uniform(0.0, durations[AGENTS[i % len(AGENTS)]]))
+        for i in range(args.trials)
+    ]
+    with tempfile.TemporaryDirectory() as tmp, ThreadPoolExecutor(args.jobs) as pool:
+        done = list(pool.map(lambda t: run_trial(t, Path(tmp), args.device), trials))
+
+    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, jobs {args.jobs}")
+    print(
+        "uninterrupted run (config.json to exit): "
+        + ", ".join(f"{a} {d:.1f} s" for a, d in durations.items())
+    )
+    header = f"{'#':>2} {'agent':5} {'kill at':>8} {'status at kill':>14} {'on disk':>8} {'latest':>8} "
+    header += f"{'lost':>6} {'interval':>8} {'resume':>6} {'final':>8}  end"
+    print(header)
+    for t in done:
+        end = f"{'finished' if t.finished else 'NOT finished'}, {t.stop_detail}; {t.verdict}"
+        print(
+            f"{t.index:>2} {t.agent:5} {t.kill_after:7.1f}s {t.status_at_kill:>14} {t.steps_at_kill:>8} "
+            f"{t.steps_in_latest:>8} {t.lost:>6} {t.interval_steps:>8.0f} {t.resume_rc!s:>6} "
+            f"{t.final_steps:>8}  {end}"
+        )
+    worst = max(done, key=lambda t: t.lost)
+    passed = sum(t.passed for t in done)
+    verdicts = sum(t.finished and t.verdict is not None for t in done)
+    print(
+        f"largest loss: {worst.lost} env steps (trial {worst.index}, {worst.agent}; interval "
+        f"{worst.interval_steps:.0f}); resumed to a verdict: {verdicts}/{len(done)}; "
+        f"passed: {passed}/{len(done)}"
+    )
+    if args.json:
+        Path(args.json).write_text(json.dumps([asdict(t) | {"lost": t.lost} for t in done], indent=2))
+    return 0 if passed == len(done) else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,53 @@
+"""What an agent gives the training loop: a learning step, a greedy policy and its state.
+
+The shared loop (:mod:`cartpole.training.loop`) drives any :class:`Learner`; agents return a
+:class:`LearnResult` from each step and know nothing of callbacks, run folders or budgets.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Protocol
+
+from cartpole.evaluation import Policy
+
+if TYPE_CHECKING:  # only in annotations: `cartpole presets` and `runs` start without torch
+    import torch
+
+
+@dataclass
+class LearnResult:
+    """What one ``learn()`` call did."""
+
+    env_steps: int
+    """Env transitions collected (summed over vector envs)."""
+    episode_returns: list[float] = field(default_factory=list)
+    """Returns of the training episodes that finished during this call."""
+    episode_lengths: list[int] = field(default_factory=list)
+    """Their lengths, in the same order."""
+    scalars: dict[str, float] = field(default_factory=dict)
+    """Namespaced training metrics, e.g. ``train/loss``, ``train/epsilon``."""
+    summarized_episodes: int = 0
+    """Episodes finished but summarized in ``scalars`` instead of listed one by one (a generation)."""
+    log_scalars: bool = False
+    """Write ``scalars`` as a metrics row for this step (population methods: one row per generation)."""
+
+
+class Learner(Protocol):
+    """What an agent gives the loop."""
+
+    def learn(self) -> LearnResult:
+        """Advance by one unit: a generation, or one batched env step and its gradient steps."""
+        ...
+
+    def policy(self) -> Policy:
+        """The current greedy policy (what evaluation and checkpoints judge)."""
+        ...
+
+    def state_dict(self, resume: bool) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+        """Tensors and JSON-able data; with ``resume`` everything needed to continue exactly."""
+        ...
+
+    def load_state_dict(self, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None:
+        """Restore what ``state_dict`` gave."""
+        ...

@@ -1,0 +1,237 @@
+"""A run folder tells the truth under faults: kill -9, Ctrl-C, a second process, a full disk.
+
+The process tests start real ``cartpole train`` processes: random-search with stop-when-solved off
+plays full-length episodes to its generation budget (a few seconds), which leaves time to act.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from cartpole.cli.main import main
+from cartpole.core.names import RunState
+from cartpole.runs import LiveStatus, RunDir, displayed_state, load_checkpoint, summarize_run
+from cartpole.runs.run_dir import STALE_SECONDS
+from cartpole.training import resume, train
+
+GENERATIONS = 80
+TRAIN = [
+    "train",
+    "random-search",
+    "--budget",
+    f"{GENERATIONS}gen",
+    "--no-stop-when-solved",
+    "--set",
+    "population=4",
+    "--set",
+    "eval_every=0",  # evaluate after every generation: best.pt and best_eval.json appear early
+    "--set",
+    "eval_screen_episodes=2",
+    "--set",
+    "eval_simulator=fast",
+    "--quiet",
+]
+
+
+def cartpole(*args: str) -> subprocess.Popen[str]:
+    return subprocess.Popen(
+        [sys.executable, "-m", "cartpole", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+
+
+def wait_for(condition, what: str, timeout: float = 120):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        found = condition()
+        if found:
+            return found
+        time.sleep(0.05)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def the_run(runs_dir: Path) -> RunDir | None:
+    folders = list(runs_dir.glob("*/config.json"))
+    return RunDir(folders[0].parent) if folders else None
+
+
+def generations_logged(run: RunDir) -> int:
+    return max((r["train/iteration"] for r in run.metrics() if "train/iteration" in r), default=0)
+
+
+def start_training(runs_dir: Path) -> tuple[subprocess.Popen[str], RunDir]:
+    """A training process, once it has logged a few generations and written ``latest.pt``."""
+    process = cartpole(*TRAIN, "--runs-dir", str(runs_dir))
+    run = wait_for(lambda: the_run(runs_dir), "the run folder")
+    wait_for(lambda: run.checkpoint_path("latest").exists() and generations_logged(run) >= 12, "latest.pt")
+    assert process.poll() is None, "training ended before the test could act"
+    return process, run
+
+
+def test_kill_9_shows_crashed_and_resume_finishes_with_a_verdict(tmp_path):
+    process, run = start_training(tmp_path / "runs")
+
+    # One process per run folder: a second trainer of the same folder gets one line, exit 2.
+    second = subprocess.run(
+        [sys.executable, "-m", "cartpole", "train", "--resume", str(run.path), "--quiet"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert second.returncode == 2, second.stderr
+    assert second.stderr.count("\n") == 1 and "Traceback" not in second.stderr
+    assert f"being trained by another process (pid {process.pid} on " in second.stderr
+    assert summarize_run(run.path).state == RunState.RUNNING
+
+    process.send_signal(signal.SIGKILL)
+    process.wait(timeout=60)
+    logged = generations_logged(run)  # what the process had done, as far as the disk knows
+    saved = load_checkpoint(run.checkpoint_path("latest")).meta["loop"]["iterations"]
+    assert logged - saved <= GENERATIONS // 10 + 1  # at most one checkpoint interval lost
+    assert summarize_run(run.path).state == RunState.CRASHED
+    assert not (run.path / "eval.json").exists()
+
+    assert main(["train", "--resume", str(run.path), "--quiet"]) == 0
+    assert run.status()["state"] == RunState.FINISHED
+    assert summarize_run(run.path).state == RunState.FINISHED
+    assert json.loads((run.path / "eval.json").read_text())["episodes"] >= 100
+    assert generations_logged(run) == GENERATIONS
+
+
+def test_ctrl_c_leaves_no_verdict_and_runs_does_not_say_solved(tmp_path):
+    """In-training evaluations go to best_eval.json and metrics.jsonl, never to eval.json."""
+    process, run = start_training(tmp_path / "runs")
+    assert (run.path / "best_eval.json").exists()
+    process.send_signal(signal.SIGINT)
+    process.communicate(timeout=60)
+    assert process.returncode == 128 + signal.SIGINT
+    assert not (run.path / "eval.json").exists()
+    summary = summarize_run(run.path)
+    assert summary.state == RunState.INTERRUPTED and summary.verdict is None and summary.solved is False
+
+
+def stop_in_the_final_verdict(monkeypatch: pytest.MonkeyPatch, fault: BaseException | int) -> None:
+    """Make the final verdict fail: a signal arrives while judging, or writing eval.json raises."""
+    import cartpole.training.session as session
+
+    if isinstance(fault, int):
+        judge = session.evaluate
+
+        def signalled(*args, **kwargs):
+            os.kill(os.getpid(), fault)
+            time.sleep(1)  # the handler interrupts this
+            return judge(*args, **kwargs)
+
+        monkeypatch.setattr(session, "evaluate", signalled)
+    else:
+
+        def fails(self, report):
+            raise fault
+
+        monkeypatch.setattr(RunDir, "write_eval", fails)
+
+
+@pytest.mark.parametrize(
+    "fault",
+    [signal.SIGINT, signal.SIGTERM, OSError(errno.ENOSPC, "No space left on device")],
+    ids=["ctrl-c", "sigterm", "full-disk"],
+)
+def test_a_stop_between_training_and_verdict_leaves_a_run_resume_finishes(tmp_path, monkeypatch, fault):
+    settings = {"population": "8", "eval_every": "0"}
+    with monkeypatch.context() as patch:
+        stop_in_the_final_verdict(patch, fault)
+        if isinstance(fault, int):
+            outcome = train("cem", seed=1, overrides=settings, budget="4gen", runs_dir=tmp_path)
+            assert outcome.report is None and outcome.signal == fault
+            run = outcome.run
+        else:
+            with pytest.raises(OSError, match="No space"):
+                train("cem", seed=1, overrides=settings, budget="4gen", runs_dir=tmp_path)
+            run = the_run(tmp_path)
+    assert run is not None and not (run.path / "eval.json").exists()
+    assert summarize_run(run.path).state != RunState.FINISHED
+    trained = load_checkpoint(run.checkpoint_path("latest")).meta["loop"]
+
+    finished = resume(run.path)
+    assert finished.report is not None and run.eval_report() == finished.report.to_dict()
+    assert run.status()["state"] == RunState.FINISHED
+    assert finished.state.iterations == trained["iterations"] > 0  # only the verdict was left to do
+
+
+def test_a_run_killed_before_its_first_checkpoint_starts_over(tmp_path):
+    outcome = train("cem", seed=2, overrides={"population": "8"}, budget="3gen", runs_dir=tmp_path)
+    run = outcome.run
+    for leftover in [*run.checkpoint_dir.iterdir(), run.path / "eval.json", run.metrics_path]:
+        leftover.unlink()
+    run.write_status({"state": "running", "pid": 2**22 + 1, "host": socket.gethostname()})
+    assert summarize_run(run.path).state == RunState.CRASHED
+    again = resume(run.path)
+    assert again.report is not None and again.state.iterations == 3
+    assert again.report.to_dict()["returns"] == outcome.report.to_dict()["returns"]  # the same run
+
+
+# --- the displayed state ---------------------------------------------------------------------------
+
+
+def dead_pid() -> int:
+    child = subprocess.Popen([sys.executable, "-c", "pass"])
+    child.wait()
+    return child.pid
+
+
+def test_displayed_state_running_only_while_the_process_lives():
+    now = time.time()
+    here = socket.gethostname()
+    alive = {"state": "running", "pid": os.getpid(), "host": here, "heartbeat": now}
+    assert displayed_state(alive, now) == RunState.RUNNING
+    assert displayed_state(alive | {"pid": dead_pid()}, now) == RunState.CRASHED
+    assert displayed_state(alive, now + STALE_SECONDS + 1) == RunState.CRASHED  # hung or frozen
+    elsewhere = alive | {"host": "another-machine", "pid": dead_pid()}
+    assert displayed_state(elsewhere, now) == RunState.RUNNING  # another host: only the heartbeat tells
+    assert displayed_state(elsewhere, now + STALE_SECONDS + 1) == RunState.CRASHED
+    assert displayed_state({"state": "running"}, now) == RunState.CRASHED  # no sign of life at all
+    for state in ("finished", "interrupted", "failed"):
+        assert displayed_state({"state": state}, now) == state
+    assert displayed_state({"state": "bogus"}, now) == RunState.UNKNOWN
+    assert displayed_state({}, now) == RunState.UNKNOWN
+
+
+def test_heartbeat_is_refreshed_while_training(tmp_path):
+    run = RunDir.create(tmp_path, "CartPole-v1", "cem", 0)
+    with LiveStatus(run, interval=0.05) as live:
+        live.write(RunState.RUNNING, {"env_steps": 7})
+        first = run.status()
+        wait_for(lambda: run.status()["heartbeat"] > first["heartbeat"], "a fresh heartbeat", timeout=10)
+    status = run.status()
+    assert status["env_steps"] == 7 and status["pid"] == os.getpid() and status["state"] == "running"
+
+
+def test_the_web_api_lists_a_crashed_run(tmp_path):
+    pytest.importorskip("httpx")
+    from fastapi.testclient import TestClient
+
+    from cartpole.web.app import create_app
+
+    outcome = train("cem", seed=0, overrides={"population": "8"}, budget="2gen", runs_dir=tmp_path)
+    outcome.run.write_status({**outcome.run.status(), "state": "running", "pid": dead_pid()})
+    client = TestClient(create_app(tmp_path))
+    (row,) = client.get("/api/runs").json()["runs"]
+    assert row["state"] == "crashed"
+    detail = client.get(f"/api/runs/{outcome.run.name}").json()
+    assert detail["state"] == detail["status"]["state"] == "crashed"
+    with client.websocket_connect(f"/ws/runs/{outcome.run.name}/metrics") as socket_:
+        messages = [socket_.receive_json() for _ in range(3)]
+    assert messages[0]["status"]["state"] == "crashed" and messages[-1] == {"type": "end", "state": "crashed"}
