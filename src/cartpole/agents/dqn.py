@@ -234,6 +234,7 @@ class DQNLearner:
         self.epsilon_multiplied = config.epsilon_start
         self.last_loss = float("nan")
         self.last_q_mean = float("nan")
+        self.uses_dropout = config.dropout > 0
 
     # -- acting ----------------------------------------------------------------------------
 
@@ -318,8 +319,11 @@ class DQNLearner:
         """One update of the online net; returns its loss and Q-values (tensors: no sync here)."""
         config = self.config
         batch = self.buffer.sample(min(config.batch_size, len(self.buffer)), self.replay_generator)
-        q_all = self.q_net.train()(batch.observations)  # dropout (if any) only while fitting
-        self.q_net.eval()
+        if self.uses_dropout:  # dropout only while fitting; acting and the targets run without it
+            q_all = self.q_net.train()(batch.observations)
+            self.q_net.eval()
+        else:  # (switching modes walks every module: skipped when it changes nothing)
+            q_all = self.q_net(batch.observations)
         with torch.no_grad():
             # Without a target network the online net (without dropout) values s', as the tutorials do.
             target_net = self.target_net if self.target_net is not None else self.q_net

@@ -82,8 +82,9 @@ def vector_env_state(envs: gym.vector.VectorEnv) -> dict[str, Any] | None:
     if sub_envs is not None:  # SyncVectorEnv: one state per env, if every env has a clock and a state
         if not all(isinstance(env, EpisodeClock) for env in sub_envs):
             return None
+        # Acrobot keeps an array, MountainCar a (position, velocity) tuple: both restore as an array.
         states = [getattr(env.unwrapped, "state", None) for env in sub_envs]
-        arrays = [state for state in states if isinstance(state, np.ndarray)]
+        arrays = [np.asarray(state) for state in states if isinstance(state, np.ndarray | tuple)]
         if len(arrays) != len(sub_envs):
             return None
         return {
