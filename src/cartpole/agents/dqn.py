@@ -38,6 +38,7 @@ from torch import nn
 
 from cartpole.agents.adam import FusedAdam
 from cartpole.agents.learner import LearnResult
+from cartpole.agents.memory import dqn_memory_problem
 from cartpole.agents.q_network import ACTIVATIONS, QNetwork, QNetworkPolicy
 from cartpole.agents.registry import AgentSpec
 from cartpole.agents.replay_buffer import ReplayBuffer
@@ -148,6 +149,8 @@ class DQNConfig:
         require(0.0 < self.epsilon_decay_rate <= 1.0, "epsilon_decay_rate must be in (0, 1]")
         require(self.short_episode_length >= 0, "short_episode_length must be >= 0")
         check_simulator(self.simulator)
+        problem = dqn_memory_problem(self.buffer_size, self.hidden_sizes, self.batch_size)
+        require(problem is None, problem or "")
 
 
 # ----------------------------------------------------------------------------------------------

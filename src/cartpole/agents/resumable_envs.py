@@ -115,7 +115,7 @@ def restore_vector_env_state(
     ``episode_lengths`` (steps of each env's episode in progress) and ``reset_pending`` (envs whose
     last step ended an episode) are the learner's own counters. False when ``saved`` is None.
     """
-    if saved is None:
+    if saved is None or "kind" not in saved:  # not saved, or by a version that pickled other internals
         return False
     base = envs.unwrapped
     if saved["kind"] == "snapshot":

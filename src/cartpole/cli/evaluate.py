@@ -51,13 +51,16 @@ def run(args: argparse.Namespace) -> int:
 
     from cartpole.agents.registry import open_policy
     from cartpole.cli.errors import UsageError
+    from cartpole.cli.record import tell_skipped
     from cartpole.evaluation import evaluate
 
     if args.episodes < 1:
         raise UsageError(f"--episodes must be >= 1, got {args.episodes}")
     if args.seed is not None and args.seed < 0:
         raise UsageError(f"--seed must be >= 0, got {args.seed}")
-    path, checkpoint, policy = open_policy(args.path)
+    opened = open_policy(args.path, env_id=args.env)
+    path, checkpoint, policy = opened.path, opened.checkpoint, opened.policy
+    tell_skipped(opened.skipped, path)
     env_id = args.env or checkpoint.env_id
     report = evaluate(policy, env_id, args.episodes, seed=args.seed, simulator=args.simulator)
     video: dict[str, str] = {}

@@ -54,8 +54,9 @@ def add_parser(sub: Any) -> None:
     parser.add_argument(
         "--preset",
         default="default",
-        metavar="NAME",
-        help="hyperparameter preset of the agent (default: default)",
+        metavar="NAME|FILE.toml",
+        help="hyperparameter preset of the agent, by name or as a .toml preset file such as a sweep's "
+        "best.toml (default: default)",
     )
     parser.add_argument(
         "--set",
@@ -114,6 +115,7 @@ def configure_process(torch_threads: int, seed: int) -> None:
 
     if torch_threads:
         torch.set_num_threads(torch_threads)
+    seed %= 2**32  # numpy's range; a seed out of the run's range is refused later, in one line
     random.seed(seed)
     np.random.seed(seed)
     torch.manual_seed(seed)
@@ -128,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
     configure_process(args.torch_threads, args.seed)
     console = Console(soft_wrap=True)
     if args.resume:
-        if args.agent or args.overrides or args.budget:
+        if args.agent or args.overrides or args.budget is not None:
             raise UsageError("--resume continues a run with its recorded config; drop AGENT/--set/--budget")
         try:
             outcome = resume(args.resume, quiet=args.quiet, device=args.device)
@@ -137,9 +139,9 @@ def run(args: argparse.Namespace) -> int:
             return 0
     else:
         try:
-            budget = parse_budget(args.budget) if args.budget else None
+            budget = None if args.budget is None else parse_budget(args.budget)
         except ValueError as err:
-            raise UsageError(str(err)) from None
+            raise UsageError(f"--budget: {err}") from None
         outcome = train(
             args.agent or DEFAULT_AGENT,
             args.env,
