@@ -75,13 +75,13 @@ def run_ours(agent: str, preset: str, seed: int, max_seconds: float | None, env_
     """Train one seed of one of our agents; return its measurements."""
     import dataclasses
 
+    import torch
+
     from cartpole.agents.registry import get_agent
     from cartpole.training import loop as loop_module
     from cartpole.training import train
     from cartpole.training.budget import parse_budget
     from cartpole.training.config import resolve_config
-
-    import torch
 
     torch.set_num_threads(1)  # what `cartpole train` sets by default (--torch-threads 1), once per process
     spec = get_agent(agent)

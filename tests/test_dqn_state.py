@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import random
 from pathlib import Path
 from typing import Any
@@ -43,7 +44,7 @@ def test_building_training_and_loading_a_dqn_changes_nothing_global(env_id: str)
     torch.set_num_threads(max(2, torch.get_num_threads()))  # a thread count the old constructor overrode
     torch.manual_seed(1234), np.random.seed(1234), random.seed(1234)
     before = global_state()
-    config = small_config(dropout=0.3, learning_starts=0)  # every random stream: init, dropout, replay, explore
+    config = small_config(dropout=0.3, learning_starts=0)  # all streams: init, dropout, replay, explore
     learner = DQN.make_learner(config, env_info(env_id), 7, "cpu")
     for _ in range(30):
         learner.learn()
@@ -69,8 +70,7 @@ def test_the_global_generators_do_not_change_what_a_dqn_learns() -> None:
 
 
 def test_a_resume_checkpoint_holds_plain_data_and_tensors_only() -> None:
-    """No pickled objects: the env state is JSON-able data (public per-env state), not vector env internals."""
-    import json
+    """No pickled objects: the env state is JSON-able public per-env state, not vector env internals."""
 
     for env_id in ("CartPole-v1", "Acrobot-v1", "MountainCar-v0"):
         for simulator in ("fast", "gymnasium"):
@@ -86,7 +86,6 @@ def test_a_resume_checkpoint_holds_plain_data_and_tensors_only() -> None:
 # ----------------------------------------------------------------------------------------------
 # Resume is gap-free on every env: the episodes in progress at the checkpoint go on
 # ----------------------------------------------------------------------------------------------
-
 
 
 def episodes_of(learner: Any, calls: int) -> tuple[list[tuple[float, int]], int]:

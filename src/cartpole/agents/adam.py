@@ -8,9 +8,10 @@ imports nothing more and runs the same fused kernel over the same state tensors 
 that of ``torch.optim.Adam(fused=True).step()`` (tested), and the state loads into either.
 
 Calling the private kernel ``torch._fused_adam_`` directly, skipping the functional API's checks and
-per-call grouping of the tensors, was measured and removed: it saved no measurable CPU time to solve
-(``benchmarks/time_to_solve.py``, DQN default preset, 5 seeds: median 24.0 s with it, 23.3 s without
-on a loaded 2-core machine; the same trajectories, so the same env steps, on every seed).
+per-call grouping of the tensors, was measured and removed: it saved 2.5% of the CPU time to solve,
+far from the 20% that would keep a private call (``benchmarks/time_to_solve.py --agents dqn --seeds
+5``, 2026-11-23: 107.2 s summed over seeds 0-4 with it, 110.0 s without; the same trajectories, so the
+same env steps, on every seed).
 """
 
 from __future__ import annotations
