@@ -133,3 +133,19 @@ def test_resume_mid_episode_continues_the_episodes_in_progress(
     assert any(length > stop_at for _, length in after) or env_id == "CartPole-v1"
     assert before + after == whole
     assert before_steps + after_steps == whole_steps
+
+
+def test_the_cli_decides_the_thread_count_and_the_global_seeds_once() -> None:
+    from cartpole.cli.train import configure_process
+
+    threads = torch.get_num_threads()
+    try:
+        configure_process(torch_threads=3, seed=5)
+        assert torch.get_num_threads() == 3
+        first = (torch.rand(2), np.random.random(), random.random())
+        configure_process(torch_threads=0, seed=5)  # 0: leave the thread count as it is
+        assert torch.get_num_threads() == 3
+        again = (torch.rand(2), np.random.random(), random.random())
+        assert torch.equal(first[0], again[0]) and first[1:] == again[1:]
+    finally:
+        torch.set_num_threads(threads)
