@@ -86,6 +86,13 @@ def add_parser(sub: Any) -> None:
         action="store_true",
         help="keep training after the first verified solve, to the budget",
     )
+    parser.add_argument(
+        "--torch-threads",
+        type=int,
+        default=1,
+        metavar="N",
+        help="CPU threads for torch (default: 1, the fastest for small nets; 0: torch's default)",
+    )
     parser.add_argument("--resume", metavar="RUN_DIR", help="continue this run from checkpoints/latest.pt")
     parser.add_argument("--quiet", action="store_true", help="no progress output")
     # --- issue 5: TensorBoard (also passed to train() below) ---
@@ -97,10 +104,30 @@ def add_parser(sub: Any) -> None:
     parser.set_defaults(run=run)
 
 
+def configure_process(torch_threads: int, seed: int) -> None:
+    """The process-wide settings, decided once here and never by library code: torch's CPU thread
+    count, and seeds for the global generators of Python, numpy and torch (our agents draw only from
+    generators they own; this makes any library that draws from the global ones repeat too)."""
+    import random
+
+    import numpy as np
+    import torch
+
+    if torch_threads:
+        torch.set_num_threads(torch_threads)
+    seed %= 2**32  # numpy's range; a seed out of the run's range is refused later, in one line
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
 def run(args: argparse.Namespace) -> int:
     from cartpole.cli.errors import UsageError
     from cartpole.training import AlreadyFinished, parse_budget, resume, train
 
+    if args.torch_threads < 0:
+        raise UsageError(f"--torch-threads must be >= 0, got {args.torch_threads}")
+    configure_process(args.torch_threads, args.seed)
     console = Console(soft_wrap=True)
     if args.resume:
         if args.agent or args.overrides or args.budget is not None:
