@@ -4,18 +4,32 @@ from __future__ import annotations
 
 import pytest
 
-from cartpole.agents.presets import preset_names
-from cartpole.agents.registry import agents
-from cartpole.training import Budget, ConfigError, parse_budget
+from cartpole.agents.presets import preset_table
+from cartpole.agents.registry import agent_names, agents, get_agent
+from cartpole.training import Budget, ConfigError, TrainSettings, parse_budget
 from cartpole.training.config import resolve_config
 
 
-@pytest.mark.parametrize("agent", ["random-search", "hill-climbing", "cem"])
-def test_every_preset_resolves(agent):
-    spec = agents()[agent]
-    for preset in preset_names(agent):
+@pytest.mark.parametrize("agent", agent_names())
+def test_every_preset_value_reaches_the_config_and_the_settings(agent):
+    spec = get_agent(agent)
+    for preset, table in preset_table(agent).items():
         config, settings = resolve_config(agent, spec.config_cls, preset)
-        assert config is not None and settings.eval_episodes >= 1
+        for key, value in table.items():
+            if key == "description":
+                continue
+            resolved = getattr(config, key) if hasattr(config, key) else getattr(settings, key)
+            expected = None if value == "none" else tuple(value) if isinstance(value, list) else value
+            assert resolved == expected, (preset, key)
+
+
+def test_an_override_beats_the_preset_and_the_preset_beats_the_default():
+    spec = get_agent("cem")
+    default_config, default_settings = spec.config_cls(), TrainSettings()
+    config, settings = resolve_config("cem", spec.config_cls, "default", {"population": "7"})
+    assert config.population == 7 != preset_table("cem")["default"]["population"]
+    assert settings.budget == preset_table("cem")["default"]["budget"] != default_settings.budget
+    assert config.bias == default_config.bias  # not in the preset: the dataclass default
 
 
 @pytest.mark.parametrize(

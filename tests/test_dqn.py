@@ -3,36 +3,25 @@
 from __future__ import annotations
 
 import dataclasses
-import subprocess
-import sys
-import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 import torch
 
-from cartpole.agents.dqn import (
-    AGENT,
-    NUMPY_MAX_WORK,
-    DQNConfig,
-    DQNLearner,
-    Dropout,
-    QNetwork,
-    policy_from_checkpoint,
-    td_targets,
-)
-from cartpole.agents.presets import preset_names
+from cartpole.agents.dqn import DQNConfig, QNetwork, td_targets
 from cartpole.agents.registry import get_agent
 from cartpole.core.errors import ConfigError
 from cartpole.envs import env_info
-from cartpole.evaluation import ScoredPolicy
+from cartpole.evaluation import ScoredPolicy, evaluate
 from cartpole.runs import Checkpoint, load_checkpoint, save_checkpoint
 from cartpole.training import train
 from cartpole.training.config import resolve_config
 
 CARTPOLE = env_info("CartPole-v1")
 PRESETS = ("default", "tutorial-keras", "tutorial-pytorch")
+DQN = get_agent("dqn")
 
 
 def small_config(**changes: object) -> DQNConfig:
@@ -41,11 +30,18 @@ def small_config(**changes: object) -> DQNConfig:
     return dataclasses.replace(base, **changes)
 
 
-def flat_params(learner: DQNLearner) -> torch.Tensor:
-    return torch.cat([p.detach().flatten() for p in learner.q_net.parameters()])
+def make_learner(config: DQNConfig, seed: int, env: object = CARTPOLE) -> Any:
+    """A DQN learner through the registry, as the training loop builds one."""
+    return DQN.make_learner(config, env, seed, "cpu")
 
 
-def stored(learner: DQNLearner, field: str) -> np.ndarray:
+def flat_params(learner: Any) -> torch.Tensor:
+    """The greedy policy's parameters (the tensors of a policy-only state dict), flattened."""
+    tensors, _ = learner.state_dict(resume=False)
+    return torch.cat([tensors[k].detach().flatten() for k in sorted(tensors)])
+
+
+def stored(learner: Any, field: str) -> np.ndarray:
     """The written rows of one replay field, as a numpy array."""
     return getattr(learner.buffer, field)[: len(learner.buffer)].cpu().numpy()
 
@@ -69,111 +65,55 @@ def test_numpy_q_values_equal_the_torch_forward(activation: str, dueling: bool, 
     for p in net.parameters():  # weights of a trained net's scale, so differences would show
         p.data.normal_(0.0, 0.5)
     rng = np.random.default_rng(0)
-    for n in (1, 4, 100, NUMPY_MAX_WORK // (32 * 16) + 1):  # the last one takes the torch path
+    for n in (1, 4, 100, 5000):  # small batches (numpy on CPU) and a big one (torch)
         observations = rng.normal(scale=2.0, size=(n, 4)).astype(np.float32)
         q = net.q_values(observations)
         assert q.shape == (n, 3) and q.dtype == np.float32
         np.testing.assert_allclose(q, torch_q(net, observations), rtol=1e-5, atol=1e-5)
-    assert (net._numpy_plan() is None) == (activation == "gelu")  # numpy has no erf: torch runs it
 
 
-def test_dropout_zeroes_a_share_p_scales_the_rest_and_is_off_in_eval_mode() -> None:
+def test_numpy_q_values_follow_in_place_updates_and_replaced_tensors() -> None:
     torch.manual_seed(0)
-    dropout = Dropout(0.3).train()
-    x = torch.full((400, 500), 2.0, requires_grad=True)
-    y = dropout(x)
-    assert abs(float((y == 0).float().mean()) - 0.3) < 0.005
-    assert torch.allclose(y[y != 0], torch.tensor(2.0 / 0.7))
-    y.sum().backward()
-    assert torch.equal(x.grad, (y.detach() / 2.0))  # the gradient goes through the kept units only
-    assert torch.equal(dropout.eval()(x), x)
-
-
-def test_numpy_q_values_follow_in_place_updates_and_copies() -> None:
-    learner = DQNLearner(small_config(learning_starts=0), CARTPOLE, seed=4, device="cpu")
+    net = QNetwork(4, 2, DQNConfig(hidden_sizes=(16, 16))).eval()
     observations = np.random.default_rng(1).normal(size=(5, 4)).astype(np.float32)
-    before = learner.q_net.q_values(observations)
-    snapshot = learner.policy()
-    for _ in range(20):  # optimizer steps update the parameters in place
-        learner.learn()
-    after = learner.q_net.q_values(observations)
+    before = net.q_values(observations)
+    with torch.no_grad():
+        for p in net.parameters():  # as an optimizer step does: in place
+            p.add_(0.1 * torch.randn_like(p))
+    after = net.q_values(observations)
     assert not np.array_equal(before, after)
-    np.testing.assert_allclose(after, torch_q(learner.q_net, observations), rtol=1e-5, atol=1e-5)
-    np.testing.assert_array_equal(snapshot.scores(observations), before)  # the copy kept its weights
-    fresh = QNetwork(4, 2, small_config())
-    fresh.load_state_dict(learner.q_net.state_dict(), assign=True)  # new tensors: the cache must see it
-    fresh.eval()
-    np.testing.assert_allclose(fresh.q_values(observations), after, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(after, torch_q(net, observations), rtol=1e-5, atol=1e-5)
+    fresh = QNetwork(4, 2, DQNConfig(hidden_sizes=(16, 16)))
+    fresh.load_state_dict(net.state_dict(), assign=True)  # new tensors
+    np.testing.assert_allclose(fresh.eval().q_values(observations), after, rtol=1e-6, atol=1e-6)
 
 
-def test_fused_adam_is_bitwise_torch_adam() -> None:
-    fast = DQNLearner(small_config(learning_starts=0), CARTPOLE, seed=5, device="cpu")
-    reference = DQNLearner(small_config(learning_starts=0), CARTPOLE, seed=5, device="cpu")
-    torch_adam = reference.optimizer.torch_optimizer()  # every step through torch.optim.Adam.step()
-    assert isinstance(torch_adam, torch.optim.Adam) and torch_adam.defaults["fused"]
-    for _ in range(60):
-        fast.learn()
-        reference.learn()
-    assert fast.gradient_steps > 50
-    assert torch.equal(flat_params(fast), flat_params(reference))
-    assert all(int(step) == fast.gradient_steps for step in fast.optimizer.steps)
-    tensors, _ = fast.optimizer.state_dict()
-    torch_state = torch_adam.state_dict()["state"]
-    for index, state in torch_state.items():
-        for name, value in state.items():
-            ours = tensors[f"{index}.{name}"]
-            assert torch.equal(ours, value) and ours.dtype == value.dtype
+def test_dropout_keeps_a_share_1_minus_p_scaled_up_while_training_and_is_off_in_eval_mode() -> None:
+    """One hidden layer of 2000 units that all output 1, summed by the head: the training forward
+    gives (kept units) / (1 - p), about 2000 on average; the eval forward gives exactly 2000."""
+    p, width = 0.3, 2000
+    net = QNetwork(4, 1, DQNConfig(hidden_sizes=(width,), dropout=p))
+    first, head = [m for m in net.modules() if isinstance(m, torch.nn.Linear)]
+    with torch.no_grad():
+        first.weight.zero_(), first.bias.fill_(1.0), head.weight.fill_(1.0), head.bias.zero_()
+    observations = torch.zeros(400, 4)
+    torch.manual_seed(0)
+    with torch.no_grad():
+        kept = net.train()(observations).squeeze(1) * (1 - p)  # units kept per row
+        assert torch.allclose(kept, kept.round(), atol=1e-2)  # each kept unit scaled by 1/(1-p)
+        assert abs(float(kept.mean()) / width - (1 - p)) < 0.005
+        torch.testing.assert_close(net.eval()(observations), torch.full((400, 1), float(width)))
 
 
-def test_training_never_imports_torch_dynamo() -> None:
-    """Any torch.optim optimizer imports torch._dynamo (~1.8 s of CPU); FusedAdam does not need it."""
-    code = (
-        "import sys; from cartpole.training import train; "
-        "train('dqn', seed=0, overrides={'learning_starts': 10, 'buffer_size': 100}, budget='300', "
-        "runs_dir=sys.argv[1]); print('torch._dynamo' in sys.modules)"
-    )
-    with tempfile.TemporaryDirectory() as runs_dir:
-        command = [sys.executable, "-c", code, runs_dir]
-        out = subprocess.run(command, capture_output=True, text=True, check=True)
-    assert out.stdout.strip().splitlines()[-1] == "False"
-
-
-def test_a_torch_that_refuses_the_direct_adam_call_falls_back_to_torch_optim(monkeypatch) -> None:
-    fast = DQNLearner(small_config(learning_starts=0), CARTPOLE, seed=5, device="cpu")
-    reference = DQNLearner(small_config(learning_starts=0), CARTPOLE, seed=5, device="cpu")
-    for _ in range(5):
-        fast.learn()
-        reference.learn()
-    real, calls = torch._fused_adam_, []
-
-    def refuse_once(*args, **kwargs):  # as if this torch named or shaped the op differently
-        calls.append(1)
-        if len(calls) == 1:
-            raise TypeError("unexpected keyword argument")
-        return real(*args, **kwargs)
-
-    monkeypatch.setattr(torch, "_fused_adam_", refuse_once)
-    for _ in range(20):
-        fast.learn()
-        reference.learn()
-    assert fast.optimizer._torch_optimizer is not None
-    assert torch.equal(flat_params(fast), flat_params(reference))
-    assert all(int(step) == fast.gradient_steps for step in fast.optimizer.steps)  # shared state
-
-
-def test_fused_adam_leaves_a_parameter_without_gradient_alone() -> None:
-    learner = DQNLearner(small_config(learning_starts=0), CARTPOLE, seed=5, device="cpu")
-    for _ in range(5):
-        learner.learn()
-    frozen, other = learner.parameters[0], learner.parameters[1]
-    before, other_before = frozen.detach().clone(), other.detach().clone()
-    for parameter in learner.parameters:
-        parameter.grad = torch.ones_like(parameter)
-    frozen.grad = None
-    learner.optimizer.step()
-    assert torch.equal(frozen, before)
-    assert not torch.equal(other, other_before)
-    assert int(learner.optimizer.steps[0]) == int(learner.optimizer.steps[1]) - 1
+def test_the_optimizer_is_adam_with_the_configured_learning_rate() -> None:
+    """Adam's first step moves each parameter by lr * g / (|g| + eps): about lr wherever g != 0."""
+    for lr in (1e-3, 3e-2):
+        learner = make_learner(small_config(learning_starts=0, gradient_steps=1, lr=lr), seed=5)
+        before = flat_params(learner)
+        assert learner.learn().scalars["train/gradient_steps"] == 1
+        moved = (flat_params(learner) - before).abs()
+        assert float(moved.max()) <= lr * (1 + 1e-4)
+        assert float(moved[moved > 0].median()) == pytest.approx(lr, rel=1e-2)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -231,7 +171,7 @@ class ScriptedVectorEnv:
 
 
 def test_collection_skips_autoreset_rows_and_keeps_truncation_bootstrappable() -> None:
-    learner = DQNLearner(small_config(num_envs=2, learning_starts=10_000), CARTPOLE, seed=0, device="cpu")
+    learner = make_learner(small_config(num_envs=2, learning_starts=10_000), seed=0)
     learner.envs = ScriptedVectorEnv()  # type: ignore[assignment]
     learner.observations, _ = learner.envs.reset()
     results = [learner.learn() for _ in range(8)]
@@ -255,7 +195,7 @@ def test_collection_skips_autoreset_rows_and_keeps_truncation_bootstrappable() -
 
 def test_reward_shaping_changes_stored_rewards_but_not_reported_returns() -> None:
     config = small_config(num_envs=2, learning_starts=10_000, termination_reward=-10.0)
-    learner = DQNLearner(config, CARTPOLE, seed=0, device="cpu")
+    learner = make_learner(config, seed=0)
     learner.envs = ScriptedVectorEnv()  # type: ignore[assignment]
     learner.observations, _ = learner.envs.reset()
     results = [learner.learn() for _ in range(8)]
@@ -269,7 +209,7 @@ def test_short_episode_penalty() -> None:
     config = small_config(
         num_envs=2, learning_starts=10_000, short_episode_reward=-1.0, short_episode_length=3
     )
-    learner = DQNLearner(config, CARTPOLE, seed=0, device="cpu")
+    learner = make_learner(config, seed=0)
     learner.envs = ScriptedVectorEnv()  # type: ignore[assignment]
     learner.observations, _ = learner.envs.reset()
     for _ in range(8):
@@ -287,14 +227,15 @@ def test_short_episode_penalty() -> None:
 
 
 def test_same_seed_same_result_on_cpu() -> None:
-    a = DQNLearner(small_config(), CARTPOLE, seed=7, device="cpu")
-    b = DQNLearner(small_config(), CARTPOLE, seed=7, device="cpu")
-    returns_a = [r.episode_returns for r in (a.learn() for _ in range(150))]
-    returns_b = [r.episode_returns for r in (b.learn() for _ in range(150))]
-    assert returns_a == returns_b
-    assert a.gradient_steps > 0
+    a = make_learner(small_config(), seed=7)
+    b = make_learner(small_config(), seed=7)
+    results_a = [a.learn() for _ in range(150)]
+    results_b = [b.learn() for _ in range(150)]
+    assert [r.episode_returns for r in results_a] == [r.episode_returns for r in results_b]
+    assert [r.scalars for r in results_a] == [r.scalars for r in results_b]
+    assert results_a[-1].scalars["train/gradient_steps"] > 0
     assert torch.equal(flat_params(a), flat_params(b))
-    c = DQNLearner(small_config(), CARTPOLE, seed=8, device="cpu")
+    c = make_learner(small_config(), seed=8)
     for _ in range(150):
         c.learn()
     assert not torch.equal(flat_params(a), flat_params(c))
@@ -302,13 +243,13 @@ def test_same_seed_same_result_on_cpu() -> None:
 
 def test_save_load_gives_the_same_q_values(tmp_path: Path) -> None:
     config = small_config(dueling=True)
-    learner = DQNLearner(config, CARTPOLE, seed=1, device="cpu")
+    learner = make_learner(config, seed=1)
     for _ in range(60):
         learner.learn()
     tensors, data = learner.state_dict(resume=False)
     meta = {"agent": "dqn", "env_id": "CartPole-v1", "config": dataclasses.asdict(config), "learner": data}
     save_checkpoint(tmp_path / "best.pt", Checkpoint(meta=meta, tensors=tensors))
-    policy = policy_from_checkpoint(load_checkpoint(tmp_path / "best.pt"))
+    policy = DQN.policy_from_checkpoint(load_checkpoint(tmp_path / "best.pt"))
     assert isinstance(policy, ScoredPolicy)
     observations = np.random.default_rng(0).normal(size=(32, 4)).astype(np.float32)
     np.testing.assert_array_equal(policy.scores(observations), learner.policy().scores(observations))
@@ -317,12 +258,11 @@ def test_save_load_gives_the_same_q_values(tmp_path: Path) -> None:
 
 def test_resume_continues_exactly() -> None:
     config = small_config()
-    a = DQNLearner(config, CARTPOLE, seed=3, device="cpu")
+    a = make_learner(config, seed=3)
     for _ in range(80):
         a.learn()
     tensors, data = a.state_dict(resume=True)
-    assert tensors["rng.replay"].dtype == torch.uint8  # the replay sampler's generator state
-    b = DQNLearner(config, CARTPOLE, seed=999, device="cpu")  # another seed: everything must be restored
+    b = make_learner(config, seed=999)  # another seed: everything must be restored
     b.load_state_dict({k: v.clone() for k, v in tensors.items()}, data)
     results_a = [a.learn() for _ in range(80)]
     results_b = [b.learn() for _ in range(80)]
@@ -332,7 +272,7 @@ def test_resume_continues_exactly() -> None:
 
 
 def test_policy_is_a_frozen_snapshot() -> None:
-    learner = DQNLearner(small_config(learning_starts=0), CARTPOLE, seed=2, device="cpu")
+    learner = make_learner(small_config(learning_starts=0), seed=2)
     policy = learner.policy()
     observations = np.zeros((4, 4), dtype=np.float32)
     before = policy.scores(observations)
@@ -346,41 +286,16 @@ def test_policy_is_a_frozen_snapshot() -> None:
 # ----------------------------------------------------------------------------------------------
 
 
-def test_registered() -> None:
-    assert get_agent("dqn") is AGENT
-    assert set(PRESETS) <= set(preset_names("dqn"))
-
-
 @pytest.mark.parametrize("preset", PRESETS)
 def test_each_preset_loads_and_runs_a_few_steps(preset: str) -> None:
-    config, settings = resolve_config("dqn", DQNConfig, preset)
+    config, _ = resolve_config("dqn", DQNConfig, preset)
     config = dataclasses.replace(config, learning_starts=min(config.learning_starts, 10))
-    learner = DQNLearner(config, CARTPOLE, seed=0, device="cpu")
+    learner = make_learner(config, seed=0)
     for _ in range(40):
         result = learner.learn()
-    assert learner.gradient_steps > 0
+    assert result.scalars["train/gradient_steps"] > 0
     assert np.isfinite(result.scalars["train/loss"])
     assert 0.0 <= result.scalars["train/epsilon"] <= 1.0
-    assert settings.budget
-
-
-def test_tutorial_presets_are_faithful() -> None:
-    keras, keras_settings = resolve_config("dqn", DQNConfig, "tutorial-keras")
-    assert keras.hidden_sizes == (512, 256, 64) and keras.dropout == 0.5
-    assert (keras.buffer_size, keras.batch_size, keras.gamma) == (2000, 128, 0.95)
-    assert keras.epsilon_schedule == "multiplicative" and keras.termination_reward == -10.0
-    assert keras_settings.budget == "1000ep"
-    torch_cfg, torch_settings = resolve_config("dqn", DQNConfig, "tutorial-pytorch")
-    assert torch_cfg.hidden_sizes == (256,)
-    assert (torch_cfg.buffer_size, torch_cfg.batch_size, torch_cfg.gamma, torch_cfg.lr) == (
-        10_000,
-        512,
-        0.8,
-        1e-3,
-    )
-    assert torch_cfg.epsilon_schedule == "exponential" and torch_cfg.epsilon_decay_steps == 200
-    assert (torch_cfg.short_episode_reward, torch_cfg.short_episode_length) == (-1.0, 195)
-    assert torch_settings.budget == "100ep"
 
 
 @pytest.mark.parametrize(
@@ -413,29 +328,59 @@ def test_unknown_preset_is_rejected_with_one_line() -> None:
 # ----------------------------------------------------------------------------------------------
 
 
-def test_default_preset_reaches_a_verified_solve(tmp_path: Path) -> None:
-    outcome = train("dqn", "CartPole-v1", seed=0, runs_dir=tmp_path, device="cpu", quiet=True)
-    assert outcome.state.solved, outcome.state.stop_reason
-    assert outcome.state.solved_at_step is not None and outcome.state.solved_at_step <= 50_000
-    assert outcome.report is not None and outcome.report.solved, outcome.report and outcome.report.verdict
-    # the run folder's best checkpoint loads back as a policy on CPU and is the one judged
-    assert (outcome.run.checkpoint_path("best")).is_file()
+# One seed's learning path is not portable: float reductions differ between CPUs (and between torch's
+# AVX2, AVX-512 and generic kernels), and a few ulps change which actions are taken within a few thousand
+# steps. So each test asserts a statistic over several seeds with a wide margin.
+
+RANDOM_POLICY_RETURN = {"CartPole-v1": 22.0, "Acrobot-v1": -500.0}
+"""Mean return of uniformly random actions (Acrobot: almost every episode is cut at 500 steps)."""
 
 
-def test_acrobot_return_improves() -> None:
-    """Unchanged code on another Box/Discrete env: Acrobot-v1's training return rises from ~-450."""
-    overrides = {"epsilon_decay_steps": "3000", "batch_size": "128"}
+def trained_for(env_id: str, seed: int, env_steps: int, **overrides: str) -> tuple[Any, list[float]]:
+    """A default-preset learner after ``env_steps`` env steps, and its training episodes' returns."""
     config, _ = resolve_config("dqn", DQNConfig, "default", overrides)
-    learner = DQNLearner(config, env_info("Acrobot-v1"), seed=0, device="cpu")
+    learner = make_learner(config, seed, env_info(env_id))
     returns: list[float] = []
-    while learner.env_steps < 10_000:
-        returns += learner.learn().episode_returns
-    first, last = float(np.mean(returns[:10])), float(np.mean(returns[-10:]))
-    assert last > first + 150 and last > -300, (first, last)
+    steps = 0
+    while steps < env_steps:
+        result = learner.learn()
+        steps += result.env_steps
+        returns += result.episode_returns
+    return learner, returns
+
+
+def test_a_few_thousand_steps_beat_a_random_policy_by_far_on_most_seeds() -> None:
+    """4000 env steps of the default preset: greedy means were 135-243 on seeds 0-4 (random: 22)."""
+    means = []
+    for seed in (0, 1, 2):
+        learner, _ = trained_for("CartPole-v1", seed, 4000)
+        means.append(evaluate(learner.policy(), "CartPole-v1", 20, seed=10**9 + seed, simulator="fast").mean)
+    assert float(np.median(means)) >= 4 * RANDOM_POLICY_RETURN["CartPole-v1"], means
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", range(1, 6))
-def test_default_preset_solves_more_seeds(tmp_path: Path, seed: int) -> None:
-    outcome = train("dqn", "CartPole-v1", seed=seed, runs_dir=tmp_path, device="cpu", quiet=True)
-    assert outcome.report is not None and outcome.report.solved, outcome.report and outcome.report.verdict
+def test_default_preset_reaches_a_verified_solve_on_most_seeds(tmp_path: Path) -> None:
+    """The benchmarks solved 20 of 20 seeds within the 50k budget; here 4 of 5 must."""
+    solved = []
+    for seed in range(5):
+        outcome = train("dqn", "CartPole-v1", seed=seed, runs_dir=tmp_path, device="cpu", quiet=True)
+        assert outcome.report is not None
+        assert outcome.run.checkpoint_path("best").is_file()  # the judged checkpoint is kept
+        solved.append(outcome.report.solved and outcome.state.solved)
+    assert sum(solved) >= 4, solved
+
+
+@pytest.mark.slow
+def test_acrobot_return_improves_on_most_seeds() -> None:
+    """Unchanged code on another Box/Discrete env: Acrobot-v1's training return rises from about -450.
+
+    10k steps: seeds 0-2 went from -440/-447/... to -214/-99/... (last 10 episodes).
+    """
+    gains, lasts = [], []
+    for seed in (0, 1, 2):
+        _, returns = trained_for("Acrobot-v1", seed, 10_000, epsilon_decay_steps="3000", batch_size="128")
+        first, last = float(np.mean(returns[:10])), float(np.mean(returns[-10:]))
+        gains.append(last - first)
+        lasts.append(last)
+    assert sum(gain > 50 for gain in gains) >= 2, gains
+    assert float(np.median(gains)) >= 100 and float(np.median(lasts)) > -350, (gains, lasts)

@@ -7,6 +7,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
+from urllib.parse import urljoin
 
 import numpy as np
 import pytest
@@ -28,6 +29,18 @@ sys.path.insert(0, str(Path(__file__).parent))
 from conftest_web import WebRuns, make_dqn_run, make_web_runs
 
 
+class LocalClient(TestClient):
+    """A test client whose requests, WebSocket ones too, are addressed to 127.0.0.1 (Starlette's
+    client addresses WebSockets to "testserver", a host the app refuses)."""
+
+    def websocket_connect(self, url: str, *args: Any, **kwargs: Any) -> Any:
+        return super().websocket_connect(urljoin("ws://127.0.0.1", url), *args, **kwargs)
+
+
+def local_client(runs_dir: Path) -> TestClient:
+    return LocalClient(create_app(runs_dir), base_url="http://127.0.0.1")
+
+
 @pytest.fixture(scope="module")
 def web_runs(tmp_path_factory: pytest.TempPathFactory) -> WebRuns:
     return make_web_runs(tmp_path_factory.mktemp("web"))
@@ -35,7 +48,7 @@ def web_runs(tmp_path_factory: pytest.TempPathFactory) -> WebRuns:
 
 @pytest.fixture(scope="module")
 def client(web_runs: WebRuns) -> TestClient:
-    return TestClient(create_app(web_runs.root))
+    return local_client(web_runs.root)
 
 
 @pytest.fixture(scope="module")
@@ -63,13 +76,13 @@ def test_runs_lists_every_run_newest_first_and_survives_bad_folders(client: Test
     assert cem["rule"].startswith("mean ") and ">= 475 over 100 episodes, CartPole-v1" in cem["rule"]
     assert cem["watchable"] is True
     assert by_name[web_runs.acrobot]["watchable"] is False
-    assert by_name[web_runs.corrupt]["state"] == "corrupt" and by_name[web_runs.corrupt]["problem"]
+    assert by_name[web_runs.corrupt]["state"] == "unreadable" and by_name[web_runs.corrupt]["problem"]
     assert by_name[web_runs.incomplete]["state"] == "incomplete"
     assert "CartPole-v1__cem__s9__20200101-000000" not in by_name  # the symlink out is not listed
 
 
 def test_runs_made_after_start_are_noticed(tmp_path: Path):
-    client = TestClient(create_app(tmp_path / "not-yet"))
+    client = local_client(tmp_path / "not-yet")
     assert client.get("/api/runs").json()["runs"] == []
     run = RunDir.create(tmp_path / "not-yet", "CartPole-v1", "cem", 1)
     run.write_config({"agent": "cem", "env_id": "CartPole-v1", "seed": 1, "created": "2030-01-01"})
@@ -87,7 +100,7 @@ def test_run_detail_has_config_status_eval_and_checkpoints(client: TestClient, w
 
 def test_corrupt_and_half_written_runs_are_described(client: TestClient, web_runs: WebRuns):
     corrupt = client.get(f"/api/runs/{web_runs.corrupt}")
-    assert corrupt.status_code == 200 and corrupt.json()["state"] == "corrupt"
+    assert corrupt.status_code == 200 and corrupt.json()["state"] == "unreadable"
     assert corrupt.json()["config"] is None
     incomplete = client.get(f"/api/runs/{web_runs.incomplete}/metrics")
     assert incomplete.json()["rows"] == [{"step": 1, "episode": 0, "time": 0.1}]  # half line left out
@@ -162,7 +175,7 @@ def test_physics_overrides_and_nudges_change_the_trajectory(client: TestClient, 
 
 def test_dqn_episode_shows_q_values(dqn_runs: tuple[Path, str]):
     root, name = dqn_runs
-    body = TestClient(create_app(root)).get(episode_url(name, "latest"), params={"seed": 1}).json()
+    body = local_client(root).get(episode_url(name, "latest"), params={"seed": 1}).json()
     assert body["agent"] == "dqn" and body["score_label"] == "Q-values"
     assert len(body["scores"]) == body["length"] and len(body["scores"][0]) == 2
 
@@ -223,7 +236,7 @@ def test_episode_api_equals_a_plain_loop_over_the_single_env(
 ):
     root, name = (web_runs.root, web_runs.cem) if agent == "cem" else dqn_runs
     policy = load_policy(root / name / "checkpoints" / "best.pt")
-    client = TestClient(create_app(root))
+    client = local_client(root)
     for seed in (0, 3, 2**33 + 5):
         query: list[tuple[str, Any]] = [("seed", seed), *physics.items()]
         query += [item for step, change in nudges.items() for item in (("nudge_at", step), ("nudge", change))]
@@ -286,7 +299,7 @@ def test_checkpoint_symlinked_out_of_the_run_is_404(tmp_path: Path, web_runs: We
     shutil_copy = __import__("shutil").copytree
     shutil_copy(web_runs.root / web_runs.cem, root / web_runs.cem)
     (root / web_runs.cem / "checkpoints" / "evil.pt").symlink_to(web_runs.root / web_runs.cem / "config.json")
-    assert TestClient(create_app(root)).get(episode_url(web_runs.cem, "evil")).status_code == 404
+    assert local_client(root).get(episode_url(web_runs.cem, "evil")).status_code == 404
 
 
 @pytest.mark.parametrize(
@@ -352,7 +365,9 @@ def test_play_session_steps_on_the_server(client: TestClient):
         "{}",
         '{"type": "step", "action": 2}',
         '{"type": "step", "action": "left"}',
-        '{"type": "teleport"}',
+        '{"type": "step", "action": 1.0}',
+        '{"type": "step", "action": true}',
+        '{"type": "step", "action": 1, "extra": 2}',
         '{"type": "reset", "seed": -5}',
         "[1, 2, 3]",
         b"\x00\x01binary",
@@ -403,7 +418,7 @@ def test_live_metrics_pushes_rows_as_they_are_appended(tmp_path: Path):
     run = RunDir.create(tmp_path, "CartPole-v1", "dqn", 0)
     run.write_config({"agent": "dqn", "env_id": "CartPole-v1", "seed": 0})
     run.write_status({"state": "running", "env_steps": 0})
-    client = TestClient(create_app(tmp_path))
+    client = local_client(tmp_path)
     with client.websocket_connect(f"/ws/runs/{run.name}/metrics") as ws:
         assert ws.receive_json()["type"] == "status"
         run.append_metrics([{"step": 10, "episode": 1, "time": 0.1, "train/episode_return": 10.0}])
@@ -459,8 +474,16 @@ def test_static_files_need_no_internet():
     assert (static / "vendor" / "uPlot.LICENSE").is_file()
 
 
-def test_serve_command_defaults_to_localhost():
-    from cartpole.cli.main import build_parser
+def test_serve_binds_this_machine_only_by_default(monkeypatch, tmp_path: Path, capsys):
+    """``cartpole serve`` without --host hands uvicorn 127.0.0.1 (other machines cannot reach it)."""
+    import uvicorn
 
-    args = build_parser().parse_args(["serve"])
-    assert args.host == "127.0.0.1" and args.port == 8000 and args.runs_dir == "runs"
+    from cartpole.cli.main import main
+
+    served: list[dict[str, Any]] = []
+    monkeypatch.setattr(uvicorn, "run", lambda app, **kwargs: served.append(kwargs))
+    assert main(["serve", "--runs-dir", str(tmp_path)]) == 0
+    assert served and served[0]["host"] == "127.0.0.1" and served[0]["port"] == 8000
+    assert "warning" not in capsys.readouterr().out
+    assert main(["serve", "--runs-dir", str(tmp_path), "--host", "0.0.0.0"]) == 0
+    assert served[1]["host"] == "0.0.0.0" and "other machines can reach" in capsys.readouterr().out

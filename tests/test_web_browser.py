@@ -27,9 +27,10 @@ uvicorn = pytest.importorskip(
 )
 
 from cartpole.web.app import create_app  # noqa: E402
+from cartpole.web.security import SERVER_OPTIONS  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).parent))
-from conftest_web import WebRuns, make_web_runs  # noqa: E402
+from conftest_web import WebRuns, make_cem_run, make_web_runs  # noqa: E402
 
 DESKTOP = {"width": 1280, "height": 800}
 PHONE = {"width": 390, "height": 844}
@@ -46,21 +47,33 @@ def web_runs(tmp_path_factory: pytest.TempPathFactory) -> WebRuns:
     return make_web_runs(tmp_path_factory.mktemp("browser"))
 
 
+class Server:
+    """uvicorn serving the app on ``port`` in a background thread, with ``cartpole serve``'s options."""
+
+    def __init__(self, runs_dir: Path, port: int):
+        config = uvicorn.Config(
+            create_app(runs_dir), host="127.0.0.1", port=port, log_level="warning", **SERVER_OPTIONS
+        )
+        self.uvicorn = uvicorn.Server(config)
+        self.thread = threading.Thread(target=self.uvicorn.run, daemon=True)
+        self.thread.start()
+        deadline = time.monotonic() + 20
+        while not self.uvicorn.started:
+            assert time.monotonic() < deadline, "uvicorn did not start"
+            time.sleep(0.05)
+
+    def stop(self) -> None:
+        self.uvicorn.should_exit = True
+        self.thread.join(timeout=10)
+
+
 @pytest.fixture(scope="module")
 def server(web_runs: WebRuns) -> Iterator[str]:
     """uvicorn serving the app on a free port, in a background thread."""
     port = free_port()
-    config = uvicorn.Config(create_app(web_runs.root), host="127.0.0.1", port=port, log_level="warning")
-    srv = uvicorn.Server(config)
-    thread = threading.Thread(target=srv.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 20
-    while not srv.started:
-        assert time.monotonic() < deadline, "uvicorn did not start"
-        time.sleep(0.05)
+    srv = Server(web_runs.root, port)
     yield f"http://127.0.0.1:{port}"
-    srv.should_exit = True
-    thread.join(timeout=10)
+    srv.stop()
 
 
 @pytest.fixture(scope="module")
@@ -121,7 +134,7 @@ def test_runs_page_lists_the_run(desktop: Page, web_runs: WebRuns):
     assert "cem" in row.inner_text() and "solved" in row.inner_text()
     assert re.search(r"mean \d+\.\d >= 475 over 100 episodes, CartPole-v1", row.inner_text())
     corrupt = page.locator(f'tr[data-run="{web_runs.corrupt}"]').inner_text()
-    assert "corrupt" in corrupt
+    assert "unreadable" in corrupt
 
 
 def test_runs_page_says_how_to_make_a_run_when_there_is_none(desktop: Page):
@@ -247,3 +260,73 @@ def test_every_page_renders_without_console_errors(
         errors = page.errors
         page.close()
     assert errors == [], f"console errors: {errors}"
+
+
+def test_runs_page_recovers_after_the_server_restarts(browser: object, web_runs: WebRuns):
+    port = free_port()
+    srv = Server(web_runs.root, port)
+    page = Page(browser, f"http://127.0.0.1:{port}", DESKTOP)
+    try:
+        p = page.goto("/")
+        p.locator(f'tr[data-run="{web_runs.cem}"]').wait_for()  # type: ignore[attr-defined]
+        srv.stop()
+        p.locator("#runs-error").wait_for(timeout=15_000)  # type: ignore[attr-defined]
+        assert "Trying again" in p.inner_text("#runs-error")  # type: ignore[attr-defined]
+        srv = Server(web_runs.root, port)
+        p.locator(f'tr[data-run="{web_runs.cem}"]').wait_for(timeout=30_000)  # type: ignore[attr-defined]
+        assert p.locator("#runs-error").count() == 0  # type: ignore[attr-defined]
+    finally:
+        page.close()
+        srv.stop()
+
+
+def test_watch_page_refuses_a_negative_seed_by_name(desktop: Page, web_runs: WebRuns):
+    page = desktop.goto(watch_path(web_runs.cem))
+    page.wait_for_function("() => watch.episode !== null")
+    page.fill("#seed", "-5")
+    page.click("#seed-go")
+    page.get_by_text("seed must be >= 0").wait_for()
+    assert page.evaluate("() => watch.seed") == 3  # unchanged, not clamped to 0
+
+
+def test_watch_address_with_a_negative_seed_says_which_field(browser: object, server: str, web_runs: WebRuns):
+    page = Page(browser, server, DESKTOP)
+    try:
+        p = page.goto(watch_path(web_runs.cem, seed=-5))
+        p.get_by_text("seed must be >= 0").wait_for()  # type: ignore[attr-defined]
+    finally:
+        page.close()
+
+
+def test_watch_page_without_a_run_says_so(desktop: Page):
+    page = desktop.goto("/watch")
+    page.get_by_text("No run named in the address").wait_for()
+    assert "Watch best of" not in page.inner_text("#title")
+
+
+def test_a_nudge_after_the_episode_ended_is_not_counted(desktop: Page, web_runs: WebRuns):
+    page = desktop.goto(watch_path(web_runs.cem))
+    page.wait_for_function("() => watch.episode !== null")
+    page.evaluate("() => { watch.frame = watch.episode.length; setPlaying(false); }")
+    page.click("#nudge-right")
+    page.get_by_text("The episode is over").wait_for()
+    assert page.evaluate("() => watch.nudges.length") == 0
+
+
+def test_play_page_explains_how_to_get_an_agent_and_notices_new_runs(browser: object, tmp_path: Path):
+    runs_dir = tmp_path / "empty-runs"
+    port = free_port()
+    srv = Server(runs_dir, port)
+    page = Page(browser, f"http://127.0.0.1:{port}", DESKTOP)
+    try:
+        p = page.goto("/play")
+        p.locator("#no-runs").wait_for()  # type: ignore[attr-defined]
+        text = p.inner_text("#no-runs")  # type: ignore[attr-defined]
+        assert "cartpole train cem --runs-dir empty-runs" in text
+        assert "cartpole serve --runs-dir empty-runs" in text
+        name = make_cem_run(runs_dir)
+        p.locator(f'#agent-select option[value="{name}"]').wait_for(state="attached", timeout=30_000)  # type: ignore[attr-defined]
+        assert p.locator("#no-runs").is_hidden()  # type: ignore[attr-defined]
+    finally:
+        page.close()
+        srv.stop()

@@ -1,5 +1,5 @@
 """``python -m cartpole`` is the ``cartpole`` command."""
 
-from cartpole.cli.main import main
+from cartpole.cli.main import run_main
 
-raise SystemExit(main())
+raise SystemExit(run_main())

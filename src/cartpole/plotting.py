@@ -17,6 +17,7 @@ from the mean. Figures are drawn with matplotlib's object API (no pyplot, no dis
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -88,7 +89,10 @@ def load_run(path: Path | str) -> RunCurves:
     evals = [r for r in rows if "eval/mean_return" in r]
 
     def column(items: list[dict[str, Any]], name: str, default: float = 0.0) -> np.ndarray:
-        return np.array([float(r.get(name, default)) for r in items], dtype=np.float64)
+        try:
+            return np.array([float(r.get(name, default)) for r in items], dtype=np.float64)
+        except (TypeError, ValueError) as err:
+            raise RunError(f"{run.metrics_path} has a malformed {name!r} value: {err}") from err
 
     return RunCurves(
         name=run.name,
@@ -108,7 +112,22 @@ def load_run(path: Path | str) -> RunCurves:
     )
 
 
-def expand_run_paths(paths: list[Path | str]) -> list[Path]:
+def load_readable_runs(paths: list[Path], on_skip: Callable[[str], None] | None) -> list[RunCurves]:
+    """The curves of each run; an unreadable run raises, or goes to ``on_skip`` when one is given."""
+    runs = []
+    for path in paths:
+        try:
+            runs.append(load_run(path))
+        except RunError as err:
+            if on_skip is None:
+                raise
+            on_skip(f"skipped {path}: {err}")
+    if not runs and paths and on_skip is not None:
+        raise PlotError(f"no readable run among the {len(paths)} given")
+    return runs
+
+
+def expand_run_paths(paths: Sequence[Path | str]) -> list[Path]:
     """Run folders as given; a folder of run folders (like ``runs/``) stands for all of them."""
     found: list[Path] = []
     for item in map(Path, paths):
@@ -162,15 +181,19 @@ def _hold_last(grid: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def plot_runs(
-    paths: list[Path | str],
+    paths: Sequence[Path | str],
     out: Path | str,
     *,
     x_axis: XAxis = "steps",
     window: int | None = None,
     title: str | None = None,
     dpi: int = 150,
+    on_skip: Callable[[str], None] | None = None,
 ) -> Path:
-    """Draw the runs' learning curves to ``out`` (.png, .svg or .pdf) and return its path."""
+    """Draw the runs' learning curves to ``out`` (.png, .svg or .pdf) and return its path.
+
+    A run that cannot be read raises RunError, or with ``on_skip`` is left out and its problem
+    passed to ``on_skip`` (PlotError if no run is left)."""
     from matplotlib.figure import Figure
 
     out = Path(out)
@@ -178,7 +201,7 @@ def plot_runs(
         raise PlotError(f"cannot write {out}: use a .png, .svg or .pdf file name")
     if x_axis not in ("steps", "episodes"):
         raise PlotError(f"x axis must be steps or episodes, got {x_axis!r}")
-    runs = [load_run(p) for p in expand_run_paths(paths)]
+    runs = load_readable_runs(expand_run_paths(paths), on_skip)
     if not runs:
         raise PlotError("no runs to plot")
     empty = [r.name for r in runs if r.returns.size == 0 and r.eval_mean.size == 0]

@@ -30,6 +30,7 @@ from torch import nn
 
 from cartpole.agents.adam import FusedAdam
 from cartpole.agents.learner import LearnResult
+from cartpole.agents.memory import dqn_memory_problem
 from cartpole.agents.registry import AgentSpec
 from cartpole.agents.replay_buffer import ReplayBuffer
 from cartpole.core.config import build_config, require
@@ -151,6 +152,8 @@ class DQNConfig:
         require(self.short_episode_length >= 0, "short_episode_length must be >= 0")
         check_simulator(self.simulator)
         require(self.torch_threads >= 0, "torch_threads must be >= 0")
+        problem = dqn_memory_problem(self.buffer_size, self.hidden_sizes, self.batch_size)
+        require(problem is None, problem or "")
 
 
 # ----------------------------------------------------------------------------------------------

@@ -8,7 +8,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from cartpole.envs import EnvInfo
+import numpy as np
+
+from cartpole.envs import EnvInfo, env_info
 from cartpole.evaluation import Policy
 from cartpole.runs import Checkpoint, CheckpointError, RunDir, load_checkpoint
 
@@ -63,28 +65,101 @@ def agents() -> dict[str, AgentSpec]:
     return {name: get_agent(name) for name in AGENT_MODULES}
 
 
+FALLBACK_ORDER = ("best", "solved", "latest")
+"""A run folder's checkpoints in the order ``cartpole eval`` and ``record`` try them."""
+
+
 def resolve_checkpoint_path(path: str | Path) -> Path:
-    """A checkpoint file, or a run folder's best (else latest) checkpoint."""
-    path = Path(path)
-    if path.is_dir():
-        run = RunDir.open(path)
-        for name in ("best", "solved", "latest"):
-            if run.checkpoint_path(name).is_file():
-                return run.checkpoint_path(name)
+    """A checkpoint file, or a run folder's best (else solved, else latest) checkpoint."""
+    return _candidates(Path(path))[0]
+
+
+def _candidates(path: Path) -> list[Path]:
+    """The checkpoint files to try for ``path``: itself, or a run folder's in FALLBACK_ORDER."""
+    if not path.is_dir():
+        return [path]
+    run = RunDir.open(path)
+    found = [run.checkpoint_path(n) for n in FALLBACK_ORDER if run.checkpoint_path(n).is_file()]
+    if not found:
         raise CheckpointError(f"run {path} has no checkpoint yet; train it (or wait for one)")
-    return path
+    return found
+
+
+@dataclass(frozen=True)
+class OpenedPolicy:
+    """A saved agent, ready to act: which file it came from, and the unusable ones passed over."""
+
+    path: Path
+    checkpoint: Checkpoint
+    policy: Policy
+    skipped: list[str]
+    """One line per checkpoint of the run that could not be used, tried before ``path``."""
 
 
 def load_policy(path: str | Path) -> Policy:
     """Load any saved agent of ours as a greedy Policy."""
-    return open_policy(path)[2]
+    return open_policy(path).policy
 
 
-def open_policy(path: str | Path) -> tuple[Path, Checkpoint, Policy]:
-    """(checkpoint file, checkpoint, greedy policy) of a checkpoint file or run folder."""
-    file = resolve_checkpoint_path(path)
-    checkpoint = load_checkpoint(file)
-    return file, checkpoint, spec_of(checkpoint).policy_from_checkpoint(checkpoint)
+def open_policy(path: str | Path, env_id: str | None = None) -> OpenedPolicy:
+    """The greedy policy of a checkpoint file, or of a run folder: its best checkpoint, else solved,
+    else latest, passing over (and listing in ``skipped``) ones that are corrupt. With ``env_id``,
+    CheckpointError unless the policy fits that env's observations and actions."""
+    skipped: list[str] = []
+    candidates = _candidates(Path(path))
+    for file in candidates:
+        try:
+            checkpoint = load_checkpoint(file)
+            policy = policy_of(checkpoint, file)
+        except CheckpointError as err:
+            if file == candidates[-1]:
+                raise CheckpointError("; ".join([*skipped, str(err)])) from err
+            skipped.append(str(err))
+            continue
+        if env_id is not None:
+            check_fits_env(checkpoint, file, env_id)
+        return OpenedPolicy(file, checkpoint, policy, skipped)
+    raise AssertionError("unreachable: _candidates is never empty")
+
+
+def policy_of(checkpoint: Checkpoint, file: Path) -> Policy:
+    """The greedy policy a checkpoint holds; CheckpointError if its tensors or metadata do not fit."""
+    spec = spec_of(checkpoint)
+    try:
+        policy = spec.policy_from_checkpoint(checkpoint)
+        policy.act(np.zeros((1, fitted_shape(checkpoint)[0]), dtype=np.float32))  # tensors of the right size?
+        return policy
+    except CheckpointError as err:
+        raise CheckpointError(f"{file}: {err}") from err
+    except (KeyError, IndexError, TypeError, ValueError, RuntimeError, AttributeError) as err:
+        raise CheckpointError(
+            f"{file} is not a usable {spec.name} checkpoint ({type(err).__name__}: {err!s:.100}); "
+            "use another checkpoint of the run or train again"
+        ) from err
+
+
+def fitted_shape(checkpoint: Checkpoint) -> tuple[int, int]:
+    """(observations, actions) of the env a checkpoint's agent was built for."""
+    learner = checkpoint.meta.get("learner")
+    learner = learner if isinstance(learner, dict) else {}
+    try:
+        return int(learner["obs_dim"]), int(learner["n_actions"])
+    except (KeyError, TypeError, ValueError):
+        own = env_info(checkpoint.env_id)
+        return own.obs_dim, own.n_actions
+
+
+def check_fits_env(checkpoint: Checkpoint, file: Path, env_id: str) -> None:
+    """CheckpointError unless the checkpoint's agent sees as many observations, and has as many
+    actions, as ``env_id`` (a CartPole agent cannot play Acrobot)."""
+    target = env_info(env_id)
+    shape = fitted_shape(checkpoint)
+    if shape != (target.obs_dim, target.n_actions):
+        raise CheckpointError(
+            f"{file} holds a {checkpoint.agent} agent for {checkpoint.env_id} ({shape[0]} observations, "
+            f"{shape[1]} actions); {env_id} has {target.obs_dim} observations and {target.n_actions} "
+            f"actions: evaluate it on an env like {checkpoint.env_id}"
+        )
 
 
 def spec_of(checkpoint: Checkpoint) -> AgentSpec:

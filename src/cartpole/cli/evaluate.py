@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
+from pathlib import Path
 from typing import Any
 
 
@@ -57,7 +59,9 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--episodes must be >= 1, got {args.episodes}")
     if args.seed is not None and args.seed < 0:
         raise UsageError(f"--seed must be >= 0, got {args.seed}")
-    path, checkpoint, policy = open_policy(args.path)
+    opened = open_policy(args.path, env_id=args.env)
+    path, checkpoint, policy = opened.path, opened.checkpoint, opened.policy
+    tell_skipped(opened.skipped, path)
     env_id = args.env or checkpoint.env_id
     report = evaluate(policy, env_id, args.episodes, seed=args.seed, simulator=args.simulator)
     video: dict[str, str] = {}
@@ -86,3 +90,11 @@ def run(args: argparse.Namespace) -> int:
     if video:
         console.print(f"video of the first episodes: {video['video']}", highlight=False)
     return 0
+
+
+def tell_skipped(skipped: list[str], used: Path) -> None:
+    """Say on stderr which checkpoints of a run were unusable, and which one is used instead."""
+    for problem in skipped:
+        print(f"warning: {problem}", file=sys.stderr)
+    if skipped:
+        print(f"warning: using {used} instead", file=sys.stderr)

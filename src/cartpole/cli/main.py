@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import errno
+import os
 import sys
 from collections.abc import Sequence
 
@@ -37,11 +39,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _optional_commands() -> list:
-    """Commands added by later modules (plot, record, serve) when they are present."""
+    """Commands added by later modules (plot, record, serve, compare, sweep) when they are present."""
     import importlib
 
     found = []
-    for name in ("plot", "record", "serve"):
+    for name in ("plot", "record", "serve", "compare", "sweep"):
         try:
             found.append(importlib.import_module(f"cartpole.cli.{name}"))
         except ModuleNotFoundError as err:
@@ -52,12 +54,60 @@ def _optional_commands() -> list:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if "--version" in argv and len(argv) > 1:
+        parser.error(
+            f"--version takes no other arguments, got {' '.join(a for a in argv if a != '--version')}"
+        )
     args = parser.parse_args(argv)
     try:
         return int(args.run(args) or 0)
     except (InputError, FileNotFoundError) as err:
-        print(f"cartpole {args.command}: error: {err}", file=sys.stderr)
+        print(f"cartpole {args.command}: error: {one_line(str(err))}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except BrokenPipeError:
+        raise  # stdout was closed by its reader: run_main ends quietly
+    except OSError as err:  # a full disk, a read-only folder, a file where a folder should be
+        print(f"cartpole {args.command}: error: {one_line(describe_os_error(err))}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print(f"cartpole {args.command}: interrupted", file=sys.stderr)
         return 130
+
+
+def one_line(message: str) -> str:
+    """A message on one line: some library errors (torch's state-dict report) span several."""
+    return " ".join(message.split())
+
+
+OS_ERROR_HINTS = {
+    errno.ENOSPC: "free some disk space, then try again (a run continues with `cartpole train --resume RUN`)",
+    errno.EDQUOT: "free some space in your quota, then try again",
+    errno.EROFS: "the file system is read-only: choose a writable folder (e.g. --runs-dir)",
+    errno.EACCES: "you may not write there: choose another folder (e.g. --runs-dir) or fix its permissions",
+    errno.EPERM: "you may not write there: choose another folder (e.g. --runs-dir) or fix its permissions",
+    errno.ENOTDIR: "a part of this path is a file, not a folder: choose another path",
+    errno.EISDIR: "this is a folder, not a file: give a file path",
+    errno.ELOOP: "the path is a symbolic link loop: fix the link or choose another path",
+    errno.EEXIST: "something is already there: choose another path",
+}
+
+
+def describe_os_error(err: OSError) -> str:
+    """One line for an OS error: the file, what went wrong, and what to do about it."""
+    what = err.strerror or str(err)
+    where = f"{err.filename}: " if err.filename else ""
+    hint = OS_ERROR_HINTS.get(err.errno or 0)
+    return f"{where}{what}" + (f" ({hint})" if hint else "")
+
+
+def run_main() -> int:
+    """The console entry point: ``main`` plus a quiet end when stdout is closed (``| head``)."""
+    try:
+        code = main()
+        sys.stdout.flush()
+    except BrokenPipeError:
+        # The reader went away; Python would print a traceback on its final flush of stdout.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141  # 128 + SIGPIPE, as a shell pipeline expects
+    return code

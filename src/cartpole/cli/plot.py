@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -49,9 +50,16 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--window must be >= 1, got {args.window}")
     paths = expand_run_paths(args.runs)
     out = Path(args.out) if args.out else Path(f"{paths[0].name}.png" if len(paths) == 1 else "plot.png")
+    skipped: list[str] = []
     try:
-        written = plot_runs(paths, out, x_axis=args.x_axis, window=args.window, title=args.title)
+        written = plot_runs(
+            paths, out, x_axis=args.x_axis, window=args.window, title=args.title, on_skip=skipped.append
+        )
     except PlotError as err:
-        raise UsageError(str(err)) from None
-    print(f"wrote {written} ({len(paths)} run{'s' * (len(paths) > 1)})")
+        raise UsageError(": ".join([str(err), *skipped])) from None
+    for problem in skipped:
+        print(f"warning: {problem}", file=sys.stderr)
+    shown = len(paths) - len(skipped)
+    left_out = f", {len(skipped)} unreadable left out" if skipped else ""
+    print(f"wrote {written} ({shown} run{'s' * (shown > 1)}{left_out})")
     return 0

@@ -39,9 +39,11 @@ def add_parser(sub: Any) -> None:
 def load_saved_policy(path_text: str) -> tuple[Path, Any, str]:
     """(checkpoint path, greedy policy, env id) of a run folder or checkpoint file."""
     from cartpole.agents.registry import open_policy
+    from cartpole.cli.evaluate import tell_skipped
 
-    path, checkpoint, policy = open_policy(path_text)
-    return path, policy, checkpoint.env_id
+    opened = open_policy(path_text)
+    tell_skipped(opened.skipped, opened.path)
+    return opened.path, opened.policy, opened.checkpoint.env_id
 
 
 def run(args: argparse.Namespace) -> int:

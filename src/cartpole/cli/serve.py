@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import socket
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +24,16 @@ def add_parser(sub: Any) -> None:
         "--host", default="127.0.0.1", help="address to bind (default: 127.0.0.1, this machine only)"
     )
     parser.add_argument("--port", type=int, default=8000, help="(default: 8000)")
+    parser.add_argument(
+        "--allow-host",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help=(
+            "also answer requests addressed to NAME (a host name or address this machine is reached by); "
+            "repeatable. 127.0.0.1, localhost, [::1] and --host are always allowed; other hosts get 400"
+        ),
+    )
     parser.set_defaults(run=serve)
 
 
@@ -33,18 +44,43 @@ def serve(args: argparse.Namespace) -> int:
         import uvicorn
 
         from cartpole.web.app import create_app
+        from cartpole.web.security import SERVER_OPTIONS
     except ImportError as err:
         raise UsageError(f"{INSTALL_HINT} ({err})") from err
     if not 0 < args.port < 65536:
         raise UsageError(f"--port must be between 1 and 65535, got {args.port}")
+    check_can_listen(args.host, args.port)
     runs_dir = Path(args.runs_dir)
-    app = create_app(runs_dir)
+    app = create_app(runs_dir, allow_hosts=[args.host, *args.allow_host])
     host = f"[{args.host}]" if ":" in args.host else args.host
     print(f"cartpole web app for {runs_dir.resolve()}/ at http://{host}:{args.port}/  (Ctrl+C to stop)")
     if args.host not in ("127.0.0.1", "localhost", "::1"):
         print(f"warning: bound to {args.host}: other machines can reach this app")
     try:
-        uvicorn.run(app, host=args.host, port=args.port, log_level="warning")
+        uvicorn.run(app, host=args.host, port=args.port, log_level="warning", **SERVER_OPTIONS)
     except OSError as err:
         raise UsageError(f"cannot listen on {args.host}:{args.port}: {err}") from err
     return 0
+
+
+def check_can_listen(host: str, port: int) -> None:
+    """UsageError unless ``host`` is an address of this machine and ``port`` is free on it: one line
+    now, instead of the server's own log lines and exit code 1 or 3 later."""
+    from cartpole.cli.errors import UsageError
+
+    try:
+        family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
+    except (socket.gaierror, UnicodeError) as err:
+        reason = err.strerror if isinstance(err, socket.gaierror) else str(err)
+        raise UsageError(
+            f"--host {host!r} is not an address this machine has ({reason}): use 127.0.0.1 (this "
+            "machine only), 0.0.0.0 (every network) or one of its own addresses"
+        ) from None
+    with socket.socket(family, kind, proto) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            probe.bind(address)
+        except OSError as err:
+            raise UsageError(
+                f"cannot listen on {host}:{port}: {err.strerror}; choose another --port or --host"
+            ) from None

@@ -54,8 +54,9 @@ def add_parser(sub: Any) -> None:
     parser.add_argument(
         "--preset",
         default="default",
-        metavar="NAME",
-        help="hyperparameter preset of the agent (default: default)",
+        metavar="NAME|FILE.toml",
+        help="hyperparameter preset of the agent, by name or as a .toml preset file such as a sweep's "
+        "best.toml (default: default)",
     )
     parser.add_argument(
         "--set",
@@ -102,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
 
     console = Console(soft_wrap=True)
     if args.resume:
-        if args.agent or args.overrides or args.budget:
+        if args.agent or args.overrides or args.budget is not None:
             raise UsageError("--resume continues a run with its recorded config; drop AGENT/--set/--budget")
         try:
             outcome = resume(args.resume, quiet=args.quiet, device=args.device)
@@ -111,9 +112,9 @@ def run(args: argparse.Namespace) -> int:
             return 0
     else:
         try:
-            budget = parse_budget(args.budget) if args.budget else None
+            budget = None if args.budget is None else parse_budget(args.budget)
         except ValueError as err:
-            raise UsageError(str(err)) from None
+            raise UsageError(f"--budget: {err}") from None
         outcome = train(
             args.agent or DEFAULT_AGENT,
             args.env,

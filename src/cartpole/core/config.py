@@ -8,6 +8,7 @@ check their ``validate()`` methods use.
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 import typing
 from dataclasses import fields
@@ -39,27 +40,64 @@ def _coerce(value: Any, annotation: Any, key: str) -> Any:
                 if isinstance(value, str) and value.lower() in ("true", "false", "1", "0"):
                     return value.lower() in ("true", "1")
             elif origin in (int, float):
-                if isinstance(value, bool):
-                    continue
-                if origin is int and isinstance(value, float) and not value.is_integer():
-                    continue
-                return origin(float(value)) if origin is int else origin(value)
+                return _number(value, origin)
             elif origin is str:
                 return str(value)
             elif origin in (list, tuple):
                 items = value if isinstance(value, list | tuple) else str(value).split(",")
                 (item_type,) = typing.get_args(option)[:1] or (str,)
                 return origin(_coerce(v, item_type, key) for v in items if v != "")
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             continue
-    raise ConfigError(f"{key}={value!r} is not a valid {hint}")
+    name = hint.__name__ if isinstance(hint, type) else str(hint)
+    kinds = {typing.get_origin(o) or o for o in options}
+    rule = (
+        " (a whole number is needed)"
+        if int in kinds
+        else " (a finite number is needed)"
+        if float in kinds
+        else ""
+    )
+    raise ConfigError(f"{key}={value!r} is not a valid {name}{rule}")
+
+
+def _number(value: Any, kind: type) -> int | float:
+    """``value`` (a number, or text from the command line) as a finite int or float; ValueError if
+    it is not one (``2.5`` for an int, ``inf``, ``nan``, ``true``)."""
+    if isinstance(value, bool) or not isinstance(value, int | float | str):
+        raise TypeError(f"not a number: {value!r}")
+    if isinstance(value, str):
+        text = value.strip()
+        try:
+            value = int(text)
+        except ValueError:
+            value = float(text)
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ValueError(f"not finite: {value}")
+    if kind is int:
+        if isinstance(value, float) and not value.is_integer():
+            raise ValueError(f"not whole: {value}")
+        return int(value)
+    return float(value)
 
 
 def build_config(cls: type, values: dict[str, Any]) -> Any:
-    """An instance of dataclass ``cls`` from ``values`` (unknown keys were filtered before)."""
+    """An instance of dataclass ``cls`` from ``values``; ConfigError for an unknown key or bad value."""
     kinds = {f.name: f.type for f in fields(cls)}
+    unknown = sorted(set(values) - set(kinds))
+    if unknown:
+        raise ConfigError(f"unknown setting {unknown[0]!r}; valid: {', '.join(sorted(kinds))}")
     kwargs = {k: _coerce(v, kinds[k], k) for k, v in values.items()}
     return cls(**kwargs)
+
+
+def build_valid_config(cls: type, values: dict[str, Any]) -> Any:
+    """``build_config``, then the config's own ``validate()`` (if it has one)."""
+    config = build_config(cls, values)
+    validate = getattr(config, "validate", None)
+    if validate is not None:
+        validate()
+    return config
 
 
 def config_to_dict(config: Any) -> dict[str, Any]:

@@ -51,7 +51,17 @@ def _umask() -> int:
     return mask
 
 
+def write_text_atomic(path: Path, text: str, durable: bool = False) -> None:
+    """Write ``text`` as UTF-8, atomically."""
+    data = text.encode()
+
+    def write(handle: IO[bytes]) -> None:
+        handle.write(data)
+
+    write_atomic(path, write, durable)
+
+
 def write_json_atomic(path: Path, data: Any, durable: bool = False) -> None:
     """Write ``data`` as indented JSON, atomically."""
     text = json.dumps(data, indent=2, sort_keys=False, allow_nan=False) + "\n"
-    write_atomic(path, lambda handle: handle.write(text.encode()), durable)
+    write_text_atomic(path, text, durable)

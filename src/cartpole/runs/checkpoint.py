@@ -38,11 +38,17 @@ class Checkpoint:
 
     @property
     def agent(self) -> str:
-        return str(self.meta["agent"])
+        return self._text("agent")
 
     @property
     def env_id(self) -> str:
-        return str(self.meta["env_id"])
+        return self._text("env_id")
+
+    def _text(self, key: str) -> str:
+        value = self.meta.get(key)
+        if not isinstance(value, str):
+            raise CheckpointError(f"the checkpoint's metadata records no {key} (it is damaged or foreign)")
+        return value
 
 
 def save_checkpoint(path: Path, checkpoint: Checkpoint) -> None:
@@ -74,14 +80,17 @@ def load_checkpoint(path: Path) -> Checkpoint:
         ) from err
     except Exception as err:  # weights_only refuses pickled objects with UnpicklingError
         raise CheckpointError(
-            f"{path} is not a cartpole checkpoint (it holds objects we do not unpickle: {err!s:.80})"
+            f"{path} is not a cartpole checkpoint: it holds pickled Python objects, which we never load "
+            f"(they can run code); use a checkpoint written by `cartpole train` ({type(err).__name__})"
         ) from err
     if not isinstance(payload, dict) or not isinstance(payload.get("meta"), str):
         raise CheckpointError(f"{path} is not a cartpole checkpoint (no metadata found)")
     try:
         meta = json.loads(payload["meta"])
-    except json.JSONDecodeError as err:
+    except (json.JSONDecodeError, RecursionError) as err:
         raise CheckpointError(f"{path} has corrupt metadata: {err}") from err
+    if not isinstance(meta, dict):
+        raise CheckpointError(f"{path} has corrupt metadata (a {type(meta).__name__}, not an object)")
     if meta.get("format") != FORMAT:
         raise CheckpointError(f"{path} is not a cartpole checkpoint (format {meta.get('format')!r})")
     if meta.get("format_version") != FORMAT_VERSION:
@@ -91,6 +100,6 @@ def load_checkpoint(path: Path) -> Checkpoint:
             f"{FORMAT_VERSION}: use that version to load it"
         )
     tensors = payload.get("tensors", {})
-    if not isinstance(tensors, dict):
-        raise CheckpointError(f"{path} is corrupt (tensors are not a mapping)")
+    if not isinstance(tensors, dict) or not all(isinstance(t, torch.Tensor) for t in tensors.values()):
+        raise CheckpointError(f"{path} is corrupt (tensors are not a mapping of names to tensors)")
     return Checkpoint(meta=meta, tensors=tensors)

@@ -28,7 +28,7 @@ from typing import IO, Any
 
 from cartpole.core.errors import InputError
 from cartpole.core.names import CheckpointName, RunState
-from cartpole.runs.atomic import write_json_atomic
+from cartpole.runs.atomic import write_json_atomic, write_text_atomic
 
 CONFIG = "config.json"
 STATUS = "status.json"
@@ -42,6 +42,8 @@ HEARTBEAT_SECONDS = 5.0
 """How often a training process refreshes the heartbeat in ``status.json``."""
 STALE_SECONDS = 60.0
 """A "running" status whose heartbeat is older than this has lost its process: it shows as crashed."""
+NOT_RUNS = ("experiments", "sweeps")
+"""Folders of a runs folder that hold experiments and sweeps (their run folders inside), not one run."""
 RUN_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*__[A-Za-z0-9._-]+__s\d+__\d{8}-\d{6}(-\d+)?$")
 
 
@@ -66,6 +68,78 @@ def run_name(env_id: str, agent: str, seed: int, when: datetime | None = None) -
 def read_json(path: Path) -> Any:
     with open(path, encoding="utf-8") as handle:
         return json.load(handle)
+
+
+Kind = type | tuple[type, ...]
+CONFIG_FIELDS: dict[str, Kind] = {"agent": str, "env_id": str, "seed": int}
+"""What every ``config.json`` holds; the rest is typed when present (a resume needs it all)."""
+CONFIG_OPTIONAL: dict[str, Kind] = {
+    "config": dict,
+    "settings": dict,
+    "budget": dict,
+    "preset": str,
+    "created": str,
+    "overrides": dict,
+    "tensorboard": bool,
+}
+STATUS_FIELDS: dict[str, Kind] = {"state": str}
+STATUS_OPTIONAL: dict[str, Kind] = {
+    "env_steps": int,
+    "episodes": int,
+    "iterations": int,
+    "elapsed": (int, float),
+    "best_eval_mean": (int, float, type(None)),
+    "solved": bool,
+    "solved_at_step": (int, type(None)),
+    "pid": int,
+    "host": str,
+    "heartbeat": (int, float),
+    "stop_reason": (str, type(None)),
+    "stop_detail": (str, type(None)),
+}
+EVAL_FIELDS: dict[str, Kind] = {"solved": bool, "verdict": str}
+EVAL_OPTIONAL: dict[str, Kind] = {
+    "mean": (int, float),
+    "episodes": int,
+    "env_id": str,
+    "threshold": (int, float, type(None)),
+}
+
+
+def _is(value: Any, kind: Kind) -> bool:
+    """isinstance, except that a bool is not an int (JSON ``true`` is no seed) and an int is a float."""
+    kinds = kind if isinstance(kind, tuple) else (kind,)
+    if isinstance(value, bool):
+        return bool in kinds
+    return isinstance(value, kinds) or (float in kinds and isinstance(value, int))
+
+
+def _kind_name(kind: Kind) -> str:
+    names = {str: "text", int: "a whole number", float: "a number", bool: "true or false", dict: "an object"}
+    kinds = kind if isinstance(kind, tuple) else (kind,)
+    return " or ".join("null" if k is type(None) else names.get(k, k.__name__) for k in kinds)
+
+
+def read_record(path: Path, required: dict[str, Kind], optional: dict[str, Kind]) -> dict[str, Any]:
+    """A JSON object with ``required`` keys of the given types (and ``optional`` ones, if present,
+    of theirs); RunError naming the file and what is wrong otherwise (FileNotFoundError if absent)."""
+    try:
+        data = read_json(path)
+    except FileNotFoundError:
+        raise
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise RunError(f"{path} is unreadable: {err}") from err
+    if not isinstance(data, dict):
+        raise RunError(f"{path} is malformed: a JSON object was expected, found a {type(data).__name__}")
+    for key, kind in {**optional, **required}.items():
+        if key not in data:
+            if key in required:
+                raise RunError(f"{path} is malformed: no {key!r}")
+        elif not _is(data[key], kind):
+            raise RunError(
+                f"{path} is malformed: {key!r} should be {_kind_name(kind)}, found {data[key]!r:.40}"
+            )
+    return data
 
 
 @dataclass(frozen=True)
@@ -122,30 +196,41 @@ class RunDir:
         write_json_atomic(self.path / CONFIG, config)
 
     def config(self) -> dict[str, Any]:
+        """The run's ``config.json``; RunError if it is missing or malformed."""
         try:
-            return read_json(self.path / CONFIG)
-        except (OSError, json.JSONDecodeError) as err:
+            return read_record(self.path / CONFIG, CONFIG_FIELDS, CONFIG_OPTIONAL)
+        except FileNotFoundError as err:
             raise RunError(f"{self.path / CONFIG} is unreadable: {err}") from err
 
     def write_status(self, status: dict[str, Any]) -> None:
         write_json_atomic(self.path / STATUS, {**status, "updated": utc_now()})
 
-    def status(self) -> dict[str, Any]:
-        """The last written status, or ``{"state": "unknown"}`` if there is none yet."""
+    def status(self, strict: bool = False) -> dict[str, Any]:
+        """The last written status, or ``{"state": "unknown"}`` if there is none yet (or, unless
+        ``strict``, if it is malformed; ``strict`` raises RunError then)."""
         try:
-            return read_json(self.path / STATUS)
-        except (OSError, json.JSONDecodeError):
+            return read_record(self.path / STATUS, STATUS_FIELDS, STATUS_OPTIONAL)
+        except FileNotFoundError:
+            return {"state": RunState.UNKNOWN.value}
+        except RunError:
+            if strict:
+                raise
             return {"state": RunState.UNKNOWN.value}
 
     def write_eval(self, report: dict[str, Any]) -> None:
         """Write the final verdict (only the session's last step does this)."""
         write_json_atomic(self.path / EVAL, report)
 
-    def eval_report(self) -> dict[str, Any] | None:
-        """The final verdict on the saved agent, or None while there is none."""
+    def eval_report(self, strict: bool = False) -> dict[str, Any] | None:
+        """The final verdict, or None if there is none yet (or, unless ``strict``, if it is
+        malformed; ``strict`` raises RunError then)."""
         try:
-            return read_json(self.path / EVAL)
-        except (OSError, json.JSONDecodeError):
+            return read_record(self.path / EVAL, EVAL_FIELDS, EVAL_OPTIONAL)
+        except FileNotFoundError:
+            return None
+        except RunError:
+            if strict:
+                raise
             return None
 
     def write_best_eval(self, report: dict[str, Any]) -> None:
@@ -210,21 +295,18 @@ class RunDir:
         rows = []
         for line in lines[offset:]:
             try:
-                rows.append(json.loads(line))
-            except json.JSONDecodeError:
+                row = json.loads(line)
+            except (json.JSONDecodeError, RecursionError):
                 continue
+            if isinstance(row, dict):  # a line that is valid JSON but not a row is skipped too
+                rows.append(row)
         return rows, max(offset, len(lines))
 
     def truncate_metrics_after(self, step: int) -> None:
         """Drop rows logged after env step ``step`` (and any half-written line), for a resume."""
         kept = [row for row in self.metrics() if row.get("step", 0) <= step]
         text = "".join(json.dumps(row) + "\n" for row in kept)
-        from cartpole.runs.atomic import write_atomic
-
-        def write(handle: IO[bytes]) -> None:
-            handle.write(text.encode())
-
-        write_atomic(self.metrics_path, write)
+        write_text_atomic(self.metrics_path, text, durable=True)
 
 
 class LiveStatus:
@@ -354,50 +436,76 @@ class RunSummary:
 
 
 def summarize_run(path: Path) -> RunSummary:
-    """Summarize a run folder; a corrupt or half-written one is described, not raised."""
+    """Summarize a run folder; a corrupt or half-written one is described ("unreadable", with the
+    problem), never raised."""
     run = RunDir(path)
+    if not (path / CONFIG).exists() and not (path / CONFIG).is_symlink():
+        return _without_record(path, "incomplete", f"{CONFIG} not written yet")
     try:
         config = run.config()
-    except RunError as err:
-        return RunSummary(
-            path.name,
-            str(path),
-            None,
-            None,
-            None,
-            None,
-            None,
-            "corrupt" if (path / CONFIG).exists() else "incomplete",
-            None,
-            None,
-            None,
-            False,
-            None,
-            problem=str(err) if (path / CONFIG).exists() else f"{CONFIG} not written yet",
-        )
-    status = run.status()
-    report = run.eval_report()
+        status = run.status(strict=True)
+        report = run.eval_report(strict=True)
+        check_checkpoint_files(run)
+    except (RunError, OSError) as err:
+        return _without_record(path, "unreadable", str(err))
     return RunSummary(
         name=path.name,
         path=str(path),
-        agent=config.get("agent"),
-        env_id=config.get("env_id"),
-        seed=config.get("seed"),
+        agent=config["agent"],
+        env_id=config["env_id"],
+        seed=config["seed"],
         preset=config.get("preset"),
         created=config.get("created"),
         state=displayed_state(status).value,
         env_steps=status.get("env_steps"),
         episodes=status.get("episodes"),
         best_eval_mean=status.get("best_eval_mean"),
-        solved=bool(report.get("solved")) if report else False,  # only the final verdict says solved
-        verdict=report.get("verdict") if report else None,
+        solved=bool(report["solved"]) if report else False,  # only the final verdict says solved
+        verdict=report["verdict"] if report else None,
     )
 
 
+def _without_record(path: Path, state: str, problem: str) -> RunSummary:
+    """The summary of a run whose files cannot be read: its name, its state and why."""
+    return RunSummary(
+        path.name, str(path), None, None, None, None, None, state, None, None, None, False, None, problem
+    )
+
+
+ZIP_MAGIC = b"PK\x03\x04"
+"""torch.save writes zip files; anything else in checkpoints/ is not one of our checkpoints."""
+
+
+def check_checkpoint_files(run: RunDir) -> None:
+    """RunError if a checkpoint is a dangling link or not a torch file at all (a cheap look at its
+    first bytes: listing runs must not load every checkpoint)."""
+    if not run.checkpoint_dir.is_dir():
+        return
+    for path in sorted(run.checkpoint_dir.glob("*.pt")):
+        if not path.exists():
+            raise RunError(f"{path} is a dangling link (to {os.readlink(path)})")
+        with open(path, "rb") as handle:
+            if handle.read(len(ZIP_MAGIC)) != ZIP_MAGIC:
+                raise RunError(f"{path} is not a checkpoint (not a torch file)")
+
+
 def list_runs(runs_dir: Path) -> list[RunSummary]:
-    """Every run folder directly under ``runs_dir``, newest first."""
-    if not runs_dir.is_dir():
-        return []
-    folders = [p for p in runs_dir.iterdir() if p.is_dir() and not p.name.startswith(".")]
+    """Every run folder directly under ``runs_dir``, newest first; [] if there is no such folder yet.
+
+    RunError if ``runs_dir`` is not a folder (a file, a link loop) or cannot be listed."""
+    try:
+        if not runs_dir.exists():
+            if runs_dir.is_symlink():
+                raise RunError(f"{runs_dir} is a link that leads nowhere (dangling, or a loop)")
+            return []
+        if not runs_dir.is_dir():
+            raise RunError(f"{runs_dir} is not a folder of runs: give the folder that holds run folders")
+        folders = [
+            p
+            for p in runs_dir.iterdir()
+            if p.is_dir() and not p.name.startswith(".") and p.name not in NOT_RUNS
+        ]
+    except OSError as err:
+        raise RunError(f"cannot list {runs_dir}: {err.strerror or err}") from err
     summaries = [summarize_run(p) for p in folders]
     return sorted(summaries, key=lambda s: (s.created or "", s.name), reverse=True)

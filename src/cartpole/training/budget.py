@@ -6,6 +6,8 @@ import re
 from dataclasses import asdict, dataclass
 from typing import Any
 
+from cartpole.core.errors import ConfigError
+
 _UNITS = {
     "": "env_steps",
     "k": "env_steps",
@@ -19,7 +21,17 @@ _UNITS = {
     "sec": "seconds",
     "min": "seconds",
 }
-_PATTERN = re.compile(r"^\s*(\d+(?:\.\d+)?(?:e\d+)?)\s*([a-z]*)\s*$", re.IGNORECASE)
+_PATTERN = re.compile(r"^\s*(\d+(?:\.\d+)?(?:e\+?\d+)?)\s*([a-z]*)\s*$", re.IGNORECASE)
+_SCALE = {"k": 1e3, "m": 1e6, "min": 60.0}
+MAX_COUNT = 10**15
+"""The largest step, episode or generation count a budget may name (far past any real run)."""
+MAX_SECONDS = 10 * 365 * 24 * 3600.0
+"""Ten years: the largest time budget."""
+HOW = "use env steps (50000, 50k, 1e5), episodes (300ep), generations (20gen) or time (90s, 5min)"
+
+
+class BudgetError(ConfigError):
+    """A budget that cannot be parsed, or one that no run could have (0.5 steps, 1e400 steps)."""
 
 
 @dataclass(frozen=True)
@@ -31,29 +43,60 @@ class Budget:
     iterations: int | None = None
     seconds: float | None = None
 
+    def __post_init__(self) -> None:
+        for name, value in asdict(self).items():
+            if value is not None:
+                _check_limit(name, value)
+
     def to_dict(self) -> dict[str, Any]:
         return {k: v for k, v in asdict(self).items() if v is not None}
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Budget:
-        return cls(**{k: data[k] for k in ("env_steps", "episodes", "iterations", "seconds") if k in data})
+        """The budget recorded in a run's config.json; BudgetError if it is not one."""
+        unknown = sorted(set(data) - set(LIMITS))
+        if unknown:
+            raise BudgetError(
+                f"recorded budget has an unknown limit {unknown[0]!r}; known: {', '.join(LIMITS)}"
+            )
+        return cls(**data)
 
     def describe(self) -> str:
         return ", ".join(f"{v:g} {k.replace('_', ' ')}" for k, v in self.to_dict().items()) or "none"
 
 
+LIMITS = ("env_steps", "episodes", "iterations", "seconds")
+_WORDS = {"env_steps": "env steps", "episodes": "episodes", "iterations": "generations"}
+
+
+def _check_limit(name: str, value: Any) -> None:
+    """BudgetError unless ``value`` is a usable limit: a whole count >= 1, or a time > 0 s."""
+    words = _WORDS.get(name, name)
+    if name == "seconds":
+        if isinstance(value, bool) or not isinstance(value, int | float) or not 0 < value <= MAX_SECONDS:
+            raise BudgetError(f"a time budget must be between 0 and {MAX_SECONDS:g} s, got {value!r}")
+    elif isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_COUNT:
+        raise BudgetError(
+            f"a budget of {words} must be a whole number from 1 to {MAX_COUNT:.0e}, got {value!r}"
+        )
+
+
 def parse_budget(text: str) -> Budget:
-    """Parse ``50000``, ``50k``, ``1e5`` (env steps), ``300ep``, ``20gen``/``20it``, ``90s``, ``5min``."""
+    """Parse ``50000``, ``50k``, ``1e5`` (env steps), ``300ep``, ``20gen``/``20it``, ``90s``, ``5min``.
+
+    Counts must come out whole (``1.5k`` is 1500 steps; ``0.5`` and ``1.5gen`` are refused)."""
     match = _PATTERN.match(text)
     unit = match.group(2).lower() if match else None
     if not match or unit not in _UNITS:
-        raise ValueError(
-            f"bad budget {text!r}: use env steps (50000, 50k, 1e5), episodes (300ep), "
-            "generations (20gen) or time (90s, 5min)"
-        )
-    value = float(match.group(1))
-    value *= {"k": 1e3, "m": 1e6, "min": 60.0}.get(unit, 1.0)
-    if value <= 0:
-        raise ValueError(f"bad budget {text!r}: it must be positive")
+        raise BudgetError(f"bad budget {text!r}: {HOW}")
+    value = float(match.group(1)) * _SCALE.get(unit, 1.0)
     field = _UNITS[unit]
-    return Budget(**{field: value if field == "seconds" else int(value)})
+    if field == "seconds":
+        if not 0 < value <= MAX_SECONDS:
+            raise BudgetError(f"bad budget {text!r}: a time must be more than 0 s and at most ten years")
+        return Budget(seconds=value)
+    if not (value.is_integer() and 1 <= value <= MAX_COUNT):
+        raise BudgetError(
+            f"bad budget {text!r}: {_WORDS[field]} must be a whole number from 1 to {MAX_COUNT:.0e}"
+        )
+    return Budget(**{field: int(value)})

@@ -1,6 +1,7 @@
 """Agent configs and presets: typed dataclasses filled from TOML data files, then validated.
 
-A preset is a table in ``cartpole/agents/presets/<agent>.toml``. Its keys are fields of the agent's
+A preset is a table in ``cartpole/agents/presets/<agent>.toml``, or a ``.toml`` file anywhere (for
+example the ``best.toml`` a sweep writes) holding one table of settings. Its keys are fields of the agent's
 config dataclass or of :class:`TrainSettings`; anything else is an error that names the valid keys.
 """
 
@@ -9,8 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 from typing import Any
 
-from cartpole.agents.presets import preset_table
-from cartpole.core.config import build_config, require
+from cartpole.agents.presets import preset_values
+from cartpole.core.config import build_valid_config, require
 from cartpole.core.errors import ConfigError
 from cartpole.envs import check_simulator
 from cartpole.training.budget import parse_budget
@@ -53,11 +54,11 @@ class TrainSettings:
 def resolve_config(
     agent: str, config_cls: type, preset: str, overrides: dict[str, Any] | None = None
 ) -> tuple[Any, TrainSettings]:
-    """Agent config and train settings: dataclass defaults < preset < overrides, validated."""
-    table = preset_table(agent)
-    if preset not in table:
-        raise ConfigError(f"unknown preset {preset!r} for {agent}; choose one of: {', '.join(table)}")
-    values = {k: v for k, v in table[preset].items() if k != "description"}
+    """Agent config and train settings: dataclass defaults < preset < overrides, validated.
+
+    ``preset`` is a preset name of the agent or a path to a ``.toml`` preset file.
+    """
+    values = preset_values(agent, preset)
     values.update(overrides or {})
     agent_keys = {f.name for f in fields(config_cls)}
     train_keys = {f.name for f in fields(TrainSettings)}
@@ -66,10 +67,6 @@ def resolve_config(
         raise ConfigError(
             f"unknown setting {unknown[0]!r} for {agent}; valid: {', '.join(sorted(agent_keys | train_keys))}"
         )
-    config = build_config(config_cls, {k: v for k, v in values.items() if k in agent_keys})
-    settings = build_config(TrainSettings, {k: v for k, v in values.items() if k in train_keys})
-    validate = getattr(config, "validate", None)
-    if validate is not None:
-        validate()
-    settings.validate()
+    config = build_valid_config(config_cls, {k: v for k, v in values.items() if k in agent_keys})
+    settings = build_valid_config(TrainSettings, {k: v for k, v in values.items() if k in train_keys})
     return config, settings

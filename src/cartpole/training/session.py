@@ -7,14 +7,16 @@ from __future__ import annotations
 
 import signal
 import sys
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from cartpole.agents.registry import AgentSpec, get_agent
-from cartpole.core.config import build_config, config_to_dict
+import numpy as np
+
+from cartpole.agents.registry import AgentSpec, agent_names, get_agent
+from cartpole.core.config import build_valid_config, config_to_dict
 from cartpole.core.errors import ConfigError
 from cartpole.core.names import CheckpointName, RunState, StopReason
 from cartpole.core.seeding import MAX_TRAIN_SEED, final_eval_seed
@@ -128,22 +130,31 @@ class RunSetup:
 
     @classmethod
     def from_record(cls, run: RunDir, record: dict[str, Any]) -> RunSetup:
+        if record["agent"] not in agent_names():
+            raise ConfigError(f"{run.path / 'config.json'} names an unknown agent {record['agent']!r}")
+        missing = [key for key in ("config", "settings", "budget") if key not in record]
+        if missing:
+            raise ConfigError(f"{run.path / 'config.json'} records no {missing[0]!r}: it cannot be resumed")
+        if not 0 <= record["seed"] <= MAX_TRAIN_SEED:
+            raise ConfigError(f"{run.path / 'config.json'} records seed {record['seed']}, out of range")
         spec = get_agent(record["agent"])
         return cls(
             run=run,
             spec=spec,
             env=env_info(record["env_id"]),
             seed=record["seed"],
-            config=build_config(spec.config_cls, record["config"]),
-            settings=build_config(TrainSettings, record["settings"]),
+            config=build_valid_config(spec.config_cls, record["config"]),
+            settings=build_valid_config(TrainSettings, record["settings"]),
             budget=Budget.from_dict(record["budget"]),
             tensorboard=bool(record.get("tensorboard", False)),
             meta={k: record[k] for k in ("agent", "env_id", "seed", "preset", "config")},
         )
 
 
-def make_callbacks(setup: RunSetup, status: LiveStatus, quiet: bool) -> list[Callback]:
-    """The standard callbacks, in the order they must see events."""
+def make_callbacks(
+    setup: RunSetup, status: LiveStatus, quiet: bool, extra: Sequence[Callback] = ()
+) -> list[Callback]:
+    """The standard callbacks, in the order they must see events; ``extra`` ones see them last."""
     run, settings = setup.run, setup.settings
     callbacks: list[Callback] = [BudgetCallback(setup.budget), EvalCallback(setup.env, setup.seed, settings)]
     if settings.stop_when_solved:
@@ -161,7 +172,7 @@ def make_callbacks(setup: RunSetup, status: LiveStatus, quiet: bool) -> list[Cal
         callbacks.append(TensorBoardCallback(run, metrics))
     if not quiet:
         callbacks.append(ProgressCallback(setup.budget, setup.spec.iteration))
-    return callbacks
+    return callbacks + list(extra)
 
 
 def final_verdict(setup: RunSetup) -> EvalReport:
@@ -183,7 +194,9 @@ def final_verdict(setup: RunSetup) -> EvalReport:
     return report
 
 
-def run_loop(setup: RunSetup, learner: Any, state: LoopState | None, quiet: bool) -> TrainOutcome:
+def run_loop(
+    setup: RunSetup, learner: Any, state: LoopState | None, quiet: bool, extra: Sequence[Callback] = ()
+) -> TrainOutcome:
     """Drive the loop with the standard callbacks, then give the verdict unless interrupted.
 
     ``status.json`` says "running" (with a heartbeat) until ``latest.pt`` and the verdict are on disk;
@@ -191,7 +204,7 @@ def run_loop(setup: RunSetup, learner: Any, state: LoopState | None, quiet: bool
     it trains on, or, when training was complete, only gives the verdict.
     """
     with LiveStatus(setup.run) as status:
-        loop = TrainingLoop(learner, make_callbacks(setup, status, quiet), state)
+        loop = TrainingLoop(learner, make_callbacks(setup, status, quiet, extra), state)
         try:
             with stop_on_signals(loop) as received:
                 loop.run()
@@ -231,10 +244,12 @@ def train(
     quiet: bool = True,
     command: list[str] | None = None,
     tensorboard: bool = False,
+    callbacks: Sequence[Callback] = (),
 ) -> TrainOutcome:
     """Train ``agent`` on ``env_id`` in a new run folder and return the outcome.
 
     With ``tensorboard`` the metrics also go to ``<run>/tensorboard/`` (needs the tensorboard extra).
+    ``callbacks`` see every event after the standard ones (experiments time solves, sweeps prune).
     """
     if tensorboard:
         require_tensorboard()  # before a run folder is made
@@ -268,14 +283,16 @@ def train(
     run = RunDir.create(Path(runs_dir), env_id, agent, seed)
     with run.lock():
         run.write_config(record)
-        return run_loop(RunSetup.from_record(run, record), learner, None, quiet)
+        return run_loop(RunSetup.from_record(run, record), learner, None, quiet, callbacks)
 
 
 class AlreadyFinished(Exception):
     """The run to resume has finished; there is nothing to do."""
 
 
-def resume(run_path: Path | str, *, quiet: bool = True, device: str = "auto") -> TrainOutcome:
+def resume(
+    run_path: Path | str, *, quiet: bool = True, device: str = "auto", callbacks: Sequence[Callback] = ()
+) -> TrainOutcome:
     """Continue a run from ``checkpoints/latest.pt`` with its recorded config and budget.
 
     Any run that has no final verdict is accepted: interrupted, failed, crashed (its process was
@@ -285,16 +302,17 @@ def resume(run_path: Path | str, *, quiet: bool = True, device: str = "auto") ->
     run = RunDir.open(Path(run_path))
     with run.lock():
         record = run.config()
-        status = run.status()
+        status = run.status(strict=True)
+        run.eval_report(strict=True)  # a resume may rewrite it: never over a record it cannot read
         if displayed_state(status) is RunState.FINISHED:
             raise AlreadyFinished(
                 f"run {run.name} already finished ({status.get('stop_detail') or 'done'}); nothing to resume"
             )
         setup = RunSetup.from_record(run, record)
         learner = setup.spec.make_learner(setup.config, setup.env, setup.seed, resolve_device(device))
-        state = restore(run, learner)
+        state = restore(run, setup, learner)
         run.truncate_metrics_after(state.env_steps if state else 0)
-        return run_loop(setup, learner, state, quiet)
+        return run_loop(setup, learner, state, quiet, callbacks)
 
 
 RESUMABLE_STOPS = (StopReason.INTERRUPTED, StopReason.FAILED, StopReason.BUDGET)
@@ -302,17 +320,30 @@ RESUMABLE_STOPS = (StopReason.INTERRUPTED, StopReason.FAILED, StopReason.BUDGET)
 After the others (solved, a callback's stop) a resume only gives the final verdict."""
 
 
-def restore(run: RunDir, learner: Any) -> LoopState | None:
+def restore(run: RunDir, setup: RunSetup, learner: Any) -> LoopState | None:
     """Load ``latest.pt`` into ``learner`` and return the loop counters to go on from; None (start
-    over, as the run's seed makes it the same run) for a run killed before its first ``latest``."""
+    over, as the run's seed makes it the same run) for a run killed before its first ``latest``.
+    CheckpointError, in one line, for a checkpoint of another run or one that does not fit."""
     latest = run.checkpoint_path(CheckpointName.LATEST)
-    if not latest.exists():
+    if not latest.exists() and not latest.is_symlink():  # a dangling link is damage, not absence
         return None
     checkpoint = load_checkpoint(latest)
     if not checkpoint.meta.get("resumable"):
         raise CheckpointError(f"{latest} is not a resumable checkpoint")
-    learner.load_state_dict(checkpoint.tensors, checkpoint.meta["learner"])
-    state = LoopState.from_dict(checkpoint.meta["loop"])
+    if (checkpoint.agent, checkpoint.env_id) != (setup.spec.name, setup.env.env_id):
+        raise CheckpointError(
+            f"{latest} holds {checkpoint.agent} on {checkpoint.env_id}, but run {run.name} trains "
+            f"{setup.spec.name} on {setup.env.env_id}: it belongs to another run"
+        )
+    try:
+        learner.load_state_dict(checkpoint.tensors, checkpoint.meta["learner"])
+        learner.policy().act(np.zeros((1, setup.env.obs_dim), dtype=np.float32))  # weights of the right size?
+        state = LoopState.from_dict(checkpoint.meta["loop"])
+    except (KeyError, IndexError, TypeError, ValueError, RuntimeError, AttributeError) as err:
+        raise CheckpointError(
+            f"{latest} does not fit run {run.name}'s config ({type(err).__name__}: {err!s:.100}); "
+            "it may come from another run: restore the run's own latest.pt, or train again"
+        ) from err
     if state.stop_reason in RESUMABLE_STOPS:
         state.clear_stop()
     return state

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+from pathlib import Path
 from typing import Annotated, Any
 
 from fastapi import APIRouter, HTTPException, Query, Request
@@ -12,8 +14,8 @@ from cartpole.agents.registry import get_agent
 from cartpole.core.names import RunState
 from cartpole.core.version import __version__
 from cartpole.envs import env_info
-from cartpole.runs import CheckpointError, RunDir
-from cartpole.web.episodes import MAX_NUDGE, UNLIMITED_STEPS, PolicyCache, play_episode, sim_limits
+from cartpole.runs import CheckpointError, RunDir, RunError
+from cartpole.web.episodes import MAX_NUDGE, UNLIMITED_STEPS, EpisodesBusy, EpisodeWorkers
 from cartpole.web.physics import PHYSICS_LABELS, PHYSICS_LIMITS, PhysicsError, default_physics, is_cartpole
 from cartpole.web.runs_folder import NotFound, RunsFolder
 
@@ -32,7 +34,9 @@ class RunRow(BaseModel):
     seed: int | None
     preset: str | None
     created: str | None
-    state: str = Field(description=f"one of: {', '.join(RunState)} (crashed: its process is gone)")
+    state: str = Field(
+        description=f"one of: {', '.join(RunState)} (crashed: its process is gone; unreadable: see problem)"
+    )
     env_steps: int | None
     episodes: int | None
     best_eval_mean: float | None
@@ -41,11 +45,15 @@ class RunRow(BaseModel):
     rule: str | None = Field(description='e.g. "mean 498.2 >= 475 over 100 episodes, CartPole-v1"')
     problem: str | None
     watchable: bool = Field(description="CartPole run: its checkpoints can be watched")
+    has_checkpoint: bool = Field(
+        default=False, description="it has a checkpoint to watch (a file, not a link)"
+    )
 
 
 class RunsOut(BaseModel):
-    runs_dir: str
+    runs_dir: str = Field(description="the runs folder as given to `cartpole serve` (its name if absolute)")
     runs: list[RunRow]
+    problem: str | None = Field(None, description="why the runs folder itself cannot be listed, if it cannot")
 
 
 class MetricsOut(BaseModel):
@@ -80,6 +88,34 @@ def folder(request: Request) -> RunsFolder:
     return request.app.state.runs
 
 
+def shown_root(runs: RunsFolder) -> str:
+    """The runs folder as the pages show it: as given when relative, else only its name (where it is
+    on this machine is nobody else's business)."""
+    return runs.root.name if runs.root.is_absolute() else str(runs.root)
+
+
+def relative_paths(value: Any, runs: RunsFolder) -> Any:
+    """``value`` (text, or lists and dicts of it) with every path inside the runs folder made relative
+    to it, and the runs folder itself replaced by how the pages show it."""
+    if isinstance(value, str):
+        for root in _spellings(runs.root):
+            value = value.replace(root + "/", "").replace(root, shown_root(runs))
+        return value
+    if isinstance(value, list):
+        return [relative_paths(v, runs) for v in value]
+    if isinstance(value, dict):
+        return {k: relative_paths(v, runs) for k, v in value.items()}
+    return value
+
+
+def _spellings(root: Path) -> list[str]:
+    """The runs folder's absolute path as written (resolved and not), longest first."""
+    names = {str(root.absolute())}
+    with contextlib.suppress(OSError):
+        names.add(str(root.resolve()))
+    return sorted((n for n in names if n != "/"), key=len, reverse=True)
+
+
 def open_run(request: Request, name: str) -> RunDir:
     try:
         return folder(request).run(name)
@@ -92,7 +128,7 @@ def info(request: Request) -> dict[str, Any]:
     """Version, the runs folder, and the physics a page may change (defaults and ranges)."""
     return {
         "version": __version__,
-        "runs_dir": str(folder(request).root),
+        "runs_dir": shown_root(folder(request)),
         "physics": {
             "defaults": default_physics(),
             "limits": PHYSICS_LIMITS,
@@ -104,14 +140,20 @@ def info(request: Request) -> dict[str, Any]:
 
 @router.get("/runs", response_model=RunsOut)
 def runs(request: Request) -> dict[str, Any]:
-    """Every run folder, newest first; half-written or corrupt ones are listed with their problem."""
-    return {"runs_dir": str(folder(request).root), "runs": folder(request).summaries()}
+    """Every run folder, newest first; half-written or unreadable ones are listed with their problem."""
+    runs_folder = folder(request)
+    try:
+        rows, problem = relative_paths(runs_folder.summaries(), runs_folder), None
+    except RunError as err:
+        rows, problem = [], relative_paths(str(err), runs_folder)
+    return {"runs_dir": shown_root(runs_folder), "runs": rows, "problem": problem}
 
 
 @router.get("/runs/{name}")
 def run_detail(request: Request, name: str) -> dict[str, Any]:
     """One run: summary, config, status, evaluation report, checkpoints, env threshold."""
-    return folder(request).detail(open_run(request, name))
+    runs = folder(request)
+    return relative_paths(runs.detail(open_run(request, name)), runs)
 
 
 @router.get("/runs/{name}/metrics", response_model=MetricsOut)
@@ -151,9 +193,13 @@ NudgeChanges = Annotated[list[float] | None, Query(description="rad/s added to t
 @router.get(
     "/runs/{name}/checkpoints/{checkpoint}/episode",
     response_model=EpisodeOut,
-    responses={404: {"description": "no such run or checkpoint"}, 409: {"description": "not CartPole"}},
+    responses={
+        404: {"description": "no such run or checkpoint"},
+        409: {"description": "not CartPole, or the checkpoint cannot be loaded"},
+        503: {"description": "too many episodes asked for at once: retry"},
+    },
 )
-def episode(
+async def episode(
     request: Request,
     name: str,
     checkpoint: str,
@@ -166,7 +212,8 @@ def episode(
     nudge_at: NudgeSteps = None,
     nudge: NudgeChanges = None,
 ) -> JSONResponse:
-    """The greedy episode of a checkpoint from a seed's start state, with optional physics and nudges."""
+    """The greedy episode of a checkpoint from a seed's start state, with optional physics and nudges
+    (computed in a worker process: the server goes on answering meanwhile)."""
     run = open_run(request, name)
     try:
         path = folder(request).checkpoint(run, checkpoint)
@@ -179,22 +226,16 @@ def episode(
     overrides = {k: v for k, v in {**given, "force_mag": force_mag}.items() if v is not None}
     max_steps = max_episode_steps(env_id)
     nudges = nudges_from_query(nudge_at or [], nudge or [], max_steps)
-    cache: PolicyCache = request.app.state.policies
+    workers: EpisodeWorkers = request.app.state.episodes
     try:
-        policy = cache.get(path)
-        result, sim = play_episode(policy, env_id, seed, overrides, nudges)
+        result = await workers.episode(path, env_id, seed, overrides, nudges, score_label(agent))
     except CheckpointError as err:
         raise HTTPException(409, f"checkpoint {checkpoint} cannot be loaded: {err}") from err
     except PhysicsError as err:
         raise HTTPException(422, str(err)) from err
-    label = score_label(agent)
-    body = {
-        "run": run.name,
-        "checkpoint": checkpoint,
-        "agent": agent,
-        **result.to_dict(sim_limits(sim), label),
-    }
-    return JSONResponse(body)
+    except EpisodesBusy as err:
+        raise HTTPException(503, str(err), headers={"Retry-After": "1"}) from err
+    return JSONResponse({"run": run.name, "checkpoint": checkpoint, "agent": agent, **result})
 
 
 def score_label(agent: str | None) -> str:

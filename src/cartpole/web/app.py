@@ -8,25 +8,32 @@ from __future__ import annotations
 
 import gc
 import threading
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Callable, Iterable
 from contextlib import asynccontextmanager
 from pathlib import Path
 
-from fastapi import FastAPI
-from fastapi.responses import FileResponse
+from fastapi import FastAPI, Request
+from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
+from starlette.exceptions import HTTPException
+from starlette.middleware.trustedhost import TrustedHostMiddleware
 
 from cartpole.core.version import __version__
 from cartpole.web import api, live
-from cartpole.web.episodes import PolicyCache
+from cartpole.web.episodes import EpisodeWorkers
 from cartpole.web.runs_folder import RunsFolder
+from cartpole.web.security import SameOriginWebSockets, SecurityHeaders, URLLengthLimit, allowed_hosts
 
 STATIC = Path(__file__).parent / "static"
 PAGES = {"/": "runs.html", "/run": "run.html", "/watch": "watch.html", "/play": "play.html"}
 
 
-def create_app(runs_dir: Path | str = "runs") -> FastAPI:
-    """The app for one runs folder (which need not exist yet: runs made later are noticed)."""
+def create_app(runs_dir: Path | str = "runs", allow_hosts: Iterable[str] = ()) -> FastAPI:
+    """The app for one runs folder (which need not exist yet: runs made later are noticed).
+
+    It answers only requests addressed to this machine (127.0.0.1, localhost, [::1]) or to one of
+    ``allow_hosts`` (the address it is bound to, names given with ``--allow-host``), see security.py.
+    """
     # /docs and /redoc would load Swagger UI from a CDN; the schema itself is served at /openapi.json.
     app = FastAPI(
         title="cartpole web",
@@ -37,7 +44,13 @@ def create_app(runs_dir: Path | str = "runs") -> FastAPI:
         lifespan=_warm_up,
     )
     app.state.runs = RunsFolder(Path(runs_dir))
-    app.state.policies = PolicyCache()
+    app.state.episodes = EpisodeWorkers.shared()
+    app.add_exception_handler(HTTPException, _without_machine_paths)
+    # Outermost last: headers on every answer, then the URL size, the Host, the WebSocket Origin.
+    app.add_middleware(SameOriginWebSockets)
+    app.add_middleware(TrustedHostMiddleware, allowed_hosts=allowed_hosts(allow_hosts), www_redirect=False)
+    app.add_middleware(URLLengthLimit)
+    app.add_middleware(SecurityHeaders)
     app.include_router(api.router)
     app.include_router(live.router)
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
@@ -46,11 +59,19 @@ def create_app(runs_dir: Path | str = "runs") -> FastAPI:
     return app
 
 
+async def _without_machine_paths(request: Request, exc: Exception) -> JSONResponse:
+    """An HTTPException's answer, with any path of the runs folder on this machine made relative."""
+    assert isinstance(exc, HTTPException)
+    detail = api.relative_paths(exc.detail, request.app.state.runs)
+    return JSONResponse({"detail": detail}, status_code=exc.status_code, headers=exc.headers)
+
+
 @asynccontextmanager
 async def _warm_up(app: FastAPI) -> AsyncIterator[None]:
     """Load the agents' modules and the simulator's compiled kernels in the background at start, so
     the first Watch or Play request does not wait seconds for imports and numba's cache."""
     threading.Thread(target=_load_heavy_modules, name="cartpole-web-warm-up", daemon=True).start()
+    app.state.episodes.start()
     yield
 
 

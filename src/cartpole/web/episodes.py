@@ -3,12 +3,20 @@
 An episode starts where ``evaluate()`` starts for the same seed (Gymnasium's ``reset(seed=seed)``),
 can run under changed physics, and can be "nudged": a push that adds to the pole's angular velocity
 before a given step, so a viewer can see whether the policy recovers.
+
+Episodes are computed in a worker process (``EpisodeWorkers``), not on the server's event loop nor
+in one of its threads: a 500-step episode holds the GIL for about 15 ms, and play sessions must
+answer each step within a few ms meanwhile.
 """
 
 from __future__ import annotations
 
+import asyncio
+import multiprocessing
 import threading
 from collections import OrderedDict
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -160,3 +168,116 @@ def sim_limits(sim: CartPoleSim) -> dict[str, float]:
         "fps": round(1.0 / sim.tau, 6),
         "max_steps": float(sim.max_steps or 0),
     }
+
+
+# ---------------------------------------------------------------------------------------------------
+# Off the event loop
+# ---------------------------------------------------------------------------------------------------
+
+
+class EpisodesBusy(RuntimeError):
+    """Too many episode requests are waiting already; the client should retry shortly."""
+
+
+_worker_policies: PolicyCache | None = None
+"""The worker process's own cache of loaded policies (each worker has one; the server has none)."""
+
+
+def episode_body(
+    checkpoint: str,
+    env_id: str,
+    seed: int,
+    physics: dict[str, float],
+    nudges: dict[int, float],
+    score_label: str,
+) -> dict[str, Any]:
+    """In a worker: the greedy episode of the checkpoint at path ``checkpoint`` as the API's JSON body
+    (less run, checkpoint and agent). CheckpointError and PhysicsError reach the caller."""
+    global _worker_policies
+    if _worker_policies is None:
+        _worker_policies = PolicyCache()
+    policy = _worker_policies.get(Path(checkpoint))
+    episode, sim = play_episode(policy, env_id, seed, physics, nudges)
+    return episode.to_dict(sim_limits(sim), score_label)
+
+
+def _warm_worker() -> None:
+    """Import the agents and compile the simulator's kernels in the worker before the first episode."""
+    from cartpole.agents.registry import agents
+
+    agents()
+    sim = CartPoleSim("CartPole-v1")
+    sim.reset(start_state("CartPole-v1", 0))
+    sim.step(0)
+
+
+class EpisodeWorkers:
+    """A bounded pool of worker processes that compute episodes for the Watch page.
+
+    At most ``processes`` episodes run at once and at most ``max_waiting`` wait for one; more get
+    ``EpisodesBusy``. The pool starts on first use (or ``start()``) and is started again if a worker
+    dies. Processes are spawned, not forked: the server has threads running. Apps in one process
+    share one pool (``shared()``): a worker costs an interpreter with torch loaded.
+    """
+
+    _shared: EpisodeWorkers | None = None
+
+    @classmethod
+    def shared(cls) -> EpisodeWorkers:
+        """The pool of this process."""
+        if cls._shared is None:
+            cls._shared = cls()
+        return cls._shared
+
+    def __init__(self, processes: int = 1, max_waiting: int = 32):
+        self.processes = processes
+        self.max_waiting = max_waiting
+        self._pool: ProcessPoolExecutor | None = None
+        self._lock = threading.Lock()
+        self._pending = 0
+
+    def start(self) -> None:
+        """Start the workers now and warm them up (in the background: this does not wait)."""
+        pool = self._executor()
+        for _ in range(self.processes):
+            pool.submit(_warm_worker)
+
+    def close(self) -> None:
+        with self._lock:
+            pool, self._pool = self._pool, None
+        if pool is not None:
+            pool.shutdown(wait=False, cancel_futures=True)
+
+    async def episode(
+        self,
+        checkpoint: Path,
+        env_id: str,
+        seed: int,
+        physics: dict[str, float],
+        nudges: dict[int, float],
+        score_label: str,
+    ) -> dict[str, Any]:
+        """``episode_body`` computed in a worker; the event loop goes on serving meanwhile."""
+        if self._pending >= self.processes + self.max_waiting:
+            raise EpisodesBusy(f"{self._pending} episodes are being computed; try again in a moment")
+        self._pending += 1
+        try:
+            pool = self._executor()
+            loop = asyncio.get_running_loop()
+            args = (str(checkpoint), env_id, seed, physics, nudges, score_label)
+            try:
+                return await loop.run_in_executor(pool, episode_body, *args)
+            except BrokenProcessPool as err:
+                with self._lock:
+                    if self._pool is pool:
+                        self._pool = None
+                raise EpisodesBusy("the episode worker stopped; it is restarted: try again") from err
+        finally:
+            self._pending -= 1
+
+    def _executor(self) -> ProcessPoolExecutor:
+        with self._lock:
+            if self._pool is None:
+                context = multiprocessing.get_context("spawn")
+                self._pool = ProcessPoolExecutor(self.processes, mp_context=context)
+            return self._pool

@@ -11,8 +11,11 @@ Play (``/ws/play?env=CartPole-v1``): one simulated cart-pole per connection. Cli
 ``{"type": "reset", "seed"?: int, "physics"?: {...}}``, ``{"type": "step", "action": 0|1}``;
 each is answered by ``{"type": "state", "seed", "step", "state": [x, x_dot, theta, theta_dot],
 "reward", "return", "terminated", "truncated"}``. The pace of steps is the client's (that is how
-slow motion works); physics always runs here. A message that is not one of these closes the
-socket with code 1008 and a reason; other connections are not affected.
+slow motion works); physics always runs here. Messages are checked strictly (an action is the
+JSON integer 0 or 1, not ``1.0`` or ``true``; no unknown fields). A message of an unknown type is
+answered by ``{"type": "error", "message"}``; one that is malformed closes the socket with code
+1008 and a reason, and one longer than ``MAX_PLAY_MESSAGE`` bytes with code 1009. Other
+connections are not affected.
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Query, WebSocket, WebSocketDisconnect
-from pydantic import BaseModel, Field, TypeAdapter, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
 from cartpole.core.names import RunState
 from cartpole.runs import RunDir, displayed_state
@@ -38,6 +41,9 @@ router = APIRouter()
 
 POLL_SECONDS = 0.4
 POLICY_VIOLATION = 1008
+MESSAGE_TOO_BIG = 1009
+MAX_PLAY_MESSAGE = 4096
+"""Longest play message, in bytes (a reset with every physics setting is about 150)."""
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -110,16 +116,19 @@ async def _follow(websocket: WebSocket, run: RunDir, offset: int, reader: asynci
 
 
 class Reset(BaseModel):
+    model_config = ConfigDict(strict=True, extra="forbid")
     type: Literal["reset"]
     seed: int | None = Field(default=None, ge=0, le=MAX_SEED)
-    physics: dict[str, float] | None = None
+    physics: dict[str, float] | None = Field(default=None, max_length=16)
 
 
 class Step(BaseModel):
+    model_config = ConfigDict(strict=True, extra="forbid")
     type: Literal["step"]
-    action: Literal[0, 1]
+    action: int = Field(ge=0, le=1, description="0 pushes the cart left, 1 right")
 
 
+PLAY_TYPES = ("reset", "step")
 PlayMessage: TypeAdapter[Reset | Step] = TypeAdapter(Annotated[Reset | Step, Field(discriminator="type")])
 
 
@@ -175,9 +184,16 @@ async def play(
     with contextlib.suppress(WebSocketDisconnect):
         while True:
             text = await receive_text(websocket)
+            if text is not None and len(text.encode()) > MAX_PLAY_MESSAGE:
+                reason = f"messages are at most {MAX_PLAY_MESSAGE} bytes"
+                await websocket.close(code=MESSAGE_TOO_BIG, reason=reason)
+                return
             try:
                 reply = session.handle(PlayMessage.validate_json(text or ""))
             except ValidationError as err:
+                if _unknown_type(err):
+                    await websocket.send_json({"type": "error", "message": _unknown_type_message(text)})
+                    continue
                 await websocket.close(code=POLICY_VIOLATION, reason=_reason(err))
                 return
             except PhysicsError as err:
@@ -192,6 +208,16 @@ async def receive_text(websocket: WebSocket) -> str | None:
     if message["type"] == "websocket.disconnect":
         raise WebSocketDisconnect(message.get("code", 1000))
     return message.get("text")
+
+
+def _unknown_type(err: ValidationError) -> bool:
+    """A JSON object whose ``type`` is a string this socket does not know."""
+    return any(e["type"] == "union_tag_invalid" for e in err.errors())
+
+
+def _unknown_type_message(text: str | None) -> str:
+    kind = json.loads(text or "{}").get("type")
+    return f"unknown message type {str(kind)[:40]!r}: send one of {', '.join(PLAY_TYPES)}"
 
 
 def _reason(err: ValidationError) -> str:

@@ -1,8 +1,9 @@
 """The runs folder as the web app sees it: read-only, and only through validated names.
 
 A run name from a URL must name a folder directly inside the runs folder, and a checkpoint name a
-``.pt`` file directly inside that run's ``checkpoints/``. Anything else (``..``, absolute paths,
-separators, hidden names, symlinks that lead outside) is reported as "not found", never opened.
+``.pt`` file directly inside that run's ``checkpoints/`` (a regular file: a symlinked checkpoint is
+neither listed nor read). Anything else (``..``, absolute paths, separators, hidden names, symlinks)
+is reported as "not found", never opened.
 """
 
 from __future__ import annotations
@@ -32,6 +33,11 @@ def _inside(path: Path, parent: Path) -> bool:
     return True
 
 
+def _is_checkpoint_file(path: Path, run: RunDir) -> bool:
+    """A regular file (not a symlink, dangling or not) inside the run's folder."""
+    return not path.is_symlink() and path.is_file() and _inside(path, run.path)
+
+
 class RunsFolder:
     """Read access to ``root`` for the API."""
 
@@ -44,7 +50,7 @@ class RunsFolder:
             raise NotFound(f"no run named {name!r}")
         path = self.root / name
         if not path.is_dir() or not _inside(path, self.root):
-            raise NotFound(f"no run named {name!r} in {self.root}")
+            raise NotFound(f"no run named {name!r} in the runs folder")
         return RunDir(path)
 
     def checkpoint(self, run: RunDir, name: str) -> Path:
@@ -52,12 +58,18 @@ class RunsFolder:
         if not SAFE_NAME.match(name) or "." in name:
             raise NotFound(f"no checkpoint named {name!r}")
         path = run.checkpoint_path(name)
-        if not path.is_file() or not _inside(path, run.path):
-            raise NotFound(f"run {run.name} has no checkpoint {name!r}; it has: {run.checkpoints()}")
+        if not _is_checkpoint_file(path, run):
+            raise NotFound(f"run {run.name} has no checkpoint {name!r}; it has: {self.checkpoints(run)}")
         return path
 
+    @staticmethod
+    def checkpoints(run: RunDir) -> list[str]:
+        """The run's checkpoints that may be read: regular files, not links."""
+        return [name for name in run.checkpoints() if _is_checkpoint_file(run.checkpoint_path(name), run)]
+
     def summaries(self) -> list[dict[str, Any]]:
-        """Every run, newest first, each with a one-line rule for its badge."""
+        """Every run, newest first, each with a one-line rule for its badge (an unreadable run is
+        listed with its problem); RunError if the runs folder itself cannot be listed."""
         rows = []
         for summary in list_runs(self.root):
             path = Path(summary.path)
@@ -66,6 +78,7 @@ class RunsFolder:
             row = _as_shown(summary)
             row["rule"] = solved_rule(RunDir(path).eval_report())
             row["watchable"] = bool(summary.env_id and is_cartpole(summary.env_id))
+            row["has_checkpoint"] = bool(self.checkpoints(RunDir(path)))
             rows.append(row)
         return rows
 
@@ -94,12 +107,15 @@ class RunsFolder:
             "threshold": threshold,
             "max_episode_steps": max_steps,
             "watchable": bool(env_id and is_cartpole(env_id)),
-            "checkpoints": [self._checkpoint_info(run, name) for name in run.checkpoints()],
+            "checkpoints": [self._checkpoint_info(run, name) for name in self.checkpoints(run)],
         }
 
     @staticmethod
     def _checkpoint_info(run: RunDir, name: str) -> dict[str, Any]:
-        stat = run.checkpoint_path(name).stat()
+        try:
+            stat = run.checkpoint_path(name).lstat()
+        except OSError:  # removed since it was listed
+            return {"name": name, "bytes": None, "modified": None}
         modified = datetime.fromtimestamp(stat.st_mtime, UTC).isoformat(timespec="seconds")
         return {"name": name, "bytes": stat.st_size, "modified": modified}
 

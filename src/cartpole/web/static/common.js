@@ -30,12 +30,25 @@ async function getJSON(url) {
   }
   if (!response.ok) {
     const detail = body && body.detail ? body.detail : response.statusText;
-    const message = typeof detail === "string" ? detail : detail.map((d) => d.msg).join("; ");
+    const message = typeof detail === "string" ? detail : detail.map(validationText).join("; ");
     const error = new Error(message);
     error.status = response.status;
     throw error;
   }
   return body;
+}
+
+// One of FastAPI's validation errors as a sentence that names the field: "seed must be >= 0".
+function validationText(d) {
+  const field = Array.isArray(d.loc) && d.loc.length ? d.loc[d.loc.length - 1] : "value";
+  const ctx = d.ctx || {};
+  if (ctx.ge !== undefined) return `${field} must be >= ${ctx.ge}`;
+  if (ctx.gt !== undefined) return `${field} must be > ${ctx.gt}`;
+  if (ctx.le !== undefined) return `${field} must be <= ${ctx.le}`;
+  if (ctx.lt !== undefined) return `${field} must be < ${ctx.lt}`;
+  if (d.type === "int_parsing" || d.type === "int_from_float") return `${field} must be a whole number`;
+  if (d.type === "float_parsing" || d.type === "finite_number") return `${field} must be a number`;
+  return `${field}: ${d.msg}`;
 }
 
 function escapeHTML(text) {
@@ -65,6 +78,7 @@ function solvedBadge(run) {
   if (run.solved) {
     return `<span class="badge solved">✓ solved</span><span class="rule">${escapeHTML(run.rule || run.verdict || "")}</span>`;
   }
+  if (run.state === "running") return '<span class="badge training">training</span>';
   if (run.rule) return `<span class="badge not-solved">not solved</span><span class="rule">${escapeHTML(run.rule)}</span>`;
   return '<span class="muted small">not evaluated yet</span>';
 }
@@ -81,4 +95,4 @@ function param(name) {
   return new URLSearchParams(window.location.search).get(name);
 }
 
-window.CP = { renderHeader, getJSON, escapeHTML, fmtInt, fmtNum, fmtDate, stateBadge, solvedBadge, emptyState, param };
+window.CP = { renderHeader, getJSON, validationText, escapeHTML, fmtInt, fmtNum, fmtDate, stateBadge, solvedBadge, emptyState, param };

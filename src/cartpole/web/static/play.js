@@ -193,17 +193,34 @@ function wireInput() {
   });
 }
 
+const AGENTS_POLL_MS = 5000;
+let agentsText = "";
+
 async function loadAgents() {
   const body = await CP.getJSON("/api/runs");
-  const runs = body.runs.filter((r) => r.watchable && r.state !== "corrupt" && r.state !== "incomplete");
+  const runs = body.runs.filter((r) => r.watchable && r.has_checkpoint !== false && r.state !== "unreadable" && r.state !== "incomplete");
   runs.sort((a, b) => Number(b.solved) - Number(a.solved));
+  const text = JSON.stringify([body.runs_dir, runs.map((r) => [r.name, r.solved])]);
+  if (text === agentsText) return; // unchanged: keep the reader's choice
+  agentsText = text;
   const select = el("agent-select");
+  const chosen = select.value;
+  document.querySelectorAll("#no-runs .runs-dir").forEach((span) => (span.textContent = body.runs_dir || "runs"));
   el("no-runs").hidden = runs.length > 0;
-  if (!runs.length) return;
+  if (!runs.length) {
+    select.innerHTML = '<option value="">(no runs yet)</option>';
+    return;
+  }
   select.innerHTML = runs.map((r) => {
     const label = `${r.agent} · seed ${r.seed}${r.solved ? " · solved" : ""} (${r.name})`;
     return `<option value="${CP.escapeHTML(r.name)}" data-agent="${CP.escapeHTML(r.agent)}">${CP.escapeHTML(label)}</option>`;
   }).join("");
+  if (runs.some((r) => r.name === chosen)) select.value = chosen;
+}
+
+async function refreshAgents() {
+  await loadAgents().catch(() => undefined); // the server may be restarting: try again later
+  setTimeout(refreshAgents, AGENTS_POLL_MS);
 }
 
 async function start() {
@@ -215,7 +232,7 @@ async function start() {
   game.info = info.physics;
   PhysicsPanel.render(el("physics"), game.info, {});
   connect();
-  loadAgents().catch(() => undefined);
+  refreshAgents();
 }
 
 start();

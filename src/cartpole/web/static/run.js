@@ -83,7 +83,7 @@ function renderConfig(config) {
   for (const key of ["preset", "budget", "settings", "device", "package_version"]) {
     if (key in config) rows.push([key, config[key]]);
   }
-  const command = Array.isArray(config.command) ? `<p class="small muted">Made by</p><pre class="mono small" style="white-space:pre-wrap">${CP.escapeHTML(config.command.join(" "))}</pre>` : "";
+  const command = Array.isArray(config.command) ? `<p class="small muted">Made by</p><pre class="mono small wrap">${CP.escapeHTML(config.command.join(" "))}</pre>` : "";
   box.innerHTML = `<table class="kv">${rows.map(([k, v]) => `<tr><td>${CP.escapeHTML(k)}</td><td>${valueText(v)}</td></tr>`).join("")}</table>${command}`;
 }
 

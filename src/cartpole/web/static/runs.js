@@ -10,7 +10,7 @@ function runRow(run) {
   const link = `<a href="/run?name=${encodeURIComponent(run.name)}">${name}</a>`;
   const state = CP.stateBadge(run.state, run.problem);
   const problem = run.problem ? `<span class="rule">${CP.escapeHTML(run.problem)}</span>` : "";
-  const watch = run.watchable && run.state !== "corrupt" && run.state !== "incomplete"
+  const watch = run.watchable && run.has_checkpoint !== false && run.state !== "unreadable" && run.state !== "incomplete"
     ? `<a class="button" href="/run?name=${encodeURIComponent(run.name)}#checkpoints">Watch</a>` : "";
   return `<tr data-run="${name}">
     <td class="name">${link}<span class="rule">${CP.fmtDate(run.created)}</span></td>
@@ -42,11 +42,20 @@ function render(body) {
     <tbody>${body.runs.map(runRow).join("")}</tbody></table></div>`;
 }
 
+const MAX_RETRY_MS = 30000;
+let retryMs = POLL_MS;
+
 async function refresh() {
   try {
     render(await CP.getJSON("/api/runs"));
+    retryMs = POLL_MS;
   } catch (err) {
-    container.innerHTML = `<div class="error">Cannot read the runs: ${CP.escapeHTML(err.message)}. Is <code>cartpole serve</code> still running?</div>`;
+    lastText = ""; // whatever comes next replaces the error, even if the runs did not change
+    const seconds = Math.round(retryMs / 1000);
+    container.innerHTML = `<div class="error" id="runs-error">Cannot read the runs: ${CP.escapeHTML(err.message)}. Is <code>cartpole serve</code> still running? Trying again in ${seconds} s.</div>`;
+    setTimeout(refresh, retryMs);
+    retryMs = Math.min(MAX_RETRY_MS, retryMs * 2);
+    return;
   }
   setTimeout(refresh, POLL_MS);
 }

@@ -107,16 +107,21 @@ function renderPrefs(i) {
   const row = e.scores[i];
   const scale = watch.maxScore || 1;
   const signed = row.some((v) => v < 0);
-  const bars = ["← left", "right →"].map((label, a) => {
+  const label = CP.escapeHTML(e.score_label);
+  const bars = ["← left", "right →"].map((side, a) => {
+    return `<div class="pref ${e.actions[i] === a ? "chosen" : ""}" title="${label} of ${side}"><span>${side}</span>
+      <div class="track"><div class="fill"></div></div>
+      <span class="val">${row[a].toFixed(2)}</span></div>`;
+  });
+  box.innerHTML = `<div class="small muted">${label} (the agent picks the larger)</div>${bars.join("")}`;
+  // Geometry through the CSSOM: the Content-Security-Policy forbids inline style attributes.
+  box.querySelectorAll(".fill").forEach((fill, a) => {
     const v = row[a];
     const w = Math.min(50, (Math.abs(v) / scale) * 50) * (signed ? 1 : 2);
-    const left = signed ? (v >= 0 ? 50 : 50 - w) : 0;
-    const color = a === 1 ? CartPoleDraw.COLORS.right : CartPoleDraw.COLORS.left;
-    return `<div class="pref ${e.actions[i] === a ? "chosen" : ""}"><span>${label}</span>
-      <div class="track"><div class="fill" style="left:${left}%;width:${w}%;background:${color}"></div></div>
-      <span class="val">${v.toFixed(2)}</span></div>`;
+    fill.style.left = `${signed ? (v >= 0 ? 50 : 50 - w) : 0}%`;
+    fill.style.width = `${w}%`;
+    fill.style.background = a === 1 ? CartPoleDraw.COLORS.right : CartPoleDraw.COLORS.left;
   });
-  box.innerHTML = `<div class="small muted">${CP.escapeHTML(e.score_label)} (the agent picks the larger)</div>${bars.join("")}`;
 }
 
 function tick(now) {
@@ -152,10 +157,24 @@ async function reload(keepFrame) {
   render();
 }
 
+// Why a seed typed by the reader cannot be used, or "" if it can (no silent clamping).
+function seedProblem(text) {
+  const value = Number(text);
+  if (String(text).trim() === "" || !Number.isInteger(value)) return "seed must be a whole number";
+  if (value < 0) return "seed must be >= 0";
+  if (value > Number.MAX_SAFE_INTEGER) return `seed must be <= ${Number.MAX_SAFE_INTEGER}`;
+  return "";
+}
+
 function nudge(direction) {
   const e = watch.episode;
   if (!e) return;
-  const step = Math.min(Math.floor(watch.frame), e.limits.max_steps - 1);
+  const step = Math.floor(watch.frame);
+  if (step >= e.length) {
+    // The episode is over: a push now would change nothing that is shown, so none is counted.
+    el("message").innerHTML = '<div class="error">The episode is over: rewind or restart to nudge.</div>';
+    return;
+  }
   const change = direction * Number(el("nudge-size").value);
   watch.nudges = watch.nudges.filter((n) => n.step < step);
   watch.nudges.push({ step, change });
@@ -185,7 +204,12 @@ function wire() {
   });
   el("nudge-size").addEventListener("input", (ev) => (el("nudge-size-out").textContent = ev.target.value));
   el("seed-go").addEventListener("click", () => {
-    watch.seed = Math.max(0, Math.floor(Number(el("seed").value) || 0));
+    const problem = seedProblem(el("seed").value);
+    if (problem) {
+      el("message").innerHTML = `<div class="error">${CP.escapeHTML(problem)}</div>`;
+      return;
+    }
+    watch.seed = Number(el("seed").value);
     watch.nudges = [];
     reload(false).then(() => setPlaying(true));
   });
@@ -215,6 +239,11 @@ function wire() {
 }
 
 async function start() {
+  if (!runName) {
+    el("title").textContent = "Watch";
+    el("message").innerHTML = '<div class="error">No run named in the address. Pick a run and a checkpoint on the <a href="/">runs page</a>.</div>';
+    return;
+  }
   el("back").href = `/run?name=${encodeURIComponent(runName)}`;
   el("title").textContent = `Watch ${checkpoint} of ${runName}`;
   el("seed").value = String(watch.seed);

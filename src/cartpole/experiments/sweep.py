@@ -1,0 +1,510 @@
+"""``cartpole sweep``: tune an agent with Optuna, K seeds per trial, from one process to many machines.
+
+Objective (minimized): the median over the trial's K seeds (seeds 0..K-1, the same for every trial) of
+the env steps to the first verified solve; a seed that does not solve within its budget counts as twice
+the env steps it used. After every evaluation during training the trial reports a lower bound of that
+median (finished seeds at their cost, the running seed at the steps it has used, seeds not started at 0);
+the pruner stops a trial as soon as that lower bound exceeds the median cost of the complete trials, so
+it never stops a trial that would have ended better than that median.
+
+Storage: by default a journal file, ``D/sweeps/NAME/journal.log`` (Optuna's JournalFileBackend, safe for
+the J local workers); with ``--storage postgresql://user@host:port/db`` every machine that runs the same
+command joins one study. ``--trials N`` is the number of finished (complete or pruned) trials the study
+should hold: workers stop when it does, a re-run with a larger N adds trials, and an interrupted trial is
+marked failed and replaced. The best trial is written as ``D/sweeps/NAME/best.toml``, a preset file.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import signal
+import statistics
+import sys
+import warnings
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import optuna
+
+from cartpole.evaluation import EvalReport
+from cartpole.experiments.best import best_value, write_best
+from cartpole.experiments.compare import check_name
+from cartpole.experiments.entries import ExperimentError
+from cartpole.experiments.processes import Job, python_module, run_jobs
+from cartpole.experiments.space import Param, load_space, preset_point, space_description
+from cartpole.runs.atomic import write_json_atomic
+from cartpole.training import Callback, TrainingLoop
+from cartpole.training.budget import parse_budget
+
+WORKER = "cartpole.experiments.sweep"
+UNSOLVED_FACTOR = 2
+"""A seed that never solves costs this many times the env steps it used."""
+EVALS_PER_SEED = 100_000
+"""Pruning steps: seed i's evaluation e is step i * EVALS_PER_SEED + e, so steps rise across seeds."""
+STUDY_ATTR = "cartpole"
+STARTUP_TRIALS = 5
+"""Random trials before TPE models the results (Optuna's default is 10: too many for short sweeps)."""
+DONE_STATES = ("COMPLETE", "PRUNED")
+
+
+@dataclass
+class SweepSpec:
+    """What a sweep is: the same on every worker and machine that joins its study."""
+
+    name: str
+    agent: str
+    preset: str
+    env_id: str
+    budget: str | None
+    seeds_per_trial: int
+    trials: int
+    space_text: str
+    storage: str | None
+    """A database URL, or None for the journal file in ``folder``."""
+    folder: str
+    sampler_seed: int = 0
+    space: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def path(self) -> Path:
+        return Path(self.folder)
+
+    @property
+    def identity(self) -> dict[str, Any]:
+        """What a study records about the sweep; a sweep that differs must not join it."""
+        return {
+            "agent": self.agent,
+            "preset": self.preset,
+            "env_id": self.env_id,
+            "budget": self.budget,
+            "seeds_per_trial": self.seeds_per_trial,
+            "space": self.space,
+        }
+
+    def params(self) -> dict[str, Param]:
+        from cartpole.experiments.space import parse_space
+
+        return parse_space(self.agent, self.space_text, "the study's space")
+
+    @property
+    def storage_label(self) -> str:
+        return self.storage or str(self.path / "journal.log")
+
+
+def make_spec(
+    runs_dir: Path,
+    name: str,
+    agent: str,
+    preset: str,
+    trials: int,
+    seeds_per_trial: int,
+    env_id: str = "CartPole-v1",
+    budget: str | None = None,
+    space_file: str | None = None,
+    storage: str | None = None,
+    sampler_seed: int = 0,
+) -> SweepSpec:
+    """Check every input (one line each if wrong) before anything is written."""
+    from cartpole.agents.registry import agent_names
+    from cartpole.envs import env_info
+    from cartpole.experiments.entries import parse_entry
+
+    check_name(name, "study")
+    if agent not in agent_names():
+        raise ExperimentError(f"unknown agent {agent!r}; choose one of: {', '.join(agent_names())}")
+    if trials < 1:
+        raise ExperimentError(f"--trials must be >= 1, got {trials}")
+    if seeds_per_trial < 1:
+        raise ExperimentError(f"--seeds-per-trial must be >= 1, got {seeds_per_trial}")
+    if budget is not None:
+        try:
+            parse_budget(budget)
+        except ValueError as err:
+            raise ExperimentError(str(err)) from None
+    env_info(env_id)
+    entry = parse_entry(f"{agent}:{preset}")
+    preset = str(Path(entry.preset).resolve()) if entry.preset.endswith(".toml") else entry.preset
+    space, text = load_space(agent, preset, space_file)
+    return SweepSpec(
+        name=name,
+        agent=agent,
+        preset=preset,
+        env_id=env_id,
+        budget=budget,
+        seeds_per_trial=seeds_per_trial,
+        trials=trials,
+        space_text=text,
+        storage=storage,
+        folder=str(runs_dir / "sweeps" / name),
+        sampler_seed=sampler_seed,
+        space=space_description(space),
+    )
+
+
+# ----------------------------------------------------------------------------------------------
+# Storage and study
+# ----------------------------------------------------------------------------------------------
+
+
+def describe_url(url: str) -> tuple[str, str]:
+    """(backend, "host:port") of a database URL, for messages; ExperimentError if it is malformed."""
+    from sqlalchemy.engine import make_url
+    from sqlalchemy.exc import ArgumentError
+
+    try:
+        parsed = make_url(url)
+    except ArgumentError:
+        raise ExperimentError(
+            f"malformed --storage URL {url!r}; use postgresql://USER@HOST:PORT/DB (or sqlite:///FILE.db)"
+        ) from None
+    backend = parsed.get_backend_name()
+    if backend not in ("postgresql", "sqlite", "mysql"):
+        raise ExperimentError(f"--storage {backend}:// is not supported; use postgresql://USER@HOST:PORT/DB")
+    if backend == "sqlite":
+        return backend, parsed.database or ":memory:"
+    if not parsed.host:
+        raise ExperimentError(f"--storage URL {url!r} names no host; use postgresql://USER@HOST:PORT/DB")
+    port = parsed.port or {"postgresql": 5432, "mysql": 3306}[backend]
+    return backend, f"{parsed.host}:{port}"
+
+
+def open_storage(spec: SweepSpec, attempts: int = 5) -> Any:
+    """Optuna storage of the sweep: the journal file, or the database at ``spec.storage``."""
+    import time
+
+    import optuna
+    from sqlalchemy.exc import OperationalError, SQLAlchemyError
+
+    if spec.storage is None:
+        from optuna.storages.journal import JournalFileBackend
+
+        spec.path.mkdir(parents=True, exist_ok=True)
+        return optuna.storages.JournalStorage(JournalFileBackend(str(spec.path / "journal.log")))
+    backend, where = describe_url(spec.storage)
+    url = spec.storage
+    if url.startswith("postgresql://"):  # SQLAlchemy 2.1's default driver is psycopg 3; ours is psycopg2
+        url = "postgresql+psycopg2://" + url.removeprefix("postgresql://")
+    engine: dict[str, Any] = {"pool_pre_ping": True}
+    if backend == "postgresql":
+        engine["connect_args"] = {"connect_timeout": 10}
+    for attempt in range(attempts):
+        try:
+            with warnings.catch_warnings():  # heartbeats are "experimental" in Optuna, and what we need
+                warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+                return optuna.storages.RDBStorage(
+                    url, engine_kwargs=engine, heartbeat_interval=30, grace_period=120
+                )
+        except ModuleNotFoundError as err:
+            raise ExperimentError(
+                f"--storage {backend}:// needs its driver ({err.name}); pip install 'cartpole[postgres]'"
+            ) from None
+        except OperationalError as err:  # no server there, or a wrong host, port, user or database
+            reason = str(err.orig or err).strip().splitlines()[0]
+            raise ExperimentError(f"cannot reach the {backend} study storage at {where}: {reason}") from None
+        except SQLAlchemyError as err:
+            reason = str(getattr(err, "orig", None) or err).strip().splitlines()[0]
+            if attempt == attempts - 1:  # e.g. two machines creating the tables at the same moment
+                raise ExperimentError(f"the {backend} study storage at {where} failed: {reason}") from None
+            time.sleep(1.0 + attempt)
+    raise AssertionError("unreachable")
+
+
+def open_study(spec: SweepSpec, storage: Any) -> Any:
+    """The sweep's study, created if new; ExperimentError if it exists for another sweep."""
+    import optuna
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    try:  # load first: creating an existing study would still append to a journal
+        study = optuna.load_study(
+            study_name=spec.name, storage=storage, sampler=sampler_for(spec, 0), pruner=BoundPruner()
+        )
+    except KeyError:
+        study = optuna.create_study(
+            study_name=spec.name,
+            storage=storage,
+            direction="minimize",
+            load_if_exists=True,  # another machine may create it at the same moment
+            sampler=sampler_for(spec, 0),
+            pruner=BoundPruner(),
+        )
+        if not study.get_trials(deepcopy=False):  # a new study starts from the preset itself
+            study.enqueue_trial(preset_point(spec.agent, spec.preset, spec.params()), skip_if_exists=True)
+    recorded = study.user_attrs.get(STUDY_ATTR)
+    if recorded is None:
+        study.set_user_attr(STUDY_ATTR, spec.identity)
+        recorded = spec.identity
+    if recorded != json.loads(json.dumps(spec.identity)):
+        differs = [k for k in spec.identity if recorded.get(k) != json.loads(json.dumps(spec.identity[k]))]
+        what = ", ".join(f"{k} {recorded.get(k)!r}" for k in differs if k != "space")
+        if "space" in differs:
+            what = (what + ", " if what else "") + "another search space"
+        raise ExperimentError(
+            f"study {spec.name} in {spec.storage_label} exists for {what}; use another --study name"
+        )
+    return study
+
+
+class BoundPruner(optuna.pruners.BasePruner):
+    """Prune when a trial's reported lower bound of its cost exceeds the median cost of complete trials.
+
+    Optuna's MedianPruner compares a trial's best intermediate value, which for a rising lower bound is
+    its first one, so it would never prune; this rule fits a bound.
+    """
+
+    def __init__(self, startup_trials: int = 3):
+        self.startup_trials = startup_trials
+
+    def prune(self, study: Any, trial: Any) -> bool:
+        from optuna.trial import TrialState
+
+        step = trial.last_step
+        if step is None:
+            return False
+        complete = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
+        if len(complete) < self.startup_trials:
+            return False
+        return bool(trial.intermediate_values[step] > statistics.median(t.value for t in complete))
+
+
+def sampler_for(spec: SweepSpec, trial_number: int) -> Any:
+    """TPE seeded per trial: the same study gives the same suggestions, whichever worker runs a trial."""
+    import optuna
+
+    return optuna.samplers.TPESampler(
+        seed=spec.sampler_seed + trial_number, constant_liar=True, n_startup_trials=STARTUP_TRIALS
+    )
+
+
+def count_trials(study: Any) -> dict[str, int]:
+    counts: dict[str, int] = {}
+    for trial in study.get_trials(deepcopy=False):
+        counts[trial.state.name] = counts.get(trial.state.name, 0) + 1
+    return counts
+
+
+def fail_abandoned_trials(study: Any) -> int:
+    """Mark RUNNING trials failed: called only when no worker of this study can be running them."""
+    from optuna.trial import TrialState
+
+    abandoned = study.get_trials(deepcopy=False, states=(TrialState.RUNNING,))
+    for trial in abandoned:
+        study._storage.set_trial_state_values(trial._trial_id, state=TrialState.FAIL)
+    return len(abandoned)
+
+
+# ----------------------------------------------------------------------------------------------
+# One worker: trials until the study holds enough
+# ----------------------------------------------------------------------------------------------
+
+
+class Surplus(Exception):
+    """Another worker took the last trial this one would have run."""
+
+
+class Interrupted(Exception):
+    """Ctrl-C (or SIGTERM) stopped the trial; it is marked failed and will be replaced."""
+
+
+class PruneReporter(Callback):
+    """After each evaluation: report the lower bound of the trial's cost, stop when the pruner says so."""
+
+    def __init__(self, trial: Any, costs: list[float], seed_index: int, seeds: int):
+        self.trial, self.costs, self.seed_index, self.seeds = trial, costs, seed_index, seeds
+        self.pruned = False
+
+    def on_eval(self, loop: TrainingLoop, report: EvalReport) -> bool:
+        state = loop.state
+        running = state.solved_at_step if state.solved else state.env_steps
+        bound = self.costs + [float(running or 0)] + [0.0] * (self.seeds - len(self.costs) - 1)
+        self.trial.report(
+            float(statistics.median(bound)), self.seed_index * EVALS_PER_SEED + state.evaluations
+        )
+        if not state.solved and self.trial.should_prune():
+            self.pruned = True
+            return False
+        return True
+
+
+@contextlib.contextmanager
+def stop_flag() -> Iterator[list[int]]:
+    """SIGINT/SIGTERM outside training only note the request (training has its own handler)."""
+    received: list[int] = []
+
+    def handler(signum: int, frame: Any) -> None:
+        received.append(signum)
+
+    previous = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield received
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+
+
+def trial_cost(spec: SweepSpec, trial: Any, params: dict[str, Any], stop: list[int]) -> float:
+    """Train the trial's K seeds; the median cost, or TrialPruned / Interrupted."""
+    import optuna
+
+    from cartpole.training import train
+
+    costs: list[float] = []
+    for index in range(spec.seeds_per_trial):
+        if stop:
+            raise Interrupted
+        reporter = PruneReporter(trial, costs, index, spec.seeds_per_trial)
+        outcome = train(
+            spec.agent,
+            spec.env_id,
+            seed=index,
+            preset=spec.preset,
+            overrides=params,
+            budget=spec.budget,
+            runs_dir=spec.path / "runs",
+            device="cpu",
+            quiet=True,
+            command=["cartpole", "sweep", spec.agent, "--study", spec.name, f"(trial {trial.number})"],
+            callbacks=[reporter],
+        )
+        trial.set_user_attr(f"run_seed{index}", str(outcome.run.path))
+        if outcome.signal is not None:
+            stop.append(outcome.signal)
+            raise Interrupted
+        state = outcome.state
+        cost = float(
+            state.solved_at_step if state.solved_at_step is not None else UNSOLVED_FACTOR * state.env_steps
+        )
+        costs.append(cost)
+        trial.set_user_attr(f"cost_seed{index}", cost)
+        if reporter.pruned:
+            raise optuna.TrialPruned(f"pruned at seed {index}, {state.env_steps} env steps")
+    return float(statistics.median(costs))
+
+
+def run_worker(spec: SweepSpec) -> int:
+    """Run trials until the study holds ``spec.trials`` finished ones; 130 if interrupted."""
+    from optuna.trial import TrialState
+
+    study = open_study(spec, open_storage(spec))
+    params = spec.params()
+    live = (TrialState.COMPLETE, TrialState.PRUNED, TrialState.RUNNING, TrialState.WAITING)
+
+    def objective(trial: optuna.Trial) -> float:
+        ahead = [t for t in study.get_trials(deepcopy=False, states=live) if t.number < trial.number]
+        if len(ahead) >= spec.trials:
+            trial.set_user_attr("surplus", True)
+            raise Surplus
+        study.sampler = sampler_for(spec, trial.number)
+        chosen = {name: p.suggest(trial) for name, p in params.items()}
+        try:
+            return trial_cost(spec, trial, chosen, stop)
+        except Interrupted:
+            trial.set_user_attr("interrupted", True)
+            raise
+
+    with stop_flag() as stop:
+        while not stop:
+            done = study.get_trials(deepcopy=False, states=live[:3])
+            if len(done) >= spec.trials:
+                return 0
+            before = len(study.get_trials(deepcopy=False))
+            study.optimize(objective, n_trials=1, catch=(Surplus, Interrupted))
+            last = max(study.get_trials(deepcopy=False)[before:], key=lambda t: t.number, default=None)
+            if last is not None and last.user_attrs.get("surplus"):
+                return 0
+    return 130
+
+
+# ----------------------------------------------------------------------------------------------
+# The sweep: J workers, progress, best.toml
+# ----------------------------------------------------------------------------------------------
+
+
+def write_spec(spec: SweepSpec) -> Path:
+    path = spec.path / "sweep.json"
+    spec.path.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(path, asdict(spec))
+    return path
+
+
+@contextlib.contextmanager
+def local_lock(spec: SweepSpec) -> Iterator[bool]:
+    """Whether this is the only ``cartpole sweep`` of this study on this machine (a lock file)."""
+    from filelock import FileLock, Timeout
+
+    lock = FileLock(str(spec.path / ".sweep.lock"))
+    try:
+        lock.acquire(timeout=0)
+    except Timeout:
+        yield False
+        return
+    try:
+        yield True
+    finally:
+        lock.release()
+
+
+def prepare_sweep(spec: SweepSpec, workers: int) -> Any:
+    """Check the worker count, the storage and the study (ExperimentError, nothing written); the study."""
+    if workers < 1:
+        raise ExperimentError(f"--workers must be >= 1, got {workers}")
+    return open_study(spec, open_storage(spec))
+
+
+def run_sweep(
+    spec: SweepSpec, study: Any, workers: int, progress: Callable[[dict[str, int], Any], None] | None
+) -> Any:
+    """Run ``workers`` worker processes on the prepared ``study``, then write best.toml; the study.
+
+    KeyboardInterrupt stops every worker (each marks its trial failed) and propagates after best.toml.
+    """
+    spec_path = write_spec(spec)
+    with local_lock(spec) as alone:
+        if alone and spec.storage is None:
+            fail_abandoned_trials(study)  # left RUNNING by a killed sweep: nobody else can own them
+        jobs = [
+            Job(python_module(WORKER, str(spec_path)), spec.path / "logs" / f"worker{i}.log", i)
+            for i in range(workers)
+        ]
+        problems: list[str] = []
+
+        def on_done(job: Job, code: int) -> None:
+            if code not in (0, 130, -2):
+                problems.append(f"worker {job.key} failed (exit {code}); see {job.log}")
+
+        clock = {"ticks": 0}
+
+        def tick() -> None:
+            clock["ticks"] += 1
+            if progress and clock["ticks"] % 5 == 0:
+                progress(count_trials(study), best_value(study))
+
+        try:
+            run_jobs(jobs, workers, on_done, tick)
+        finally:
+            if progress:
+                progress(count_trials(study), best_value(study))
+            write_best(spec, study)
+    if problems:
+        raise SweepFailed("; ".join(problems))
+    return study
+
+
+class SweepFailed(Exception):
+    """A worker process failed (not bad input: its log says why)."""
+
+
+def main(argv: list[str]) -> int:
+    """Worker entry: ``python -m cartpole.experiments.sweep SWEEP.json``."""
+    data = json.loads(Path(argv[0]).read_text(encoding="utf-8"))
+    try:
+        return run_worker(SweepSpec(**data))
+    except ExperimentError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,181 @@
+"""`cartpole compare` end to end on tiny budgets, resuming, Ctrl-C, bad input; statistics; preset files."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cartpole.cli.main import main
+from cartpole.experiments.stats import censored_summary, iqm_summary
+
+
+def run_cli(*args: str, timeout: float = 300) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "cartpole", *args], capture_output=True, text=True, timeout=timeout
+    )
+
+
+def run_folders(folder: Path) -> list[Path]:
+    return sorted(p for p in (folder / "runs").iterdir() if (p / "config.json").is_file())
+
+
+def test_compare_writes_its_report(tmp_path):
+    runs_dir = tmp_path / "runs"
+    done = run_cli(
+        "compare", "cem", "--seeds", "2", "--jobs", "2", "--budget", "2gen", "--runs-dir", str(runs_dir)
+    )
+    assert done.returncode == 0, done.stderr
+    folder = runs_dir / "experiments" / "cem"
+    (entry,) = json.loads((folder / "report.json").read_text())["entries"]
+    assert entry["entry"] == "cem" and entry["runs"] == 2 and entry["seeds"] == [0, 1]
+    for key in ("env_steps_to_solve", "cpu_seconds_to_solve", "wall_seconds_to_solve"):
+        assert entry[key]["median"] > 0 and entry[key]["censored"] == 2 - entry["solved"]
+    assert (folder / "curves.png").is_file() and "| cem | 2 |" in (folder / "report.md").read_text()
+
+
+@pytest.mark.slow
+def test_compare_reports_resumes_and_adds_seeds(tmp_path):
+    runs_dir = tmp_path / "runs"
+    args = ["compare", "cem", "random-search:tutorial", "--jobs", "2", "--runs-dir", str(runs_dir)]
+    done = run_cli(*args, "--seeds", "2", "--name", "x")
+    assert done.returncode == 0, done.stderr
+    folder = runs_dir / "experiments" / "x"
+    report = json.loads((folder / "report.json").read_text())
+    assert [e["entry"] for e in report["entries"]] == ["cem", "random-search:tutorial"]
+    for entry in report["entries"]:
+        assert entry["runs"] == 2 and 0 <= entry["solved"] <= 2
+        assert len(entry["run_folders"]) == 2 and all(Path(p).is_dir() for p in entry["run_folders"])
+        steps = entry["env_steps_to_solve"]
+        assert steps["median"] > 0 and steps["iqr"][0] <= steps["median"] <= steps["iqr"][1]
+        assert entry["final_mean_return"]["iqm"] > 0
+    assert "| cem | 2 |" in (folder / "report.md").read_text()
+    for png in ("curves.png", "solve_steps.png"):
+        assert (folder / png).read_bytes()[:4] == b"\x89PNG"
+    assert len(run_folders(folder)) == 4
+
+    again = run_cli(*args, "--seeds", "2", "--name", "x")  # everything finished: nothing is trained again
+    assert again.returncode == 0, again.stderr
+    assert len(run_folders(folder)) == 4
+    more = run_cli(*args, "--seeds", "3", "--name", "x")  # one more seed per entry
+    assert more.returncode == 0, more.stderr
+    assert len(run_folders(folder)) == 6
+    assert all(e["runs"] == 3 for e in json.loads((folder / "report.json").read_text())["entries"])
+
+
+@pytest.mark.slow
+def test_ctrl_c_stops_every_worker_and_a_rerun_resumes(tmp_path):
+    # Hill climbing with a tiny step keeps training to its 6-second budget; latest.pt every generation.
+    preset = tmp_path / "slow.toml"
+    preset.write_text("noise = 0.0001\nstop_when_solved = false\ncheckpoint_every = 1\n")
+    runs_dir = tmp_path / "runs"
+    args = ["compare", f"hill-climbing:{preset}", "--seeds", "2", "--jobs", "2", "--budget", "6s",
+            "--name", "c", "--runs-dir", str(runs_dir)]  # fmt: skip
+    process = subprocess.Popen(
+        [sys.executable, "-m", "cartpole", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    folder = runs_dir / "experiments" / "c"
+    deadline = time.monotonic() + 120
+    while len(list(folder.glob("runs/*/checkpoints/latest.pt"))) < 2 and time.monotonic() < deadline:
+        time.sleep(0.2)
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=120)
+    assert process.returncode == 130, stderr
+    assert "re-run the same command to resume" in stderr
+    records = [json.loads(p.read_text()) for p in sorted((folder / "records").glob("*.json"))]
+    assert len(records) == 2 and all(r["state"] == "interrupted" for r in records), records
+
+    resumed = run_cli(*args)
+    assert resumed.returncode == 0, resumed.stderr
+    after = [json.loads(p.read_text()) for p in sorted((folder / "records").glob("*.json"))]
+    assert [r["run"] for r in after] == [r["run"] for r in records], "the same runs go on"
+    assert all(r["state"] == "finished" for r in after)
+    assert all(a["env_steps"] > r["env_steps"] for a, r in zip(after, records, strict=True))
+    assert len(run_folders(folder)) == 2
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["compare", "nope"], "unknown agent 'nope'"),
+        (["compare", "cem:nope"], "unknown preset 'nope'"),
+        (["compare", "cem:/no/such/preset.toml"], "does not exist"),
+        (["compare", "cem", "cem"], "given twice"),
+        (["compare", "cem", "--seeds", "0"], "--seeds must be >= 1"),
+        (["compare", "cem", "--jobs", "0"], "--jobs must be >= 1"),
+        (["compare", "cem", "--budget", "lots"], "bad budget"),
+        (["compare", "cem", "--env", "NoSuchEnv-v9"], "unknown environment"),
+    ],
+)
+def test_bad_input_is_one_line_and_exit_2(args, message, tmp_path, capsys):
+    assert main([*args, "--runs-dir", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1, err
+    assert not any(tmp_path.iterdir()), "bad input must not write anything"
+
+
+def test_an_experiment_cannot_change_its_env_or_budget(tmp_path, capsys):
+    folder = tmp_path / "experiments" / "e"
+    folder.mkdir(parents=True)
+    (folder / "experiment.json").write_text(json.dumps({"env_id": "CartPole-v1", "budget": "5gen"}))
+    assert main(["compare", "cem", "--name", "e", "--budget", "6gen", "--runs-dir", str(tmp_path)]) == 2
+    assert "was run with --budget 5gen" in capsys.readouterr().err
+    assert json.loads((folder / "experiment.json").read_text())["budget"] == "5gen"
+
+
+def test_censored_runs_count_at_their_budget_and_hold_the_median_up():
+    solved = censored_summary([100.0, 200.0, 300.0], [False, False, False])
+    assert (
+        solved["median"] == 200.0 and solved["iqr"] == [150.0, 250.0] and not solved["median_is_lower_bound"]
+    )
+    low, high = solved["ci95"]
+    assert 100.0 <= low <= 200.0 <= high <= 300.0
+    # Two of three never solved within 1000 steps: they count at 1000, and the median is a lower bound.
+    censored = censored_summary([100.0, 1000.0, 1000.0], [False, True, True])
+    assert censored["median"] == 1000.0 and censored["censored"] == 2 and censored["median_is_lower_bound"]
+    assert censored_summary([5.0], [False])["ci95"] is None
+
+
+def test_iqm_ignores_the_outer_quarters():
+    values = np.array([0.0, 100.0, 100.0, 100.0, 100.0, 100.0, 100.0, 500.0])
+    summary = iqm_summary(values)
+    assert summary["iqm"] == pytest.approx(100.0) and summary["mean"] == pytest.approx(137.5)
+    assert summary["ci95"][0] <= 100.0 <= summary["ci95"][1]
+
+
+def test_train_accepts_a_preset_file_from_any_path(tmp_path, capsys):
+    flat = tmp_path / "mine.toml"
+    flat.write_text('description = "mine"\nbudget = "3gen"\npopulation = 8\n')
+    assert main(["train", "cem", "--preset", str(flat), "--runs-dir", str(tmp_path / "runs"), "--quiet"]) == 0
+    (run,) = (tmp_path / "runs").iterdir()
+    config = json.loads((run / "config.json").read_text())
+    assert config["config"]["population"] == 8 and config["budget"] == {"iterations": 3}
+    one_table = tmp_path / "one.toml"
+    one_table.write_text('[fast]\nbudget = "2gen"\npopulation = 4\n')
+    assert (
+        main(["train", "cem", "--preset", str(one_table), "--runs-dir", str(tmp_path / "r2"), "--quiet"]) == 0
+    )
+    capsys.readouterr()
+    unknown = tmp_path / "unknown.toml"
+    unknown.write_text("speed = 3\n")
+    assert main(["train", "cem", "--preset", str(unknown), "--runs-dir", str(tmp_path / "r3")]) == 2
+    assert "unknown setting 'speed'" in capsys.readouterr().err
+    two = tmp_path / "two.toml"
+    two.write_text("[a]\npopulation = 4\n[b]\npopulation = 8\n")
+    assert main(["train", "cem", "--preset", str(two), "--runs-dir", str(tmp_path / "r3")]) == 2
+    assert "holds 2 presets" in capsys.readouterr().err
+    assert not (tmp_path / "r3").exists()
+
+
+@pytest.mark.parametrize("command", ["compare", "sweep"])
+def test_help_is_complete(command, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main([command, "--help"])
+    assert exit_info.value.code == 0
+    assert f"usage: cartpole {command}" in capsys.readouterr().out
