@@ -13,24 +13,21 @@ What it does, in order:
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import torch
 
-from cartpole.agents.actor_critic import schedule_value
-from cartpole.agents.adam import FusedAdam
+from cartpole.agents.learner import LearnResult
 from cartpole.agents.policy_gradient import (
     PolicyGradientConfig,
     PolicyGradientLearner,
+    adam,
     policy_loader,
     policy_loss_terms,
 )
 from cartpole.agents.registry import AgentSpec
-from cartpole.agents.rmsprop import RMSprop
 from cartpole.agents.rollout import explained_variance, normalize
+from cartpole.core.config import require
 from cartpole.envs import EnvInfo
-from cartpole.training.config import require
-from cartpole.training.loop import LearnResult
 
 OPTIMIZERS = ("rmsprop", "adam")
 
@@ -69,16 +66,18 @@ class A2CLearner(PolicyGradientLearner):
     def __init__(self, config: A2CConfig, env: EnvInfo, seed: int, device: str = "cpu"):
         config.validate()
 
-        def make_optimizer(parameters: list[torch.Tensor]) -> Any:
+        def make_optimizer(parameters: list[torch.Tensor]) -> torch.optim.Optimizer:
             if config.optimizer == "adam":
-                return FusedAdam(parameters, lr=config.lr, eps=config.optimizer_eps)
-            return RMSprop(parameters, lr=config.lr, alpha=config.rms_alpha, eps=config.optimizer_eps)
+                return adam(parameters, lr=config.lr, eps=config.optimizer_eps)
+            return torch.optim.RMSprop(
+                parameters, lr=config.lr, alpha=config.rms_alpha, eps=config.optimizer_eps
+            )
 
         super().__init__(config, env, seed, device, config.n_steps, make_optimizer)
 
     def learn(self) -> LearnResult:
         config = self.config
-        self.optimizer.lr = schedule_value(config.lr, config.lr_schedule, self.env_steps, config.schedule_steps)
+        learning_rate = self.schedule_learning_rate()
         rows, returns, lengths = self.collector.collect(self.buffer, self.model, self.generator)
         batch = self.rollout_batch(rows, config.gae_lambda)
         collected = len(batch)
@@ -98,14 +97,15 @@ class A2CLearner(PolicyGradientLearner):
             new_log_probs = torch.log_softmax(self.model.logits(batch.observations), dim=-1)
             log_ratio = new_log_probs.gather(1, batch.actions.unsqueeze(1)).squeeze(1) - batch.log_probs
             approx_kl = ((log_ratio.exp() - 1.0) - log_ratio).mean()
-        losses = torch.stack([policy_loss.detach(), value_loss.detach(), entropy.detach(), approx_kl]).tolist()
+        losses = torch.stack([policy_loss.detach(), value_loss.detach(), entropy.detach(), approx_kl])
+        policy_loss_value, value_loss_value, entropy_value, approx_kl_value = losses.tolist()
         result.scalars = {
-            "train/policy_loss": losses[0],
-            "train/value_loss": losses[1],
-            "train/entropy": losses[2],
-            "train/approx_kl": losses[3],
+            "train/policy_loss": policy_loss_value,
+            "train/value_loss": value_loss_value,
+            "train/entropy": entropy_value,
+            "train/approx_kl": approx_kl_value,
             "train/explained_variance": explained_variance(batch.values, batch.returns),
-            "train/learning_rate": self.optimizer.lr,
+            "train/learning_rate": learning_rate,
             "train/updates": float(self.updates),
         }
         result.log_scalars = True
@@ -123,6 +123,7 @@ AGENT = AgentSpec(
     make_learner=make_learner,
     policy_from_checkpoint=policy_loader("a2c", A2CConfig),
     iteration="update",
+    score_label="action probabilities",
 )
 
 __all__ = ["AGENT", "A2CConfig", "A2CLearner"]

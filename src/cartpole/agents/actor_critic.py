@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable
 from typing import Any
@@ -35,7 +36,7 @@ def schedule_value(start: float, schedule: str, env_steps: int, schedule_steps: 
 def mlp(sizes: list[int], activation: str) -> list[nn.Linear | nn.Module]:
     """Linear layers of widths ``sizes``, each followed by ``activation``."""
     layers: list[nn.Module] = []
-    for width_in, width_out in zip(sizes[:-1], sizes[1:], strict=True):
+    for width_in, width_out in itertools.pairwise(sizes):
         layers += [nn.Linear(width_in, width_out), ACTIVATIONS[activation]()]
     return layers
 
@@ -74,7 +75,10 @@ class ActorCritic(nn.Module):
         """Every linear layer once, with its orthogonal-init gain."""
         trunks = [self.actor_trunk] if self.shared_trunk else [self.actor_trunk, self.critic_trunk]
         hidden = [layer for trunk in trunks for layer in trunk if isinstance(layer, nn.Linear)]
-        return [(layer, math.sqrt(2)) for layer in hidden] + [(self.policy_head, 0.01), (self.value_head, 1.0)]
+        return [(layer, math.sqrt(2)) for layer in hidden] + [
+            (self.policy_head, 0.01),
+            (self.value_head, 1.0),
+        ]
 
     @torch.no_grad()
     def initialize(self, orthogonal: bool, generator: torch.Generator | None) -> None:
@@ -101,9 +105,7 @@ class ActorCritic(nn.Module):
     def forward(self, observations: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(logits [N, n_actions], values [N])."""
         actor_features = self._run(self.actor_trunk, observations)
-        critic_features = (
-            actor_features if self.shared_trunk else self._run(self.critic_trunk, observations)
-        )
+        critic_features = actor_features if self.shared_trunk else self._run(self.critic_trunk, observations)
         logits = self.policy_head.forward(actor_features)
         return logits, self.value_head.forward(critic_features).squeeze(-1)
 

@@ -21,9 +21,10 @@ def vector_env_state(envs: Any) -> dict[str, Any] | None:
     if hasattr(base, "snapshot"):  # our fast simulator
         return {"snapshot": base.snapshot()}
     fields = {name: getattr(base, name, None) for name in GYMNASIUM_CARTPOLE_FIELDS}
-    if not all(isinstance(v, np.ndarray) for v in fields.values()):
+    arrays_only = {k: v for k, v in fields.items() if isinstance(v, np.ndarray)}
+    if len(arrays_only) != len(fields):
         return None
-    arrays = {k: {"values": v.tolist(), "dtype": str(v.dtype)} for k, v in fields.items()}
+    arrays = {k: {"values": v.tolist(), "dtype": str(v.dtype)} for k, v in arrays_only.items()}
     return {"fields": arrays, "np_random": base.np_random.bit_generator.state}
 
 

@@ -16,12 +16,18 @@ from typing import Any
 import numpy as np
 import torch
 
-from cartpole.agents.actor_critic import ACTIVATIONS, SCHEDULES, ActorCritic, CategoricalPolicy
+from cartpole.agents.actor_critic import (
+    ACTIVATIONS,
+    SCHEDULES,
+    ActorCritic,
+    CategoricalPolicy,
+    schedule_value,
+)
 from cartpole.agents.env_state import derived_seed
 from cartpole.agents.rollout import RolloutBuffer, RolloutCollector, generalized_advantages
-from cartpole.envs import EnvInfo
+from cartpole.core.config import build_config, require
+from cartpole.envs import EnvInfo, check_simulator
 from cartpole.runs import Checkpoint, CheckpointError
-from cartpole.training.config import build_config, require
 
 
 @dataclass
@@ -76,7 +82,7 @@ class PolicyGradientConfig:
         require(self.ent_coef >= 0, f"ent_coef must be >= 0, got {self.ent_coef}")
         require(self.vf_coef >= 0, f"vf_coef must be >= 0, got {self.vf_coef}")
         require(self.max_grad_norm is None or self.max_grad_norm > 0, "max_grad_norm must be > 0 or none")
-        require(self.simulator in ("fast", "gymnasium"), "simulator must be fast or gymnasium")
+        check_simulator(self.simulator)
 
 
 @dataclass
@@ -118,7 +124,7 @@ class PolicyGradientLearner:
         seed: int,
         device: str,
         rollout_steps: int,
-        make_optimizer: Callable[[list[torch.Tensor]], Any],
+        make_optimizer: Callable[[list[torch.Tensor]], torch.optim.Optimizer],
     ):
         config.validate()
         self.config, self.env_info, self.seed = config, env, seed
@@ -133,7 +139,7 @@ class PolicyGradientLearner:
             config.orthogonal_init,
             generator=init_generator,
         ).to(self.device)
-        self.parameters = list(self.model.parameters())
+        self.parameters: list[torch.Tensor] = list(self.model.parameters())
         self.optimizer = make_optimizer(self.parameters)
         self.generator = torch.Generator(self.device).manual_seed(derived_seed(seed, "actions"))
         """Samples actions and shuffles minibatches; seeded apart from the other streams."""
@@ -171,6 +177,18 @@ class PolicyGradientLearner:
             returns=returns.flatten()[keep],
         )
 
+    @property
+    def learning_rate(self) -> float:
+        return float(self.optimizer.param_groups[0]["lr"])
+
+    def schedule_learning_rate(self) -> float:
+        """Set the optimizer's learning rate from the schedule at the current env step; return it."""
+        config = self.config
+        lr = schedule_value(config.lr, config.lr_schedule, self.env_steps, config.schedule_steps)
+        for group in self.optimizer.param_groups:
+            group["lr"] = lr
+        return lr
+
     def clip_and_step(self, loss: torch.Tensor) -> None:
         """Backpropagate ``loss``, clip the gradient norm if configured, and step the optimizer."""
         self.optimizer.zero_grad()
@@ -190,7 +208,7 @@ class PolicyGradientLearner:
         data: dict[str, Any] = {"obs_dim": self.env_info.obs_dim, "n_actions": self.env_info.n_actions}
         if not resume:
             return tensors, data
-        optim_tensors, optim_data = self.optimizer.state_dict()
+        optim_tensors, optim_data = optimizer_state(self.optimizer)
         tensors |= {f"optim.{k}": v for k, v in optim_tensors.items()}
         tensors["rng.torch"] = self.generator.get_state()
         collector_tensors, collector_data = self.collector.state_dict()
@@ -208,11 +226,41 @@ class PolicyGradientLearner:
         self.model.load_state_dict(with_prefix(tensors, "model."))
         if "env_steps" not in data:  # a policy-only checkpoint: weights only
             return
-        self.optimizer.load_state_dict(with_prefix(tensors, "optim."))
+        load_optimizer_state(self.optimizer, with_prefix(tensors, "optim."), data["optim"])
         self.generator.set_state(tensors["rng.torch"])
         self.rng.bit_generator.state = data["rng_numpy"]
         self.env_steps, self.updates = int(data["env_steps"]), int(data["updates"])
         self.collector.load_state_dict(with_prefix(tensors, "collector."), data["collector"], self.env_steps)
+
+
+def adam(parameters: list[torch.Tensor], lr: float, eps: float = 1e-8) -> torch.optim.Adam:
+    """``torch.optim.Adam`` with its fused kernel (one kernel per step: ~4x faster than the per-tensor
+    loop for nets this small on CPU, the same update)."""
+    return torch.optim.Adam(parameters, lr=lr, eps=eps, fused=True)
+
+
+def optimizer_state(optimizer: torch.optim.Optimizer) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+    """A ``torch.optim`` optimizer's state as tensors (``"{param index}.{name}"``) and JSON-able data."""
+    state = optimizer.state_dict()
+    tensors = {
+        f"{index}.{name}": value for index, slots in state["state"].items() for name, value in slots.items()
+    }
+    return tensors, {"param_groups": state["param_groups"]}
+
+
+def load_optimizer_state(
+    optimizer: torch.optim.Optimizer, tensors: dict[str, torch.Tensor], data: dict[str, Any]
+) -> None:
+    """Restore what :func:`optimizer_state` gave."""
+    state: dict[int, dict[str, torch.Tensor]] = {}
+    for key, value in tensors.items():
+        index, name = key.split(".", 1)
+        state.setdefault(int(index), {})[name] = value
+    groups = [
+        group | {"betas": tuple(group["betas"])} if "betas" in group else group
+        for group in data["param_groups"]
+    ]
+    optimizer.load_state_dict({"state": state, "param_groups": groups})
 
 
 def with_prefix(tensors: dict[str, torch.Tensor], prefix: str) -> dict[str, torch.Tensor]:

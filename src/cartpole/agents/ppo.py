@@ -21,19 +21,19 @@ from dataclasses import dataclass
 import torch
 
 from cartpole.agents.actor_critic import SCHEDULES, schedule_value
-from cartpole.agents.adam import FusedAdam
+from cartpole.agents.learner import LearnResult
 from cartpole.agents.policy_gradient import (
     Batch,
     PolicyGradientConfig,
     PolicyGradientLearner,
+    adam,
     policy_loader,
     policy_loss_terms,
 )
 from cartpole.agents.registry import AgentSpec
 from cartpole.agents.rollout import explained_variance, normalize
+from cartpole.core.config import require
 from cartpole.envs import EnvInfo
-from cartpole.training.config import require
-from cartpole.training.loop import LearnResult
 
 # ----------------------------------------------------------------------------------------------
 # 1. Configuration
@@ -127,16 +127,17 @@ class PPOLearner(PolicyGradientLearner):
     def __init__(self, config: PPOConfig, env: EnvInfo, seed: int, device: str = "cpu"):
         config.validate()
 
-        def make_optimizer(parameters: list[torch.Tensor]) -> FusedAdam:
-            # torch's fused Adam kernel without torch.optim (and its ~1.8 s torch._dynamo import).
-            return FusedAdam(parameters, lr=config.lr, eps=config.adam_eps)
+        def make_optimizer(parameters: list[torch.Tensor]) -> torch.optim.Optimizer:
+            return adam(parameters, lr=config.lr, eps=config.adam_eps)
 
         super().__init__(config, env, seed, device, config.n_steps, make_optimizer)
 
     def learn(self) -> LearnResult:
         config = self.config
-        self.optimizer.lr = schedule_value(config.lr, config.lr_schedule, self.env_steps, config.schedule_steps)
-        clip_range = schedule_value(config.clip_range, config.clip_schedule, self.env_steps, config.schedule_steps)
+        learning_rate = self.schedule_learning_rate()
+        clip_range = schedule_value(
+            config.clip_range, config.clip_schedule, self.env_steps, config.schedule_steps
+        )
         rows, returns, lengths = self.collector.collect(self.buffer, self.model, self.generator)
         batch = self.rollout_batch(rows, config.gae_lambda)
         collected = len(batch)
@@ -145,7 +146,7 @@ class PPOLearner(PolicyGradientLearner):
         if collected == 0:
             return result
         result.scalars = self.update(batch, max(clip_range, 1e-8))
-        result.scalars |= {"train/learning_rate": self.optimizer.lr, "train/clip_range": clip_range}
+        result.scalars |= {"train/learning_rate": learning_rate, "train/clip_range": clip_range}
         result.log_scalars = True
         return result
 
@@ -174,7 +175,9 @@ class PPOLearner(PolicyGradientLearner):
                 loss = policy_loss - config.ent_coef * entropy + config.vf_coef * v_loss
                 self.clip_and_step(loss)
                 metrics.append(
-                    torch.stack([policy_loss.detach(), v_loss.detach(), entropy.detach(), approx_kl, clip_fraction])
+                    torch.stack(
+                        [policy_loss.detach(), v_loss.detach(), entropy.detach(), approx_kl, clip_fraction]
+                    )
                 )
             if stopped_early:
                 break
@@ -199,6 +202,7 @@ AGENT = AgentSpec(
     make_learner=make_learner,
     policy_from_checkpoint=policy_loader("ppo", PPOConfig),
     iteration="update",
+    score_label="action probabilities",
 )
 
 __all__ = ["AGENT", "PPOConfig", "PPOLearner", "clipped_surrogate_loss", "value_loss"]

@@ -16,18 +16,17 @@ from dataclasses import dataclass
 
 import torch
 
-from cartpole.agents.actor_critic import schedule_value
-from cartpole.agents.adam import FusedAdam
+from cartpole.agents.learner import LearnResult
 from cartpole.agents.policy_gradient import (
     PolicyGradientConfig,
     PolicyGradientLearner,
+    adam,
     policy_loader,
     policy_loss_terms,
 )
 from cartpole.agents.registry import AgentSpec
 from cartpole.agents.rollout import explained_variance, normalize
 from cartpole.envs import EnvInfo
-from cartpole.training.loop import LearnResult
 
 LONGEST_EPISODE_WITHOUT_TIME_LIMIT = 10_000
 """Rows per env of the episode buffer for an env that registers no time limit (longer episodes are cut)."""
@@ -51,11 +50,11 @@ class ReinforceLearner(PolicyGradientLearner):
     def __init__(self, config: ReinforceConfig, env: EnvInfo, seed: int, device: str = "cpu"):
         config.validate()
         rows = env.max_episode_steps or LONGEST_EPISODE_WITHOUT_TIME_LIMIT
-        super().__init__(config, env, seed, device, rows, lambda p: FusedAdam(p, lr=config.lr))
+        super().__init__(config, env, seed, device, rows, lambda p: adam(p, lr=config.lr))
 
     def learn(self) -> LearnResult:
         config = self.config
-        self.optimizer.lr = schedule_value(config.lr, config.lr_schedule, self.env_steps, config.schedule_steps)
+        learning_rate = self.schedule_learning_rate()
         # Every batch starts fresh episodes (seeded from the learner's own generator), so the
         # returns are those of whole episodes.
         self.collector.restart(int(self.rng.integers(2**32)))
@@ -85,7 +84,7 @@ class ReinforceLearner(PolicyGradientLearner):
         result.scalars = {
             "train/policy_loss": losses[0],
             "train/entropy": losses[2],
-            "train/learning_rate": self.optimizer.lr,
+            "train/learning_rate": learning_rate,
             "train/updates": float(self.updates),
         }
         if config.baseline:
@@ -108,6 +107,7 @@ AGENT = AgentSpec(
     make_learner=make_learner,
     policy_from_checkpoint=policy_loader("reinforce", ReinforceConfig),
     iteration="update",
+    score_label="action probabilities",
 )
 
 __all__ = ["AGENT", "ReinforceConfig", "ReinforceLearner"]

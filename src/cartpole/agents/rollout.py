@@ -102,7 +102,7 @@ class RolloutCollector:
 
     def __init__(self, env: EnvInfo, num_envs: int, simulator: str, seed: int):
         self.env_info, self.seed = env, seed
-        self.envs = make_vec_env(env.env_id, num_envs, simulator=simulator)  # type: ignore[arg-type]
+        self.envs = make_vec_env(env.env_id, num_envs, simulator=simulator)
         self.observations = np.asarray(self.envs.reset(seed=seed)[0], dtype=np.float32)
         self.autoreset = np.zeros(num_envs, dtype=bool)
         """Envs whose last step ended an episode: their next step is a reset, not a transition."""

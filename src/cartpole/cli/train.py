@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from typing import Any
 
@@ -21,6 +22,21 @@ def parse_overrides(pairs: list[str]) -> dict[str, Any]:
             raise UsageError(f"--set expects KEY=VALUE, got {pair!r}")
         overrides[key.strip().replace("-", "_")] = value.strip()
     return overrides
+
+
+def set_torch_threads(threads: int) -> None:
+    """Cap torch's CPU threads (a process-wide setting: the CLI's business, never the library's).
+
+    Without torch imported yet, the environment variable torch reads at import does it (agents that do
+    not use torch then never import it).
+    """
+    if threads <= 0:
+        return
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        torch.set_num_threads(threads)
+    else:
+        os.environ["OMP_NUM_THREADS"] = str(threads)
 
 
 def add_parser(sub: Any) -> None:
@@ -86,6 +102,13 @@ def add_parser(sub: Any) -> None:
         action="store_true",
         help="keep training after the first verified solve, to the budget",
     )
+    parser.add_argument(
+        "--threads",
+        type=int,
+        default=1,
+        metavar="N",
+        help="torch CPU threads (default: 1, the fastest for these small nets; 0: torch's default)",
+    )
     parser.add_argument("--resume", metavar="RUN_DIR", help="continue this run from checkpoints/latest.pt")
     parser.add_argument("--quiet", action="store_true", help="no progress output")
     # --- issue 5: TensorBoard (also passed to train() below) ---
@@ -112,6 +135,9 @@ def run(args: argparse.Namespace) -> int:
     if args.seeds is not None or (args.resume and is_population_run(args.resume)):
         return run_population(args)  # issue 15
     console = Console(soft_wrap=True)
+    if args.threads < 0:
+        raise UsageError(f"--threads must be >= 0, got {args.threads}")
+    set_torch_threads(args.threads)
     if args.resume:
         if args.agent or args.overrides or args.budget is not None:
             raise UsageError("--resume continues a run with its recorded config; drop AGENT/--set/--budget")

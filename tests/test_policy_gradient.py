@@ -1,0 +1,402 @@
+"""Policy-gradient agents (REINFORCE, A2C, PPO): the shared parts, the losses, every setting, checkpoints,
+exact resume, bad settings, and that they learn."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import torch
+
+from cartpole.agents.a2c import A2CConfig, A2CLearner
+from cartpole.agents.actor_critic import ActorCritic, CategoricalPolicy, schedule_value
+from cartpole.agents.policy_gradient import PolicyGradientLearner
+from cartpole.agents.ppo import PPOConfig, PPOLearner, clipped_surrogate_loss, value_loss
+from cartpole.agents.presets import preset_names
+from cartpole.agents.registry import get_agent, load_policy
+from cartpole.agents.reinforce import ReinforceConfig, ReinforceLearner
+from cartpole.agents.rollout import explained_variance, generalized_advantages, normalize
+from cartpole.core.errors import ConfigError
+from cartpole.envs import env_info
+from cartpole.evaluation import ScoredPolicy
+from cartpole.runs import Checkpoint, load_checkpoint, save_checkpoint
+from cartpole.training import train
+from cartpole.training.config import resolve_config
+
+CARTPOLE = env_info("CartPole-v1")
+AGENTS = ("reinforce", "a2c", "ppo")
+
+
+def small_ppo(**changes: Any) -> PPOConfig:
+    base = PPOConfig(hidden_sizes=(16, 16), num_envs=4, n_steps=16, minibatch_size=16, n_epochs=2)
+    return dataclasses.replace(base, **changes)
+
+
+def small_a2c(**changes: Any) -> A2CConfig:
+    return dataclasses.replace(A2CConfig(hidden_sizes=(16, 16), num_envs=4, n_steps=8), **changes)
+
+
+def small_reinforce(**changes: Any) -> ReinforceConfig:
+    return dataclasses.replace(ReinforceConfig(hidden_sizes=(16, 16), num_envs=2), **changes)
+
+
+SMALL = {
+    "ppo": (small_ppo, PPOLearner),
+    "a2c": (small_a2c, A2CLearner),
+    "reinforce": (small_reinforce, ReinforceLearner),
+}
+
+
+def make(agent: str, seed: int = 0, **changes: Any) -> PolicyGradientLearner:
+    config_fn, learner_cls = SMALL[agent]
+    return learner_cls(config_fn(**changes), CARTPOLE, seed, "cpu")  # type: ignore[arg-type]
+
+
+def flat_params(learner: PolicyGradientLearner) -> torch.Tensor:
+    return torch.cat([p.detach().flatten() for p in learner.model.parameters()])
+
+
+def run(learner: PolicyGradientLearner, calls: int) -> list[dict[str, float]]:
+    return [learner.learn().scalars for _ in range(calls)]
+
+
+# ----------------------------------------------------------------------------------------------
+# Shared parts: GAE, normalization, schedules, the network
+# ----------------------------------------------------------------------------------------------
+
+
+def test_gae_by_hand_with_one_termination_and_one_truncation() -> None:
+    """Env 0 terminates at t=1 (no bootstrap; t=2 is its autoreset row); env 1 is truncated at t=2
+    (bootstraps from V of its final observation, row 3; t=3 is its autoreset row)."""
+    gamma, lam = 0.9, 0.5
+    rewards = torch.tensor([[1.0, 1.0], [1.0, 1.0], [0.0, 1.0], [1.0, 0.0]])
+    terminated = torch.tensor([[0.0, 0.0], [1.0, 0.0], [0.0, 0.0], [0.0, 0.0]])
+    truncated = torch.tensor([[0.0, 0.0], [0.0, 0.0], [0.0, 1.0], [0.0, 0.0]])
+    valid = torch.tensor([[True, True], [True, True], [False, True], [True, False]])
+    values = torch.tensor([[1.0, 0.5], [2.0, 0.5], [3.0, 0.5], [4.0, 2.0], [5.0, 1.0]])
+    advantages = generalized_advantages(rewards, values, terminated, truncated, valid, gamma, lam)
+    # env 0: A1 = 1 - 2 (terminated: no V(next)); A0 = (1 + .9*2 - 1) + .45*A1; A3 = 1 + .9*5 - 4
+    # env 1: A2 = 1 + .9*2 - .5 (truncated: V(final obs) = 2); A1 = .95 + .45*A2; A0 = .95 + .45*A1
+    a1_env1 = 0.95 + 0.45 * 2.3
+    expected = torch.tensor([[1.8 - 0.45, 0.95 + 0.45 * a1_env1], [-1.0, a1_env1], [0.0, 2.3], [1.5, 0.0]])
+    torch.testing.assert_close(advantages, expected)
+
+
+def test_gae_lambda_one_is_the_discounted_return_minus_value_and_zero_is_td() -> None:
+    rewards = torch.ones(3, 1)
+    zeros = torch.zeros(3, 1)
+    values = torch.tensor([[0.5], [0.25], [0.125], [0.0]])
+    valid = torch.ones(3, 1, dtype=torch.bool)
+    terminated = torch.tensor([[0.0], [0.0], [1.0]])
+    mc = generalized_advantages(rewards, values, terminated, zeros, valid, 0.5, 1.0)
+    torch.testing.assert_close(mc[:, 0], torch.tensor([1.75 - 0.5, 1.5 - 0.25, 1.0 - 0.125]))
+    td = generalized_advantages(rewards, values, terminated, zeros, valid, 0.5, 0.0)
+    torch.testing.assert_close(td[:, 0], torch.tensor([1 + 0.125 - 0.5, 1 + 0.0625 - 0.25, 1 - 0.125]))
+
+
+def test_normalize_and_explained_variance() -> None:
+    x = torch.tensor([1.0, 2.0, 3.0, 6.0])
+    y = normalize(x)
+    assert abs(float(y.mean())) < 1e-6 and abs(float(y.std()) - 1.0) < 1e-4
+    assert explained_variance(x, x) == 1.0
+    assert abs(explained_variance(torch.full_like(x, float(x.mean())), x)) < 1e-6
+    assert math.isnan(explained_variance(x, torch.ones(4)))
+
+
+def test_schedules() -> None:
+    assert schedule_value(0.2, "constant", 50, 100) == 0.2
+    assert schedule_value(0.2, "linear", 0, 100) == 0.2
+    assert schedule_value(0.2, "linear", 25, 100) == pytest.approx(0.15)
+    assert schedule_value(0.2, "linear", 150, 100) == 0.0
+
+
+@pytest.mark.parametrize("shared", [False, True])
+@pytest.mark.parametrize("activation", ["tanh", "relu", "elu"])
+def test_actor_critic_shapes_trunks_and_numpy_policy(shared: bool, activation: str) -> None:
+    model = ActorCritic(
+        4, 2, (8, 6), activation, shared_trunk=shared, generator=torch.Generator().manual_seed(0)
+    )
+    hidden = [m for m in model.modules() if isinstance(m, torch.nn.Linear)]
+    assert len(hidden) == (2 if shared else 4) + 2  # a shared trunk exists once
+    assert [m.out_features for m in model.actor_trunk if isinstance(m, torch.nn.Linear)] == [8, 6]
+    observations = torch.randn(5, 4, generator=torch.Generator().manual_seed(1))
+    logits, values = model(observations)
+    assert logits.shape == (5, 2) and values.shape == (5,)
+    policy = CategoricalPolicy(model)
+    with torch.no_grad():
+        expected = torch.softmax(model.logits(observations), dim=-1).numpy()
+    np.testing.assert_allclose(policy.scores(observations.numpy()), expected, rtol=1e-5, atol=1e-6)
+    np.testing.assert_array_equal(policy.act(observations.numpy()), expected.argmax(axis=1))
+
+
+def test_orthogonal_init_gains_and_seeded_init() -> None:
+    def build(seed: int, orthogonal: bool = True) -> ActorCritic:
+        return ActorCritic(
+            4, 2, (64, 64), orthogonal_init=orthogonal, generator=torch.Generator().manual_seed(seed)
+        )
+
+    model = build(0)
+    weight = model.actor_trunk[2].weight.detach()
+    torch.testing.assert_close(weight @ weight.T, 2.0 * torch.eye(64), atol=1e-4, rtol=0)  # gain sqrt(2)
+    assert float(model.policy_head.weight.detach().norm(dim=1).max()) == pytest.approx(0.01, rel=1e-4)
+    assert float(model.actor_trunk[0].bias.detach().abs().max()) == 0.0
+    default = build(0, orthogonal=False)
+    assert float(default.actor_trunk[0].bias.detach().abs().max()) > 0.0  # torch's own init has random biases
+    assert torch.equal(build(0).policy_head.weight, build(0).policy_head.weight)
+    assert not torch.equal(build(0).actor_trunk[0].weight, build(1).actor_trunk[0].weight)
+
+
+def test_building_a_learner_changes_no_global_state() -> None:
+    torch_state, threads = torch.get_rng_state(), torch.get_num_threads()
+    numpy_state = np.random.get_state()[1].copy()  # type: ignore[index]
+    for agent in AGENTS:
+        run(make(agent), 2)
+    assert torch.equal(torch.get_rng_state(), torch_state)
+    assert torch.get_num_threads() == threads
+    assert np.array_equal(np.random.get_state()[1], numpy_state)  # type: ignore[index]
+
+
+# ----------------------------------------------------------------------------------------------
+# PPO's losses by hand
+# ----------------------------------------------------------------------------------------------
+
+
+def test_clipped_surrogate_loss_by_hand() -> None:
+    ratios = torch.tensor([1.5, 0.5, 1.1])
+    advantages = torch.tensor([1.0, 1.0, -2.0])
+    old = torch.log(torch.tensor([0.2, 0.4, 0.5]))
+    new = (old + ratios.log()).requires_grad_()
+    loss, approx_kl, clip_fraction = clipped_surrogate_loss(new, old, advantages, clip_range=0.2)
+    # per row max(-A r, -A clip(r)): max(-1.5, -1.2), max(-0.5, -0.8), max(2.2, 2.2)
+    assert float(loss) == pytest.approx((-1.2 - 0.5 + 2.2) / 3)
+    assert float(clip_fraction) == pytest.approx(2 / 3)
+    kl = sum((r - 1) - math.log(r) for r in (1.5, 0.5, 1.1)) / 3
+    assert float(approx_kl) == pytest.approx(kl, rel=1e-5)
+    loss.backward()
+    # Row 0 is clipped (no gradient); rows 1 and 2 give d(-A r)/d(log pi) / 3 = -A r / 3.
+    assert new.grad is not None
+    torch.testing.assert_close(new.grad, torch.tensor([0.0, -0.5 / 3, 2.2 / 3]))
+
+
+def test_value_loss_by_hand_with_and_without_clipping() -> None:
+    values, old, returns = torch.tensor([2.0, 0.0]), torch.tensor([1.0, 0.0]), torch.tensor([1.0, 1.0])
+    assert float(value_loss(values, old, returns, None)) == pytest.approx(0.5 * (1.0 + 1.0) / 2)
+    # clipped to old +- 0.5: row 0 -> 1.5 (loss .25 < 1: keep 1), row 1 -> 0 (loss 1 = 1)
+    assert float(value_loss(values, old, returns, 0.5)) == pytest.approx(0.5 * (1.0 + 1.0) / 2)
+    values = torch.tensor([1.2, 0.0])  # clipped to 1.1: (1.1-1)^2 = .01 < .04
+    assert float(value_loss(values, old, returns, 0.1)) == pytest.approx(0.5 * (0.04 + 1.0) / 2)
+    values = torch.tensor([0.0, 0.0])  # row 0 clipped to 0.9 -> .01, unclipped 1: max is 1
+    assert float(value_loss(values, old, returns, 0.1)) == pytest.approx(0.5 * (1.0 + 1.0) / 2)
+    old = torch.tensor([3.0, 0.0])  # row 0: V=0 clipped to 2.9 -> (1.9)^2 = 3.61 > 1
+    assert float(value_loss(values, old, returns, 0.1)) == pytest.approx(0.5 * (3.61 + 1.0) / 2)
+
+
+# ----------------------------------------------------------------------------------------------
+# Collection
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("agent", AGENTS)
+def test_env_steps_are_transitions_and_episode_lengths_add_up(agent: str) -> None:
+    learner = make(agent, seed=4)
+    steps, lengths = 0, []
+    for _ in range(6):
+        result = learner.learn()
+        steps += result.env_steps
+        lengths += result.episode_lengths
+        assert all(r == float(n) for r, n in zip(result.episode_returns, result.episode_lengths, strict=True))
+    assert learner.env_steps == steps
+    assert lengths and sum(lengths) <= steps  # autoreset rows are not counted as env steps
+    in_progress = int(learner.collector.episode_lengths.sum())
+    assert sum(lengths) + in_progress == steps or agent == "reinforce"  # reinforce restarts each batch
+
+
+def test_reinforce_collects_whole_episodes() -> None:
+    learner = make("reinforce", seed=1)
+    result = learner.learn()
+    assert len(result.episode_returns) == 2  # one whole episode from each env
+    assert result.env_steps == sum(result.episode_lengths)
+
+
+# ----------------------------------------------------------------------------------------------
+# Determinism, checkpoints, exact resume
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("agent", AGENTS)
+def test_same_seed_same_result(agent: str) -> None:
+    a, b, c = make(agent, seed=7), make(agent, seed=7), make(agent, seed=8)
+    assert run(a, 4) == run(b, 4)
+    assert torch.equal(flat_params(a), flat_params(b))
+    run(c, 4)
+    assert not torch.equal(flat_params(a), flat_params(c))
+
+
+@pytest.mark.parametrize("agent", AGENTS)
+@pytest.mark.parametrize("simulator", ["fast", "gymnasium"])
+def test_resume_continues_exactly(agent: str, simulator: str) -> None:
+    a = make(agent, seed=3, simulator=simulator)
+    run(a, 3)
+    tensors, data = a.state_dict(resume=True)
+    b = make(agent, seed=999, simulator=simulator)  # another seed: everything must come from the state
+    b.load_state_dict({k: v.clone() for k, v in tensors.items()}, data)
+    results_a = [a.learn() for _ in range(3)]
+    results_b = [b.learn() for _ in range(3)]
+    assert [r.episode_returns for r in results_a] == [r.episode_returns for r in results_b]
+    assert [r.scalars for r in results_a] == [r.scalars for r in results_b]
+    assert torch.equal(flat_params(a), flat_params(b))
+    assert torch.equal(a.generator.get_state(), b.generator.get_state())
+
+
+@pytest.mark.parametrize("agent", AGENTS)
+def test_save_load_gives_the_same_action_probabilities(agent: str, tmp_path: Path) -> None:
+    learner = make(agent, seed=1, shared_trunk=agent == "a2c", activation="relu")
+    run(learner, 2)
+    tensors, data = learner.state_dict(resume=False)
+    meta = {
+        "agent": agent,
+        "env_id": "CartPole-v1",
+        "config": dataclasses.asdict(learner.config),
+        "learner": data,
+    }
+    save_checkpoint(tmp_path / "best.pt", Checkpoint(meta=meta, tensors=tensors))
+    policy = get_agent(agent).policy_from_checkpoint(load_checkpoint(tmp_path / "best.pt"))
+    assert isinstance(policy, ScoredPolicy)
+    observations = np.random.default_rng(0).normal(size=(32, 4)).astype(np.float32)
+    np.testing.assert_array_equal(policy.scores(observations), learner.policy().scores(observations))
+    np.testing.assert_array_equal(policy.act(observations), learner.policy().act(observations))
+
+
+def test_policy_is_a_frozen_snapshot() -> None:
+    learner = make("ppo", seed=2)
+    policy = learner.policy()
+    observations = np.random.default_rng(1).normal(size=(16, 4)).astype(np.float32)
+    before = policy.scores(observations).copy()
+    run(learner, 2)
+    np.testing.assert_array_equal(policy.scores(observations), before)
+    assert not np.array_equal(learner.policy().scores(observations), before)
+
+
+# ----------------------------------------------------------------------------------------------
+# Registry, presets and bad settings
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("agent", AGENTS)
+def test_registered_with_probability_scores(agent: str) -> None:
+    spec = get_agent(agent)
+    assert spec.name == agent and "probabilit" in spec.score_label
+
+
+def test_presets() -> None:
+    assert set(preset_names("ppo")) >= {"default", "rl-zoo", "cleanrl"}
+    assert set(preset_names("a2c")) >= {"default", "rl-zoo"}
+    assert "default" in preset_names("reinforce")
+    zoo, settings = resolve_config("ppo", PPOConfig, "rl-zoo")
+    assert (zoo.num_envs, zoo.n_steps, zoo.minibatch_size, zoo.n_epochs) == (8, 32, 256, 20)
+    assert (zoo.gamma, zoo.gae_lambda, zoo.ent_coef, zoo.lr, zoo.clip_range) == (0.98, 0.8, 0.0, 1e-3, 0.2)
+    assert (zoo.lr_schedule, zoo.clip_schedule, zoo.schedule_steps, settings.budget) == (
+        "linear",
+        "linear",
+        100_000,
+        "100k",
+    )
+    clean, settings = resolve_config("ppo", PPOConfig, "cleanrl")
+    assert (
+        clean.num_envs,
+        clean.n_steps,
+        clean.n_epochs,
+        clean.num_envs * clean.n_steps // clean.minibatch_size,
+    ) == (
+        4,
+        128,
+        4,
+        4,
+    )
+    assert (clean.lr, clean.lr_schedule, clean.gamma, clean.gae_lambda, clean.clip_range) == (
+        2.5e-4,
+        "linear",
+        0.99,
+        0.95,
+        0.2,
+    )
+    assert (clean.ent_coef, clean.vf_coef, clean.max_grad_norm, settings.budget) == (0.01, 0.5, 0.5, "500k")
+    a2c_zoo, settings = resolve_config("a2c", A2CConfig, "rl-zoo")
+    assert (a2c_zoo.num_envs, a2c_zoo.ent_coef, settings.budget) == (8, 0.0, "500k")
+
+
+@pytest.mark.parametrize("agent", AGENTS)
+def test_each_preset_runs_a_few_steps(agent: str) -> None:
+    spec = get_agent(agent)
+    for preset in preset_names(agent):
+        config, _ = resolve_config(agent, spec.config_cls, preset)
+        learner = spec.make_learner(config, CARTPOLE, 0, "cpu")
+        assert learner.learn().env_steps > 0
+
+
+@pytest.mark.parametrize(
+    ("agent", "overrides", "message"),
+    [
+        ("ppo", {"num_envs": "0"}, "num_envs must be >= 1"),
+        ("a2c", {"num_envs": "0"}, "num_envs must be >= 1"),
+        ("reinforce", {"num_envs": "0"}, "num_envs must be >= 1"),
+        ("ppo", {"clip_range": "0"}, "clip_range must be > 0"),
+        ("ppo", {"clip_range": "-0.1"}, "clip_range must be > 0"),
+        ("ppo", {"gae_lambda": "1.5"}, "gae_lambda must be in"),
+        ("a2c", {"gae_lambda": "-0.1"}, "gae_lambda must be in"),
+        ("ppo", {"lr": "nan"}, "lr must be a finite number"),
+        ("ppo", {"gamma": "inf"}, "gamma must be a finite number"),
+        ("a2c", {"ent_coef": "nan"}, "ent_coef must be a finite number"),
+        ("ppo", {"target_kl": "inf"}, "target_kl must be a finite number"),
+        ("ppo", {"n_epochs": "0"}, "n_epochs must be >= 1"),
+        ("ppo", {"minibatch_size": "0"}, "minibatch_size must be >= 1"),
+        ("ppo", {"lr_schedule": "cosine"}, "lr_schedule must be one of"),
+        ("ppo", {"clip_schedule": "cosine"}, "clip_schedule must be one of"),
+        ("a2c", {"optimizer": "sgd"}, "optimizer must be one of"),
+        ("ppo", {"activation": "sigmoid"}, "activation must be one of"),
+        ("ppo", {"hidden_sizes": "64,0"}, "hidden_sizes must all be >= 1"),
+        ("reinforce", {"gamma": "1.5"}, "gamma must be in"),
+    ],
+)
+def test_bad_settings_are_rejected_with_one_line(agent: str, overrides: dict[str, str], message: str) -> None:
+    with pytest.raises(ConfigError, match=message) as info:
+        resolve_config(agent, get_agent(agent).config_cls, "default", overrides)
+    assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("setting", ["num_envs=0", "clip_range=0", "gae_lambda=2", "lr=nan", "vf_coef=inf"])
+def test_cli_refuses_bad_settings_before_a_run_folder_exists(setting: str, tmp_path: Path, capsys) -> None:
+    from cartpole.cli.main import main
+
+    runs = tmp_path / "runs"
+    assert main(["train", "ppo", "--set", setting, "--runs-dir", str(runs), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert not runs.exists() or not any(runs.iterdir())
+
+
+# ----------------------------------------------------------------------------------------------
+# Through the shared loop: run folder, metrics, load_policy
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("agent", AGENTS)
+def test_train_writes_metrics_rows_and_a_loadable_checkpoint(agent: str, tmp_path: Path) -> None:
+    overrides = {"hidden_sizes": "16,16", "eval_every": "1000", "eval_screen_episodes": "2"}
+    outcome = train(agent, seed=0, overrides=overrides, budget="2k", runs_dir=tmp_path, device="cpu")
+    rows = [r for r in outcome.run.metrics() if "train/policy_loss" in r]
+    assert rows
+    expected = {"train/policy_loss", "train/entropy", "train/learning_rate"}
+    if agent != "reinforce" or outcome.run.config()["config"]["baseline"]:
+        expected |= {"train/value_loss", "train/explained_variance"}
+    if agent == "ppo":
+        expected |= {"train/approx_kl", "train/clip_fraction", "train/clip_range"}
+    assert expected <= set(rows[-1])
+    policy = load_policy(outcome.run.path)
+    assert isinstance(policy, ScoredPolicy)
+    scores = policy.scores(np.zeros((3, 4), dtype=np.float32))
+    np.testing.assert_allclose(scores.sum(axis=1), 1.0, rtol=1e-6)
