@@ -285,7 +285,11 @@ class PopulationPPO:
         if device != "cpu":
             raise ConfigError("population training runs on cpu only for now; use --device cpu")
         self.config, self.env_info = config, env
-        self.seeds = list(seeds)
+        # At least two rows: torch reduces a one-row batch in another order than a many-row one, so a
+        # lone seed would not get the bits it gets beside others. A lone seed gets a ghost twin whose
+        # results are dropped.
+        self.seeds = list(seeds) if len(seeds) != 1 else [seeds[0], seeds[0]]
+        self.ghosts = [False] * len(seeds) if len(seeds) != 1 else [False, True]
         self.model = StackedActorCritic([build_actor_critic(config, env, seed) for seed in self.seeds])
         self.optimizer = PopulationAdam(self.model.tensors(), config.adam_eps)
         self.generators = [torch.Generator().manual_seed(derived_seed(s, "actions")) for s in self.seeds]
@@ -302,11 +306,22 @@ class PopulationPPO:
     # -- which seeds --------------------------------------------------------------------------------
 
     def row(self, seed: int) -> int:
-        return self.seeds.index(seed)
+        return next(i for i, s in enumerate(self.seeds) if s == seed and not self.ghosts[i])
+
+    @property
+    def active_seeds(self) -> list[int]:
+        return [s for s, ghost in zip(self.seeds, self.ghosts, strict=True) if not ghost]
 
     def remove(self, seeds: list[int]) -> None:
-        """Stop training ``seeds`` (solved or out of budget): they leave every batch."""
-        keep_rows = [i for i, s in enumerate(self.seeds) if s not in set(seeds)]
+        """Stop training ``seeds`` (solved or out of budget): they leave every batch (one stays as a
+        ghost when a single seed would be left, see ``__init__``)."""
+        gone = set(seeds)
+        keep_rows = [i for i, s in enumerate(self.seeds) if s not in gone and not self.ghosts[i]]
+        ghosts = [False] * len(keep_rows)
+        if len(keep_rows) == 1:
+            keep_rows.append(next(i for i in range(len(self.seeds)) if i != keep_rows[0]))
+            ghosts.append(True)
+        self.ghosts = ghosts
         rows = torch.tensor(keep_rows, dtype=torch.int64)
         rows_np = np.asarray(keep_rows, dtype=np.int64)
         envs = (rows_np[:, None] * self.config.num_envs + np.arange(self.config.num_envs)).reshape(-1)
@@ -337,10 +352,11 @@ class PopulationPPO:
         for row, seed in enumerate(self.seeds):
             returns, lengths = finished[row]
             self.env_steps[row] += counts[row]
-            results[seed] = LearnResult(env_steps=counts[row], episode_returns=returns, episode_lengths=lengths)
+            if not self.ghosts[row]:
+                results[seed] = LearnResult(env_steps=counts[row], episode_returns=returns, episode_lengths=lengths)
         metrics = self.update(rollout, torch.tensor(lr), torch.tensor(clip).unsqueeze(1))
         for row, seed in enumerate(self.seeds):
-            if counts[row] == 0:
+            if counts[row] == 0 or self.ghosts[row]:
                 continue
             result = results[seed]
             result.scalars = metrics[row] | {"train/learning_rate": lr[row], "train/clip_range": clip[row]}
