@@ -19,6 +19,7 @@ from cartpole.agents.learner import LearnResult
 from cartpole.agents.population import PopulationPPO
 from cartpole.agents.ppo import PPOConfig
 from cartpole.agents.registry import load_policy
+from cartpole.cli.main import main
 from cartpole.core.errors import InputError
 from cartpole.core.seeding import final_eval_seed
 from cartpole.envs import env_info
@@ -27,6 +28,16 @@ from cartpole.training.population import parse_seeds, train_population
 
 CARTPOLE = env_info("CartPole-v1")
 SMALL = {"n_steps": 8, "num_envs": 4, "n_epochs": 2, "minibatch_size": 16, "hidden_sizes": (16, 16)}
+
+
+@pytest.fixture(autouse=True, scope="module")
+def one_thread():
+    """As ``cartpole train`` runs (--threads 1): on a shared 2-core machine a second torch thread makes
+    these small ops wait for each other."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
 
 
 def small_config(**changes: object) -> PPOConfig:
@@ -199,10 +210,16 @@ def run_cli(*args: str, **kwargs: object) -> subprocess.CompletedProcess[str]:
         ["ppo", "--seeds", "0-4000", "--set", "hidden_sizes=2048,2048"],
     ],
 )
-def test_bad_population_input_is_one_line_exit_2_and_no_folder(tmp_path, args):
-    done = run_cli("train", *args, "--runs-dir", str(tmp_path / "runs"))
-    assert done.returncode == 2, done.stderr
-    assert len(done.stderr.strip().splitlines()) == 1 and "Traceback" not in done.stderr
+def test_bad_population_input_is_one_line_exit_2_and_no_folder(tmp_path, capsys, args):
+    assert main(["train", *args, "--runs-dir", str(tmp_path / "runs")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "error:" in err
+    assert not (tmp_path / "runs").exists()
+
+
+def test_bad_population_input_through_the_command(tmp_path):
+    done = run_cli("train", "ppo", "--seeds", "9-0", "--runs-dir", str(tmp_path / "runs"))
+    assert done.returncode == 2 and "reversed" in done.stderr and "Traceback" not in done.stderr
     assert not (tmp_path / "runs").exists()
 
 

@@ -617,8 +617,10 @@ def masked_variance(x: torch.Tensor, mask: torch.Tensor, count: torch.Tensor) ->
 def bytes_per_seed(config: PPOConfig, env: EnvInfo) -> int:
     """What one seed of a population holds, roughly: parameters with their gradient and Adam state,
     the rollout, a minibatch's activations, and the per-seed bookkeeping (run folder, callbacks)."""
-    model = build_actor_critic(config, env, 0)
-    parameters = sum(p.numel() for p in model.parameters())
+    sizes = [env.obs_dim, *config.hidden_sizes]
+    trunk = sum(n_in * n_out + n_out for n_in, n_out in zip(sizes[:-1], sizes[1:], strict=True))
+    heads = sizes[-1] * (env.n_actions + 1) + env.n_actions + 1
+    parameters = trunk * (1 if config.shared_trunk else 2) + heads
     rows = config.n_steps * config.num_envs
     rollout = rows * (env.obs_dim + 8) * 4 * 3
     activations = config.minibatch_size * sum(config.hidden_sizes) * 4 * 12

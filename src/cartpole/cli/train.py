@@ -132,12 +132,12 @@ def run(args: argparse.Namespace) -> int:
     from cartpole.training import AlreadyFinished, parse_budget, resume, train
     from cartpole.training.population import is_population_run
 
-    if args.seeds is not None or (args.resume and is_population_run(args.resume)):
-        return run_population(args)  # issue 15
     console = Console(soft_wrap=True)
     if args.threads < 0:
         raise UsageError(f"--threads must be >= 0, got {args.threads}")
     set_torch_threads(args.threads)
+    if args.seeds is not None or (args.resume and is_population_run(args.resume)):
+        return run_population(args)  # issue 15
     if args.resume:
         if args.agent or args.overrides or args.budget is not None:
             raise UsageError("--resume continues a run with its recorded config; drop AGENT/--set/--budget")
