@@ -29,6 +29,7 @@ only the arithmetic:
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -85,22 +86,39 @@ def forward_plan(model: ActorCritic, trunk_name: str, head_name: str) -> list[La
 
 
 class StackedActorCritic:
-    """The actor-critics of S seeds: each parameter stacked on a leading seed axis ``[S, *shape]``,
-    each linear layer one ``torch.baddbmm`` for all seeds."""
+    """The actor-critics of S seeds: all parameters in one ``[S, P]`` tensor (``flat``), each
+    parameter a ``[S, *shape]`` view of it, each linear layer one ``torch.baddbmm`` for all seeds.
+
+    The gradients likewise live in one ``[S, P]`` tensor (``grad``; autograd accumulates into the
+    views in place), so clipping and Adam are a handful of operations for the whole population.
+    """
 
     def __init__(self, models: list[ActorCritic]):
         template = models[0]
         self.template = template
         self.names = [name for name, _ in template.named_parameters()]
+        self.shapes = {name: tuple(p.shape) for name, p in template.named_parameters()}
+        self.offsets: dict[str, tuple[int, int]] = {}
+        offset = 0
+        for name, shape in self.shapes.items():
+            self.offsets[name] = (offset, offset + math.prod(shape))
+            offset += math.prod(shape)
+        self.size = offset
         with torch.no_grad():
-            stacked = {name: torch.stack([dict(m.named_parameters())[name] for m in models]) for name in self.names}
-        self.params = {name: p.requires_grad_(True) for name, p in stacked.items()}
+            self.flat = torch.stack([torch.cat([p.reshape(-1) for p in m.parameters()]) for m in models])
+        self.bind()
         critic_trunk = "actor_trunk" if template.shared_trunk else "critic_trunk"
         self.actor_plan = forward_plan(template, "actor_trunk", "policy_head")
         self.critic_plan = forward_plan(template, critic_trunk, "value_head")
 
-    def tensors(self) -> list[torch.Tensor]:
-        return [self.params[name] for name in self.names]
+    def bind(self) -> None:
+        """Make the per-parameter leaves (views of ``flat``) and their gradients (views of ``grad``)."""
+        self.grad = torch.zeros_like(self.flat)
+        self.params: dict[str, torch.Tensor] = {}
+        for name, (start, end) in self.offsets.items():
+            leaf = self.flat[:, start:end].view(-1, *self.shapes[name]).requires_grad_(True)
+            leaf.grad = self.grad[:, start:end].view(-1, *self.shapes[name])
+            self.params[name] = leaf
 
     @staticmethod
     def run(plan: list[Layer], params: dict[str, torch.Tensor], x: torch.Tensor) -> torch.Tensor:
@@ -128,60 +146,54 @@ class StackedActorCritic:
         """Seed ``index``'s network as an ordinary :class:`ActorCritic` (the template, overwritten)."""
         with torch.no_grad():
             for name, p in self.template.named_parameters():
-                p.copy_(self.params[name][index])
+                start, end = self.offsets[name]
+                p.copy_(self.flat[index, start:end].view_as(p))
         return self.template
 
     def load_row(self, index: int, model: ActorCritic) -> None:
         """Put ``model``'s parameters into seed ``index``'s row."""
         with torch.no_grad():
-            for name, p in model.named_parameters():
-                self.params[name][index] = p
+            self.flat[index] = torch.cat([p.reshape(-1) for p in model.parameters()])
 
     def keep(self, rows: torch.Tensor) -> None:
-        """Keep only the seeds at ``rows`` (new leaf tensors)."""
-        with torch.no_grad():
-            self.params = {name: p[rows].clone().requires_grad_(True) for name, p in self.params.items()}
+        """Keep only the seeds at ``rows``."""
+        self.flat = self.flat[rows]
+        self.bind()
 
 
 class PopulationAdam:
-    """Adam (torch.optim.Adam's update) over stacked ``[S, ...]`` parameters with a learning rate, a
-    step count and a "sit this step out" flag per seed."""
+    """Adam (torch.optim.Adam's update) over ``[S, P]`` parameters with a learning rate, a step count
+    and a "sit this step out" flag per seed."""
 
-    def __init__(self, params: list[torch.Tensor], eps: float, betas: tuple[float, float] = (0.9, 0.999)):
+    def __init__(self, rows: int, size: int, eps: float, betas: tuple[float, float] = (0.9, 0.999)):
         self.eps, self.betas = eps, betas
-        self.exp_avg = [torch.zeros_like(p) for p in params]
-        self.exp_avg_sq = [torch.zeros_like(p) for p in params]
-        self.steps = torch.zeros(params[0].shape[0], dtype=torch.float64)
+        self.exp_avg = torch.zeros(rows, size)
+        self.exp_avg_sq = torch.zeros(rows, size)
+        self.steps = torch.zeros(rows, 1, dtype=torch.float64)
 
     @torch.no_grad()
-    def step(self, params: list[torch.Tensor], lr: torch.Tensor, active: torch.Tensor) -> None:
+    def step(self, params: torch.Tensor, grads: torch.Tensor, lr: torch.Tensor, active: torch.Tensor) -> None:
         """One step of the seeds where ``active`` [S] is True; ``lr`` is [S]."""
         beta1, beta2 = self.betas
         every = bool(active.all())
-        self.steps += active.to(self.steps.dtype)
+        if not every:
+            old = (params.clone(), self.exp_avg.clone(), self.exp_avg_sq.clone())
+        self.steps += active.unsqueeze(1).to(self.steps.dtype)
         steps = self.steps.clamp(min=1.0)
-        step_size = (lr.double() / (1.0 - beta1**steps)).float()
+        step_size = (lr.double().unsqueeze(1) / (1.0 - beta1**steps)).float()
         correction2 = (1.0 - beta2**steps).sqrt().float()
-        for p, m, v in zip(params, self.exp_avg, self.exp_avg_sq, strict=True):
-            grad = p.grad
-            assert grad is not None
-            shape = (-1,) + (1,) * (p.dim() - 1)
-            if not every:
-                old = (p.detach().clone(), m.clone(), v.clone())
-            m.lerp_(grad, 1.0 - beta1)
-            v.mul_(beta2).addcmul_(grad, grad, value=1.0 - beta2)
-            denom = (v.sqrt() / correction2.view(shape)).add_(self.eps)
-            p.sub_(step_size.view(shape) * m / denom)
-            if not every:
-                keep = active.view(shape)
-                p.copy_(torch.where(keep, p, old[0]))
-                m.copy_(torch.where(keep, m, old[1]))
-                v.copy_(torch.where(keep, v, old[2]))
+        self.exp_avg.lerp_(grads, 1.0 - beta1)
+        self.exp_avg_sq.mul_(beta2).addcmul_(grads, grads, value=1.0 - beta2)
+        denom = (self.exp_avg_sq.sqrt() / correction2).add_(self.eps)
+        params.addcdiv_(self.exp_avg * step_size, denom, value=-1.0)
+        if not every:
+            keep = active.unsqueeze(1)
+            params.copy_(torch.where(keep, params, old[0]))
+            self.exp_avg.copy_(torch.where(keep, self.exp_avg, old[1]))
+            self.exp_avg_sq.copy_(torch.where(keep, self.exp_avg_sq, old[2]))
 
     def keep(self, rows: torch.Tensor) -> None:
-        self.exp_avg = [m[rows] for m in self.exp_avg]
-        self.exp_avg_sq = [v[rows] for v in self.exp_avg_sq]
-        self.steps = self.steps[rows]
+        self.exp_avg, self.exp_avg_sq, self.steps = self.exp_avg[rows], self.exp_avg_sq[rows], self.steps[rows]
 
 
 class PopulationEnvs:
@@ -291,7 +303,7 @@ class PopulationPPO:
         self.seeds = list(seeds) if len(seeds) != 1 else [seeds[0], seeds[0]]
         self.ghosts = [False] * len(seeds) if len(seeds) != 1 else [False, True]
         self.model = StackedActorCritic([build_actor_critic(config, env, seed) for seed in self.seeds])
-        self.optimizer = PopulationAdam(self.model.tensors(), config.adam_eps)
+        self.optimizer = PopulationAdam(len(self.seeds), self.model.size, config.adam_eps)
         self.generators = [torch.Generator().manual_seed(derived_seed(s, "actions")) for s in self.seeds]
         steps = env.max_episode_steps or 500
         self.envs = PopulationEnvs(self.seeds, config.num_envs, steps)
@@ -479,9 +491,11 @@ class PopulationPPO:
                     active &= ~over
                 if not bool(active.any()):
                     continue
-                for p in self.model.tensors():
-                    p.grad = None
-                (losses * active.float()).sum().backward()
+                self.model.grad.zero_()
+                with warnings.catch_warnings():
+                    # The gradients are views of one [S, P] tensor on purpose (see StackedActorCritic).
+                    warnings.filterwarnings("ignore", "grad and param do not obey the gradient layout")
+                    (losses * active.float()).sum().backward()
                 self.step(lr, active)
                 sums += row_metrics * active.float().unsqueeze(1)
                 done_steps += active.float()
@@ -538,15 +552,11 @@ class PopulationPPO:
 
     def step(self, lr: torch.Tensor, active: torch.Tensor) -> None:
         """Clip each seed's gradient norm to ``max_grad_norm`` (as clip_grad_norm_ does), then Adam."""
-        params = self.model.tensors()
-        grads = [p.grad for p in params if p.grad is not None]
+        grads = self.model.grad
         if self.config.max_grad_norm is not None:
-            with torch.no_grad():
-                squares = torch.stack([g.square().flatten(1).sum(dim=1) for g in grads]).sum(dim=0)
-                scale = (self.config.max_grad_norm / (squares.sqrt() + 1e-6)).clamp(max=1.0)
-                for g in grads:
-                    g.mul_(scale.view((-1,) + (1,) * (g.dim() - 1)))
-        self.optimizer.step(params, lr, active)
+            norms = grads.square().sum(dim=1, keepdim=True).sqrt()
+            grads.mul_((self.config.max_grad_norm / (norms + 1e-6)).clamp(max=1.0))
+        self.optimizer.step(self.model.flat, grads, lr, active)
 
     # -- one seed, as a single run sees it ----------------------------------------------------------
 
@@ -565,14 +575,14 @@ class PopulationPPO:
             return tensors, data
         envs = slice(row * self.config.num_envs, (row + 1) * self.config.num_envs)
         tensors |= {
-            **{f"optim.exp_avg.{n}": m[row].clone() for n, m in zip(self.model.names, self.optimizer.exp_avg, strict=True)},
-            **{f"optim.exp_avg_sq.{n}": v[row].clone() for n, v in zip(self.model.names, self.optimizer.exp_avg_sq, strict=True)},
+            "optim.exp_avg": self.optimizer.exp_avg[row].clone(),
+            "optim.exp_avg_sq": self.optimizer.exp_avg_sq[row].clone(),
             "rng.torch": self.generators[row].get_state(),
             "collector.observations": torch.from_numpy(self.observations[envs].copy()),
         }
         data |= {
             "population": True,
-            "optim_steps": float(self.optimizer.steps[row]),
+            "optim_steps": float(self.optimizer.steps[row, 0]),
             "collector": {
                 "autoreset": self.autoreset[envs].tolist(),
                 "episode_returns": self.episode_returns[envs].tolist(),
@@ -592,10 +602,9 @@ class PopulationPPO:
         model = self.model.template
         model.load_state_dict({k.removeprefix("model."): v for k, v in tensors.items() if k.startswith("model.")})
         self.model.load_row(row, model)
-        for name, m, v in zip(self.model.names, self.optimizer.exp_avg, self.optimizer.exp_avg_sq, strict=True):
-            m[row] = tensors[f"optim.exp_avg.{name}"]
-            v[row] = tensors[f"optim.exp_avg_sq.{name}"]
-        self.optimizer.steps[row] = float(data["optim_steps"])
+        self.optimizer.exp_avg[row] = tensors["optim.exp_avg"]
+        self.optimizer.exp_avg_sq[row] = tensors["optim.exp_avg_sq"]
+        self.optimizer.steps[row, 0] = float(data["optim_steps"])
         self.generators[row].set_state(tensors["rng.torch"])
         envs = slice(row * self.config.num_envs, (row + 1) * self.config.num_envs)
         collector = data["collector"]
