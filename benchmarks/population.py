@@ -67,13 +67,26 @@ def run_singles_part(seeds: int, preset: str, runs_dir: Path) -> dict[str, objec
         cpu.append(clock.process_time() - before)
         solved_at.append(outcome.state.solved_at_step)
         verified += bool(outcome.report and outcome.report.solved)
-        print(f"single seed {seed}: {cpu[-1]:.1f} CPU s, solved at {solved_at[-1]}", file=sys.stderr, flush=True)
+        print(
+            f"single seed {seed}: {cpu[-1]:.1f} CPU s, solved at {solved_at[-1]}", file=sys.stderr, flush=True
+        )
     return {"cpu_per_run": cpu, "solved_at": solved_at, "verified": verified, "rss_mb": peak_rss_mb()}
 
 
 def child(part: str, seeds: int, preset: str) -> dict[str, object]:
     with tempfile.TemporaryDirectory() as tmp:
-        command = [sys.executable, __file__, "--part", part, "--n", str(seeds), "--preset", preset, "--dir", tmp]
+        command = [
+            sys.executable,
+            __file__,
+            "--part",
+            part,
+            "--n",
+            str(seeds),
+            "--preset",
+            preset,
+            "--dir",
+            tmp,
+        ]
         done = subprocess.run(command, stdout=subprocess.PIPE, text=True, check=True)
     return json.loads(done.stdout.strip().splitlines()[-1])
 
@@ -105,7 +118,10 @@ def report(population: dict[str, object], singles: dict[str, object], seeds: int
         ("seeds/min", f"{seeds / wall * 60:.1f}"),
         ("verified solves (single runs)", f"{singles['verified']}/{runs}"),
         ("median solve step, population", f"{median(pop_steps):,.0f} ({len(pop_steps)} solved in training)"),
-        ("median solve step, single runs", f"{median(single_steps):,.0f} ({len(single_steps)} solved in training)"),
+        (
+            "median solve step, single runs",
+            f"{median(single_steps):,.0f} ({len(single_steps)} solved in training)",
+        ),
         ("Mann-Whitney U p-value (solve steps)", f"{p_value:.3f}"),
     ]
     width = max(len(name) for name, _ in rows)

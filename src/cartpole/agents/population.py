@@ -28,6 +28,7 @@ only the arithmetic:
 
 from __future__ import annotations
 
+import itertools
 import math
 import warnings
 from collections.abc import Callable
@@ -193,7 +194,11 @@ class PopulationAdam:
             self.exp_avg_sq.copy_(torch.where(keep, self.exp_avg_sq, old[2]))
 
     def keep(self, rows: torch.Tensor) -> None:
-        self.exp_avg, self.exp_avg_sq, self.steps = self.exp_avg[rows], self.exp_avg_sq[rows], self.steps[rows]
+        self.exp_avg, self.exp_avg_sq, self.steps = (
+            self.exp_avg[rows],
+            self.exp_avg_sq[rows],
+            self.steps[rows],
+        )
 
 
 class PopulationEnvs:
@@ -353,7 +358,10 @@ class PopulationPPO:
     def learn(self) -> dict[int, LearnResult]:
         """A rollout and an update for every active seed; each seed's result by seed."""
         config = self.config
-        lr = [schedule_value(config.lr, config.lr_schedule, int(s), config.schedule_steps) for s in self.env_steps]
+        lr = [
+            schedule_value(config.lr, config.lr_schedule, int(s), config.schedule_steps)
+            for s in self.env_steps
+        ]
         clip = [
             max(schedule_value(config.clip_range, config.clip_schedule, int(s), config.schedule_steps), 1e-8)
             for s in self.env_steps
@@ -365,7 +373,9 @@ class PopulationPPO:
             returns, lengths = finished[row]
             self.env_steps[row] += counts[row]
             if not self.ghosts[row]:
-                results[seed] = LearnResult(env_steps=counts[row], episode_returns=returns, episode_lengths=lengths)
+                results[seed] = LearnResult(
+                    env_steps=counts[row], episode_returns=returns, episode_lengths=lengths
+                )
         metrics = self.update(rollout, torch.tensor(lr), torch.tensor(clip).unsqueeze(1))
         for row, seed in enumerate(self.seeds):
             if counts[row] == 0 or self.ghosts[row]:
@@ -419,7 +429,9 @@ class PopulationPPO:
             self.autoreset = step_terminated | step_truncated
             self.observations = next_obs
         observations[steps] = torch.from_numpy(self.observations)
-        return self.advantages(observations, actions, log_probs, rewards, terminated, truncated, valid), finished
+        return self.advantages(
+            observations, actions, log_probs, rewards, terminated, truncated, valid
+        ), finished
 
     def advantages(
         self,
@@ -436,11 +448,19 @@ class PopulationPPO:
         steps, seeds, envs = config.n_steps, len(self.seeds), config.num_envs
 
         def per_seed(x: torch.Tensor) -> torch.Tensor:  # [T, S * N, ...] -> [S, T * N, ...]
-            return x.view(steps, seeds, envs, *x.shape[2:]).transpose(0, 1).reshape(seeds, steps * envs, *x.shape[2:])
+            return (
+                x.view(steps, seeds, envs, *x.shape[2:])
+                .transpose(0, 1)
+                .reshape(seeds, steps * envs, *x.shape[2:])
+            )
 
         obs_dim = self.env_info.obs_dim
-        by_seed = observations.view(steps + 1, seeds, envs, obs_dim).transpose(0, 1).reshape(seeds, -1, obs_dim)
-        values = self.model.values(by_seed).view(seeds, steps + 1, envs).transpose(0, 1).reshape(steps + 1, -1)
+        by_seed = (
+            observations.view(steps + 1, seeds, envs, obs_dim).transpose(0, 1).reshape(seeds, -1, obs_dim)
+        )
+        values = (
+            self.model.values(by_seed).view(seeds, steps + 1, envs).transpose(0, 1).reshape(steps + 1, -1)
+        )
         valid_t = torch.from_numpy(valid)
         advantages = generalized_advantages(
             torch.from_numpy(rewards),
@@ -514,7 +534,12 @@ class PopulationPPO:
         return metrics
 
     def minibatch_loss(
-        self, rollout: Rollout, index: torch.Tensor, mask: torch.Tensor, count: torch.Tensor, clip: torch.Tensor
+        self,
+        rollout: Rollout,
+        index: torch.Tensor,
+        mask: torch.Tensor,
+        count: torch.Tensor,
+        clip: torch.Tensor,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Per-seed PPO loss [S], metrics [S, 5] (detached) and approximate KL [S] of one minibatch."""
         config = self.config
@@ -600,7 +625,9 @@ class PopulationPPO:
             raise ConfigError("not a population checkpoint: resume it as a single run")
         row = self.row(seed)
         model = self.model.template
-        model.load_state_dict({k.removeprefix("model."): v for k, v in tensors.items() if k.startswith("model.")})
+        model.load_state_dict(
+            {k.removeprefix("model."): v for k, v in tensors.items() if k.startswith("model.")}
+        )
         self.model.load_row(row, model)
         self.optimizer.exp_avg[row] = tensors["optim.exp_avg"]
         self.optimizer.exp_avg_sq[row] = tensors["optim.exp_avg_sq"]
@@ -627,7 +654,7 @@ def bytes_per_seed(config: PPOConfig, env: EnvInfo) -> int:
     """What one seed of a population holds, roughly: parameters with their gradient and Adam state,
     the rollout, a minibatch's activations, and the per-seed bookkeeping (run folder, callbacks)."""
     sizes = [env.obs_dim, *config.hidden_sizes]
-    trunk = sum(n_in * n_out + n_out for n_in, n_out in zip(sizes[:-1], sizes[1:], strict=True))
+    trunk = sum(n_in * n_out + n_out for n_in, n_out in itertools.pairwise(sizes))
     heads = sizes[-1] * (env.n_actions + 1) + env.n_actions + 1
     parameters = trunk * (1 if config.shared_trunk else 2) + heads
     rows = config.n_steps * config.num_envs

@@ -206,7 +206,9 @@ def run_population(args: argparse.Namespace) -> int:
     console = Console(soft_wrap=True)
     if args.resume:
         if args.agent or args.overrides or args.budget is not None or args.seeds is not None:
-            raise UsageError("--resume continues a population with its recorded config; drop AGENT/--set/--budget/--seeds")
+            raise UsageError(
+                "--resume continues a population with its recorded config; drop AGENT/--set/--budget/--seeds"
+            )
         outcome = resume_population(args.resume, quiet=args.quiet)
     else:
         agent = args.agent or DEFAULT_AGENT

@@ -30,7 +30,7 @@ import numpy as np
 from cartpole.agents.population import POPULATION_AGENTS, PopulationPPO, bytes_per_seed
 from cartpole.agents.registry import get_agent
 from cartpole.core.config import config_to_dict
-from cartpole.core.errors import ConfigError, InputError
+from cartpole.core.errors import InputError
 from cartpole.core.names import CheckpointName, RunState, StopReason
 from cartpole.core.seeding import MAX_TRAIN_SEED, final_eval_seed
 from cartpole.core.version import __version__
@@ -101,8 +101,8 @@ def check_memory(needed: int, seeds: int) -> None:
     free = available_memory()
     if free is not None and needed > 0.8 * free:
         raise InputError(
-            f"{seeds} seeds would take about {needed / 2**30:.1f} GiB but {free / 2**30:.1f} GiB is available; "
-            f"use fewer seeds (about {int(seeds * 0.8 * free / needed)} fit)"
+            f"{seeds} seeds would take about {needed / 2**30:.1f} GiB but {free / 2**30:.1f} GiB is "
+            f"available; use fewer seeds (about {int(seeds * 0.8 * free / needed)} fit)"
         )
 
 
@@ -284,9 +284,13 @@ def is_population_run(run_path: Path | str) -> bool:
     return bool(RunDir.open(Path(run_path)).config().get("population"))
 
 
-def resume_population(run_path: Path | str, *, quiet: bool = True, stream: TextIO | None = None) -> PopulationOutcome:
+def resume_population(
+    run_path: Path | str, *, quiet: bool = True, stream: TextIO | None = None
+) -> PopulationOutcome:
     """Continue every unfinished member of ``run_path``'s population from its ``latest.pt``."""
-    runs = [run for run in population_members(run_path) if displayed_state(run.status()) is not RunState.FINISHED]
+    runs = [
+        run for run in population_members(run_path) if displayed_state(run.status()) is not RunState.FINISHED
+    ]
     if not runs:
         raise InputError(f"every run of {Path(run_path).name}'s population has finished; nothing to resume")
     with ExitStack() as stack:
@@ -326,10 +330,14 @@ def run_population(
         for setup in setups:
             status = stack.enter_context(LiveStatus(setup.run))
             loop = SeedLoop(
-                SeedLearner(population, setup.seed), make_callbacks(setup, status, True), states.get(setup.seed)
+                SeedLearner(population, setup.seed),
+                make_callbacks(setup, status, True),
+                states.get(setup.seed),
             )
             members.append(Member(setup, status, loop))
-        progress = PopulationProgress(len(members), setups[0].budget, None if quiet else (stream or sys.stderr))
+        progress = PopulationProgress(
+            len(members), setups[0].budget, None if quiet else (stream or sys.stderr)
+        )
         previous = {s: signal.signal(s, lambda signum, frame: received.append(signum)) for s in STOP_SIGNALS}
         active: dict[int, Member] = {}
         try:
@@ -358,7 +366,9 @@ def run_population(
         reports = final_verdicts(members)
         for member in members:
             report = reports[member.seed]
-            member.status.write(RunState.FINISHED, status_fields(member.loop.state) | {"solved": report.solved})
+            member.status.write(
+                RunState.FINISHED, status_fields(member.loop.state) | {"solved": report.solved}
+            )
         progress.finish(members, reports, time.perf_counter() - started)
         return PopulationOutcome(
             runs={m.seed: m.setup.run for m in members},
@@ -498,8 +508,8 @@ class PopulationProgress:
         limit = f"/{self.budget.env_steps:,}" if self.budget.env_steps else ""
         slowest = min((s.env_steps for s in training), default=max(s.env_steps for s in states))
         return (
-            f"solved {solved}/{self.seeds} seeds, {len(training)} training, slowest seed {slowest:,}{limit} steps, "
-            f"{total / max(elapsed, 1e-9):,.0f} steps/s"
+            f"solved {solved}/{self.seeds} seeds, {len(training)} training, "
+            f"slowest seed {slowest:,}{limit} steps, {total / max(elapsed, 1e-9):,.0f} steps/s"
         )
 
     def finish(self, members: list[Member], reports: dict[int, EvalReport], elapsed: float) -> None:
@@ -522,11 +532,14 @@ def population_summary(outcome: PopulationOutcome) -> list[str]:
     solved_at = [s.solved_at_step for s in outcome.states.values() if s.solved_at_step is not None]
     if solved_at:
         lines.append(
-            f"solved in training: {len(solved_at)}/{len(seeds)}, median {int(np.median(solved_at)):,} env steps"
+            f"solved in training: {len(solved_at)}/{len(seeds)}, "
+            f"median {int(np.median(solved_at)):,} env steps"
         )
     if outcome.reports:
         verified = sum(r.solved for r in outcome.reports.values())
-        lines.append(f"verdicts: {verified}/{len(seeds)} SOLVED on 100 fresh episodes of Gymnasium's env each")
+        lines.append(
+            f"verdicts: {verified}/{len(seeds)} SOLVED on 100 fresh episodes of Gymnasium's env each"
+        )
     return lines
 
 
