@@ -354,9 +354,12 @@ def run_population(
                 progress.update(members, now - started)
             if received:
                 return interrupt(population, members, active, received[0], started)
-        except BaseException:
+        except BaseException as error:
+            now = time.perf_counter()
             for member in active.values():
-                member.loop.state.stop(StopReason.FAILED, "failed")
+                member.loop.state.stop(StopReason.FAILED, f"failed: {type(error).__name__}: {error}")
+                with suppress(Exception):  # as a single run does: save latest if the state allows
+                    member.loop.end(now)
                 with suppress(OSError):
                     member.status.write(RunState.FAILED, status_fields(member.loop.state))
             raise
