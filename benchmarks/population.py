@@ -73,22 +73,14 @@ def run_singles_part(seeds: int, preset: str, runs_dir: Path) -> dict[str, objec
     return {"cpu_per_run": cpu, "solved_at": solved_at, "verified": verified, "rss_mb": peak_rss_mb()}
 
 
-def child(part: str, seeds: int, preset: str) -> dict[str, object]:
+def child(part: str, seeds: int, preset: str, out: Path) -> dict[str, object]:
+    """Run one part in its own process; its result is also kept as ``out/<part>.json``."""
     with tempfile.TemporaryDirectory() as tmp:
-        command = [
-            sys.executable,
-            __file__,
-            "--part",
-            part,
-            "--n",
-            str(seeds),
-            "--preset",
-            preset,
-            "--dir",
-            tmp,
-        ]
-        done = subprocess.run(command, stdout=subprocess.PIPE, text=True, check=True)
-    return json.loads(done.stdout.strip().splitlines()[-1])
+        command = [sys.executable, __file__, "--part", part, "--n", str(seeds), "--preset", preset]
+        done = subprocess.run([*command, "--dir", tmp], stdout=subprocess.PIPE, text=True, check=True)
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    (out / f"{part}.json").write_text(json.dumps(result))
+    return result
 
 
 def median(values: list[int]) -> float:
@@ -134,6 +126,8 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=100, help="population size (default 100)")
     parser.add_argument("--singles", type=int, default=20, help="single runs to compare with (default 20)")
     parser.add_argument("--preset", default="default")
+    parser.add_argument("--out", default="runs/population-benchmark", help="where each part's JSON is kept")
+    parser.add_argument("--report-only", action="store_true", help="print the table from --out's JSON files")
     parser.add_argument("--part", choices=["population", "singles"], help=argparse.SUPPRESS)
     parser.add_argument("--n", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--dir", help=argparse.SUPPRESS)
@@ -145,8 +139,15 @@ def main() -> None:
         run = run_population_part if args.part == "population" else run_singles_part
         print(json.dumps(run(args.n, args.preset, Path(args.dir))))
         return
-    population = child("population", args.seeds, args.preset)
-    singles = child("singles", args.singles, args.preset)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    if args.report_only:
+        population = json.loads((out / "population.json").read_text())
+        singles = json.loads((out / "singles.json").read_text())
+        report(population, singles, len(population["solved_at"]), len(singles["solved_at"]))
+        return
+    population = child("population", args.seeds, args.preset, out)
+    singles = child("singles", args.singles, args.preset, out)
     report(population, singles, args.seeds, args.singles)
 
 
