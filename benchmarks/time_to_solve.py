@@ -1,18 +1,20 @@
-"""Time to solve CartPole-v1: each agent/preset over several seeds, next to Stable-Baselines3's DQN.
+"""Time to solve CartPole-v1: each agent/preset over several seeds, next to Stable-Baselines3's agents.
 
 Usage (from the repository root)::
 
     python benchmarks/time_to_solve.py                                  # all our agents, default presets
     python benchmarks/time_to_solve.py --agents dqn --presets default,tutorial-keras,tutorial-pytorch \\
-        --seeds 10 --sb3 --max-seconds-per-run 600
+        --seeds 10 --sb3 dqn --max-seconds-per-run 600
+    python benchmarks/time_to_solve.py --agents ppo,a2c,reinforce --seeds 10 --sb3 ppo,a2c
 
 Each run is one fresh subprocess (so torch thread settings and imports of one run cannot speed up or
 slow down another) that calls :func:`cartpole.training.train` with the preset's own budget. Per run we
 record the CPU time (``time.process_time``, all threads) and wall time from the start of training to
 the in-training verified solve (the first full 100-episode evaluation on Gymnasium's env with mean >=
 the threshold), the env steps at that moment, and the final verdict: the kept best checkpoint re-judged
-by ``evaluate`` on 100 fresh episodes. SB3's DQN (RL Zoo's CartPole-v1 hyperparameters) is judged by
-the same ``evaluate`` at the same cadence (screen, then full evaluation), with the same stop rule.
+by ``evaluate`` on 100 fresh episodes. SB3's DQN, PPO and A2C (RL Zoo's CartPole-v1 hyperparameters)
+are judged by the same ``screened_evaluation`` at the cadence of our agent's default preset, with the
+same stop rule. Every run uses one torch thread (our CLI's default; SB3 runs are set the same way).
 """
 
 from __future__ import annotations
@@ -29,7 +31,8 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
-ALL_AGENTS = ("random-search", "hill-climbing", "cem", "dqn")
+ALL_AGENTS = ("random-search", "hill-climbing", "cem", "dqn", "reinforce", "a2c", "ppo")
+SB3_AGENTS = ("dqn", "ppo", "a2c")
 
 # rl-baselines3-zoo, hyperparams/dqn.yml, "CartPole-v1" (marked "Almost Tuned" there).
 SB3_ZOO_CARTPOLE = {
@@ -47,6 +50,16 @@ SB3_ZOO_CARTPOLE = {
 }
 SB3_ZOO_STEPS = 50_000
 """The zoo's n_timesteps for CartPole-v1 (exploration_fraction is a share of this)."""
+
+# rl-baselines3-zoo, hyperparams/ppo.yml and a2c.yml, "CartPole-v1" (n_envs, n_timesteps, then the
+# algorithm's keyword arguments; "lin_X" is X times SB3's progress_remaining).
+SB3_ZOO_ON_POLICY: dict[str, tuple[int, int, dict[str, Any]]] = {
+    "ppo": (8, 100_000, {
+        "n_steps": 32, "batch_size": 256, "gae_lambda": 0.8, "gamma": 0.98, "n_epochs": 20,
+        "ent_coef": 0.0, "learning_rate": "lin_0.001", "clip_range": "lin_0.2",
+    }),
+    "a2c": (8, 500_000, {"ent_coef": 0.0}),
+}  # fmt: skip
 
 
 # ----------------------------------------------------------------------------------------------
@@ -69,6 +82,11 @@ def warm_up(env_id: str) -> None:
 
     for simulator in ("fast", "gymnasium"):
         evaluate(Left(), env_id, 2, seed=0, simulator=simulator)
+    # Constructing any torch.optim optimizer imports torch._dynamo once per process (1.5-1.8 s of CPU
+    # here): an import, paid before timing by every run, ours and SB3's alike.
+    import torch
+
+    torch.optim.Adam([torch.zeros(1, requires_grad=True)])
 
 
 def run_ours(agent: str, preset: str, seed: int, max_seconds: float | None, env_id: str) -> dict[str, Any]:
@@ -193,6 +211,89 @@ def run_sb3(seed: int, max_seconds: float | None, env_id: str, eval_every: int, 
     }  # fmt: skip
 
 
+def run_sb3_on_policy(algo: str, seed: int, max_seconds: float | None, env_id: str, eval_every: int,
+                      screen: int, total_steps: int | None) -> dict[str, Any]:  # fmt: skip
+    """SB3 PPO or A2C with the RL Zoo's CartPole-v1 hyperparameters, judged exactly like our agents."""
+    import dataclasses
+
+    import numpy as np
+    import stable_baselines3
+    import torch
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.env_util import make_vec_env
+
+    from cartpole.agents.registry import get_agent
+    from cartpole.envs import env_info
+    from cartpole.evaluation import evaluate
+    from cartpole.training.callbacks import report_rank, screened_evaluation
+    from cartpole.training.config import resolve_config
+
+    torch.set_num_threads(1)
+    _, settings = resolve_config(algo, get_agent(algo).config_cls, "default")
+    settings = dataclasses.replace(settings, eval_every=eval_every, eval_screen_episodes=screen)
+    env = env_info(env_id)
+    n_envs, zoo_steps, zoo = SB3_ZOO_ON_POLICY[algo]
+    total_steps = total_steps or zoo_steps
+    kwargs = {k: _sb3_zoo_value(v) for k, v in zoo.items()}
+
+    class Adapter:
+        def __init__(self, model: Any):
+            self.model = model
+
+        def act(self, observations: np.ndarray) -> np.ndarray:
+            return self.model.predict(observations, deterministic=True)[0]
+
+    class Judge(BaseCallback):
+        def __init__(self) -> None:
+            super().__init__()
+            self.last, self.evals, self.best, self.best_params = 0, 0, None, None
+            self.solve: dict[str, float] = {}
+
+        def _on_step(self) -> bool:
+            if self.num_timesteps - self.last < eval_every:
+                return True
+            self.last = self.num_timesteps
+            report = screened_evaluation(Adapter(self.model), env, seed, self.evals, settings)
+            self.evals += 1
+            if self.best is None or report_rank(report) > report_rank(self.best):
+                self.best = report
+                self.best_params = {k: v.clone() for k, v in self.model.policy.state_dict().items()}
+            if report.solved:
+                cpu, wall = time.process_time() - cpu_start, time.perf_counter() - wall_start
+                self.solve = {"cpu": cpu, "wall": wall, "steps": self.num_timesteps}
+                return False
+            return not (max_seconds and time.perf_counter() - wall_start > max_seconds)
+
+    judge = Judge()
+    warm_up(env_id)
+    cpu_start, wall_start = time.process_time(), time.perf_counter()
+    algo_cls = {"ppo": stable_baselines3.PPO, "a2c": stable_baselines3.A2C}[algo]
+    vec_env = make_vec_env(env_id, n_envs=n_envs, seed=seed)
+    model = algo_cls("MlpPolicy", vec_env, seed=seed, device="cpu", verbose=0, **kwargs)
+    model.learn(total_timesteps=total_steps, callback=judge)
+    cpu_total = time.process_time() - cpu_start
+    elapsed = time.perf_counter() - wall_start
+    if judge.best_params is not None:
+        model.policy.load_state_dict(judge.best_params)
+    report = evaluate(Adapter(model), env_id, 100)
+    return {
+        "agent": f"sb3-{algo}", "preset": "rl-zoo", "seed": seed,
+        "solved_in_training": bool(judge.solve), "solve_steps": judge.solve.get("steps"),
+        "solve_cpu": judge.solve.get("cpu"), "solve_wall": judge.solve.get("wall"),
+        "env_steps": model.num_timesteps, "episodes": None, "cpu_total": cpu_total, "elapsed": elapsed,
+        "gradient_steps": float(model._n_updates), "final_mean": report.mean, "final_solved": report.solved,
+        "stop_reason": "solved" if judge.solve else "budget",
+    }  # fmt: skip
+
+
+def _sb3_zoo_value(value: Any) -> Any:
+    """The zoo's "lin_X" as SB3's schedule (X * progress_remaining); other values as they are."""
+    if isinstance(value, str) and value.startswith("lin_"):
+        start = float(value.removeprefix("lin_"))
+        return lambda progress_remaining: start * progress_remaining
+    return value
+
+
 def _sb3_linear_schedule(zoo: dict[str, Any], total_steps: int) -> Any:
     """SB3's epsilon schedule expressed in the zoo's 50k steps, evaluated on our total_steps."""
     from stable_baselines3.common.utils import LinearSchedule
@@ -271,13 +372,12 @@ def print_run(result: dict[str, Any]) -> None:
     )  # fmt: skip
 
 
-def run_in_subprocess(task: dict[str, Any], one_thread: bool = False) -> dict[str, Any]:
+def run_in_subprocess(task: dict[str, Any]) -> dict[str, Any]:
     """Run one measurement in a fresh interpreter; return its JSON result.
 
-    ``one_thread`` caps torch's threads at one for presets that leave torch its default (used when
-    several runs share the machine).
+    One torch thread, as ``cartpole train`` sets by default (``--threads 1``); SB3's runs set it too.
     """
-    env = os.environ | {"PYTHONHASHSEED": "0"} | ({"OMP_NUM_THREADS": "1"} if one_thread else {})
+    env = os.environ | {"PYTHONHASHSEED": "0", "OMP_NUM_THREADS": "1"}
     proc = subprocess.run(
         [sys.executable, __file__, "--one", json.dumps(task)],
         capture_output=True, text=True, env=env, check=False,
@@ -297,10 +397,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--env", default="CartPole-v1")
     parser.add_argument("--max-seconds-per-run", type=float, default=None,
                         help="wall-clock cap added to each run's budget")  # fmt: skip
-    parser.add_argument("--sb3", action="store_true", help="also measure SB3 DQN (RL Zoo hyperparameters)")
-    parser.add_argument("--sb3-steps", type=int, default=100_000, help="SB3's env-step budget")
+    parser.add_argument("--sb3", nargs="?", const="dqn", default=None, metavar="AGENTS",
+                        help="also measure SB3 with the RL Zoo's hyperparameters: "
+                             "comma-separated dqn, ppo, a2c (--sb3 alone: dqn)")  # fmt: skip
+    parser.add_argument("--sb3-steps", type=int, default=None,
+                        help="SB3's env-step budget (default: DQN 100k, PPO/A2C the zoo's)")  # fmt: skip
     parser.add_argument("--sb3-eval-every", type=int, default=None,
-                        help="SB3 evaluation cadence, env steps (default: dqn default preset's)")  # fmt: skip
+                        help="SB3 evaluation cadence, env steps (default: our agent's default's)")  # fmt: skip
     parser.add_argument("--jobs", type=int, default=1,
                         help="runs at once (one torch thread each); CPU s include contention")  # fmt: skip
     parser.add_argument("--json", default=None,
@@ -312,7 +415,11 @@ def main(argv: list[str] | None = None) -> int:
         task = json.loads(args.one)
         if task["agent"] == "sb3-dqn":
             result = run_sb3(task["seed"], task["max_seconds"], task["env"], task["eval_every"],
-                             task["screen"], task["total_steps"])  # fmt: skip
+                             task["screen"], task["total_steps"] or 100_000)  # fmt: skip
+        elif task["agent"].startswith("sb3-"):
+            algo = task["agent"].removeprefix("sb3-")
+            result = run_sb3_on_policy(algo, task["seed"], task["max_seconds"], task["env"],
+                                       task["eval_every"], task["screen"], task["total_steps"])  # fmt: skip
         else:
             result = run_ours(task["agent"], task["preset"], task["seed"], task["max_seconds"], task["env"])
         print(json.dumps(result))
@@ -337,14 +444,15 @@ def main(argv: list[str] | None = None) -> int:
         except ImportError:
             print("SB3 is not installed (pip install -e '.[bench]'); skipping it", file=sys.stderr)
         else:
-            from cartpole.agents.dqn import DQNConfig
-
-            _, settings = resolve_config("dqn", DQNConfig, "default")
-            every = args.sb3_eval_every or settings.eval_every
-            base = {"agent": "sb3-dqn", "preset": "rl-zoo", "max_seconds": args.max_seconds_per_run,
-                    "env": args.env, "eval_every": every, "screen": settings.eval_screen_episodes,
-                    "total_steps": args.sb3_steps}  # fmt: skip
-            tasks += [base | {"seed": s} for s in seeds]
+            for sb3_agent in [a.strip() for a in args.sb3.split(",") if a.strip()]:
+                if sb3_agent not in SB3_AGENTS:
+                    parser.error(f"--sb3 takes {', '.join(SB3_AGENTS)}; got {sb3_agent!r}")
+                _, settings = resolve_config(sb3_agent, get_agent(sb3_agent).config_cls, "default")
+                every = args.sb3_eval_every or settings.eval_every
+                base = {"agent": f"sb3-{sb3_agent}", "preset": "rl-zoo", "env": args.env,
+                        "max_seconds": args.max_seconds_per_run, "eval_every": every,
+                        "screen": settings.eval_screen_episodes, "total_steps": args.sb3_steps}  # fmt: skip
+                tasks += [base | {"seed": s} for s in seeds]
 
     print(f"# time_to_solve: {args.env}, {len(tasks)} runs, {platform.processor() or platform.machine()}, "
           f"{os.cpu_count()} CPUs, python {platform.python_version()}", file=sys.stderr)  # fmt: skip
@@ -354,7 +462,7 @@ def main(argv: list[str] | None = None) -> int:
     groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
     results = []
     with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
-        futures = [pool.submit(run_in_subprocess, task, args.jobs > 1) for task in tasks]
+        futures = [pool.submit(run_in_subprocess, task) for task in tasks]
         for future in futures:  # in task order, so the table's rows do not depend on timing
             result = future.result()
             results.append(result)

@@ -9,9 +9,29 @@ import json
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
+from urllib.parse import urljoin
+
+from fastapi.testclient import TestClient
 
 from cartpole.runs import RunDir
 from cartpole.training import train
+from cartpole.web.app import create_app
+
+LOCAL = "http://127.0.0.1"
+
+
+class LocalClient(TestClient):
+    """A test client whose requests, WebSocket ones too, are addressed to 127.0.0.1 (Starlette's
+    client addresses WebSockets to "testserver", a host the app refuses)."""
+
+    def websocket_connect(self, url: str, *args: Any, **kwargs: Any) -> Any:
+        return super().websocket_connect(urljoin(LOCAL.replace("http", "ws", 1), url), *args, **kwargs)
+
+
+def local_client(runs_dir: Path) -> TestClient:
+    """A client of the app serving ``runs_dir``, as a browser on this machine would address it."""
+    return LocalClient(create_app(runs_dir), base_url=LOCAL)
 
 
 @dataclass(frozen=True)

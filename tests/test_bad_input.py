@@ -449,13 +449,11 @@ def test_plot_skips_an_unreadable_run_with_a_warning(runs, tmp_path, capsys):
 
 
 def test_the_web_api_lists_an_unreadable_run(runs):
-    from fastapi.testclient import TestClient
-
-    from cartpole.web.app import create_app
+    from conftest_web import local_client
 
     write_text("status.json", '{"state": 5}')(runs)
     dangling("checkpoints/best.pt", kind="dqn")(runs)
-    client = TestClient(create_app(runs["cem"].parent))
+    client = local_client(runs["cem"].parent)
     listed = client.get("/api/runs")
     assert listed.status_code == 200
     rows = {row["name"]: row for row in listed.json()["runs"]}
@@ -468,11 +466,9 @@ def test_the_web_api_lists_an_unreadable_run(runs):
 
 
 def test_the_web_api_says_when_the_runs_folder_is_not_one(tmp_path):
-    from fastapi.testclient import TestClient
+    from conftest_web import local_client
 
-    from cartpole.web.app import create_app
-
-    answer = TestClient(create_app(a_file(tmp_path))).get("/api/runs")
+    answer = local_client(a_file(tmp_path)).get("/api/runs")
     assert answer.status_code == 200 and answer.json()["runs"] == []
     assert "is not a folder of runs" in answer.json()["problem"]
 

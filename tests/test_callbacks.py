@@ -300,8 +300,8 @@ def test_latest_every_few_seconds_of_wall_time(run):
 
 
 def test_default_checkpoint_cadence_is_a_tenth_of_the_budget_and_a_minute():
-    from cartpole.agents.registry import agent_names
     from cartpole.agents.presets import preset_names
+    from cartpole.agents.registry import agent_names
     from cartpole.training.config import resolve_config
 
     for agent in agent_names():

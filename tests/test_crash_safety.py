@@ -221,13 +221,11 @@ def test_heartbeat_is_refreshed_while_training(tmp_path):
 
 def test_the_web_api_lists_a_crashed_run(tmp_path):
     pytest.importorskip("httpx")
-    from fastapi.testclient import TestClient
-
-    from cartpole.web.app import create_app
+    from conftest_web import local_client
 
     outcome = train("cem", seed=0, overrides={"population": "8"}, budget="2gen", runs_dir=tmp_path)
     outcome.run.write_status({**outcome.run.status(), "state": "running", "pid": dead_pid()})
-    client = TestClient(create_app(tmp_path))
+    client = local_client(tmp_path)
     (row,) = client.get("/api/runs").json()["runs"]
     assert row["state"] == "crashed"
     detail = client.get(f"/api/runs/{outcome.run.name}").json()

@@ -100,6 +100,51 @@ LINEAR_CHANGES: dict[str, Change] = {
     "simulator": ({}, "gymnasium"),
 }
 
+PG_BASE: dict[str, Any] = {"hidden_sizes": (16, 16), "num_envs": 4}
+"""Policy-gradient agents (REINFORCE, A2C, PPO): the shared settings' base."""
+PPO_BASE: dict[str, Any] = PG_BASE | {"n_steps": 16, "minibatch_size": 16, "n_epochs": 2}
+A2C_BASE: dict[str, Any] = PG_BASE | {"n_steps": 8}
+REINFORCE_BASE: dict[str, Any] = PG_BASE | {"num_envs": 2}
+PG_CHANGES: dict[str, Change] = {
+    "hidden_sizes": ({}, (16,)),
+    "activation": ({}, "relu"),
+    "shared_trunk": ({}, True),
+    "orthogonal_init": ({}, False),
+    "num_envs": ({}, 3),
+    "gamma": ({}, 0.5),
+    "lr": ({}, 1e-2),
+    "lr_schedule": ({"schedule_steps": 100}, "linear"),
+    "schedule_steps": ({"lr_schedule": "linear"}, 50),
+    "ent_coef": ({}, 0.5),
+    "vf_coef": ({}, 2.0),
+    "max_grad_norm": ({}, 0.01),
+    "simulator": ({}, "gymnasium"),
+}
+PPO_CHANGES: dict[str, Change] = PG_CHANGES | {
+    "n_steps": ({}, 8),
+    "gae_lambda": ({}, 0.3),
+    "n_epochs": ({}, 3),
+    "minibatch_size": ({}, 8),
+    "clip_range": ({}, 0.01),
+    "clip_schedule": ({"schedule_steps": 100}, "linear"),
+    "clip_range_vf": ({}, 0.001),
+    "target_kl": ({}, 1e-6),
+    "normalize_advantages": ({}, False),
+    "adam_eps": ({}, 0.1),
+}
+A2C_CHANGES: dict[str, Change] = PG_CHANGES | {
+    "n_steps": ({}, 5),
+    "gae_lambda": ({}, 0.5),
+    "normalize_advantages": ({}, True),
+    "optimizer": ({}, "adam"),
+    "rms_alpha": ({}, 0.5),
+    "optimizer_eps": ({}, 0.1),
+}
+REINFORCE_CHANGES: dict[str, Change] = PG_CHANGES | {
+    "baseline": ({}, False),
+    "normalize_returns": ({}, False),
+}
+
 NOT_APPLICABLE: dict[str, dict[str, str]] = {
     "dqn": {
         # (gone once agents stop setting process-wide state; an entry for a missing field is harmless)
@@ -113,8 +158,19 @@ NOT_APPLICABLE: dict[str, dict[str, str]] = {
     },
     "hill-climbing": {"elite_fraction": "CEM only", "init_std": "CEM only", "extra_std": "CEM only"},
     "cem": {"init_range": "random search and hill climbing only", "noise": "hill climbing only"},
+    "ppo": {},
+    "a2c": {},
+    "reinforce": {},
 }
-BASES = {"dqn": DQN_BASE, "random-search": LINEAR_BASE, "hill-climbing": LINEAR_BASE, "cem": LINEAR_BASE}
+BASES = {
+    "dqn": DQN_BASE,
+    "random-search": LINEAR_BASE,
+    "hill-climbing": LINEAR_BASE,
+    "cem": LINEAR_BASE,
+    "ppo": PPO_BASE,
+    "a2c": A2C_BASE,
+    "reinforce": REINFORCE_BASE,
+}
 # Our fast simulator and Gymnasium's env differ only in float rounding, which shows in long episodes:
 # hill climbing's small default steps keep its first episodes short, so it searches wider here.
 HILL_CLIMBING_CHANGES = LINEAR_CHANGES | {"simulator": ({"population": 16, "noise": 1.0}, "gymnasium")}
@@ -123,8 +179,11 @@ CHANGES = {
     "random-search": LINEAR_CHANGES,
     "hill-climbing": HILL_CLIMBING_CHANGES,
     "cem": LINEAR_CHANGES,
+    "ppo": PPO_CHANGES,
+    "a2c": A2C_CHANGES,
+    "reinforce": REINFORCE_CHANGES,
 }
-CALLS = {"dqn": 40, "random-search": 3, "hill-climbing": 3, "cem": 3}
+CALLS = {"dqn": 40, "random-search": 3, "hill-climbing": 3, "cem": 3, "ppo": 3, "a2c": 3, "reinforce": 2}
 """learn() calls before comparing: DQN's base makes its first update at call 8."""
 
 

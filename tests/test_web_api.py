@@ -7,7 +7,6 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
-from urllib.parse import urljoin
 
 import numpy as np
 import pytest
@@ -22,23 +21,10 @@ from cartpole.agents.registry import load_policy
 from cartpole.envs.fast import CartPoleEnv, CartPoleParams
 from cartpole.evaluation import Policy, evaluate, start_states
 from cartpole.runs import RunDir
-from cartpole.web.app import create_app
 from cartpole.web.episodes import sim_limits
 
 sys.path.insert(0, str(Path(__file__).parent))
-from conftest_web import WebRuns, make_dqn_run, make_web_runs
-
-
-class LocalClient(TestClient):
-    """A test client whose requests, WebSocket ones too, are addressed to 127.0.0.1 (Starlette's
-    client addresses WebSockets to "testserver", a host the app refuses)."""
-
-    def websocket_connect(self, url: str, *args: Any, **kwargs: Any) -> Any:
-        return super().websocket_connect(urljoin("ws://127.0.0.1", url), *args, **kwargs)
-
-
-def local_client(runs_dir: Path) -> TestClient:
-    return LocalClient(create_app(runs_dir), base_url="http://127.0.0.1")
+from conftest_web import WebRuns, local_client, make_dqn_run, make_web_runs
 
 
 @pytest.fixture(scope="module")

@@ -78,7 +78,7 @@ class A2CLearner(PolicyGradientLearner):
     def learn(self) -> LearnResult:
         config = self.config
         learning_rate = self.schedule_learning_rate()
-        rows, returns, lengths = self.collector.collect(self.buffer, self.model, self.generator)
+        rows, returns, lengths = self.collector.collect(self.buffer, self.model, self.action_rng)
         batch = self.rollout_batch(rows, config.gae_lambda)
         collected = len(batch)
         self.env_steps += collected
@@ -86,7 +86,9 @@ class A2CLearner(PolicyGradientLearner):
         if collected == 0:
             return result
 
-        log_probs, entropy, values = policy_loss_terms(self.model, batch.observations, batch.actions)
+        log_probs, entropy, values = policy_loss_terms(
+            self.model, batch.observations, batch.actions, entropy_grad=config.ent_coef > 0
+        )
         advantages = normalize(batch.advantages) if config.normalize_advantages else batch.advantages
         policy_loss = -(advantages * log_probs).mean()
         value_loss = 0.5 * (values - batch.returns).square().mean()

@@ -116,7 +116,7 @@ class LinearSearch:
         self.best = self.rng.uniform(-config.init_range, config.init_range, self.size)
         self.best_score = -np.inf
         n_envs = config.population * config.episodes_per_candidate
-        self.vec_env: gym.vector.VectorEnv = make_vec_env(env.env_id, n_envs, simulator=config.simulator)  # type: ignore[arg-type]
+        self.vec_env: gym.vector.VectorEnv = make_vec_env(env.env_id, n_envs, simulator=config.simulator)
 
     def policy(self) -> LinearPolicy:
         return LinearPolicy(self.best, self.env.obs_dim, self.env.n_actions, self.config.bias)

@@ -104,13 +104,18 @@ class Batch:
 
 
 def policy_loss_terms(
-    model: ActorCritic, observations: torch.Tensor, actions: torch.Tensor
+    model: ActorCritic, observations: torch.Tensor, actions: torch.Tensor, entropy_grad: bool = True
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """(log-probabilities of ``actions``, mean entropy, values) under the current network."""
+    """(log-probabilities of ``actions``, mean entropy, values) under the current network.
+
+    Without ``entropy_grad`` the entropy is only a metric (an entropy coefficient of 0): computed
+    outside autograd, it adds nothing to the backward pass.
+    """
     logits, values = model(observations)
     log_probs_all = torch.log_softmax(logits, dim=-1)
     log_probs = log_probs_all.gather(1, actions.unsqueeze(1)).squeeze(1)
-    entropy = -(log_probs_all.exp() * log_probs_all).sum(dim=-1).mean()
+    with torch.set_grad_enabled(entropy_grad and torch.is_grad_enabled()):
+        entropy = -(log_probs_all.exp() * log_probs_all).sum(dim=-1).mean()
     return log_probs, entropy, values
 
 
@@ -141,8 +146,10 @@ class PolicyGradientLearner:
         ).to(self.device)
         self.parameters: list[torch.Tensor] = list(self.model.parameters())
         self.optimizer = make_optimizer(self.parameters)
-        self.generator = torch.Generator(self.device).manual_seed(derived_seed(seed, "actions"))
-        """Samples actions and shuffles minibatches; seeded apart from the other streams."""
+        self.generator = torch.Generator(self.device).manual_seed(derived_seed(seed, "minibatches"))
+        """Shuffles minibatches; each random stream is seeded apart from the others."""
+        self.action_rng = np.random.default_rng(derived_seed(seed, "actions"))
+        """Samples the actions of collection."""
         self.rng = np.random.default_rng(derived_seed(seed, "episodes"))
         """Seeds fresh episodes where an agent restarts them (REINFORCE)."""
         self.collector = RolloutCollector(env, config.num_envs, config.simulator, seed)
@@ -158,10 +165,13 @@ class PolicyGradientLearner:
         (``use_values`` False: values are 0, so advantages are discounted reward-to-go)."""
         buffer, device = self.buffer, self.device
         observations = buffer.observations[: rows + 1].to(device)
-        if use_values:
-            values = self.model.values(observations.flatten(0, 1)).view(rows + 1, -1)
-        else:
-            values = torch.zeros(observations.shape[:2], device=device)
+        actions = buffer.actions[:rows].to(device)
+        logits, values = self.model(observations.flatten(0, 1))
+        log_probs = torch.log_softmax(logits.view(rows + 1, -1, logits.shape[-1])[:-1], dim=-1)
+        log_probs = log_probs.gather(2, actions.unsqueeze(2)).squeeze(2)
+        values = (
+            values.view(rows + 1, -1) if use_values else torch.zeros(observations.shape[:2], device=device)
+        )
         rewards, terminated = buffer.rewards[:rows].to(device), buffer.terminated[:rows].to(device)
         truncated, valid = buffer.truncated[:rows].to(device), buffer.valid[:rows].to(device)
         gamma = self.config.gamma
@@ -170,8 +180,8 @@ class PolicyGradientLearner:
         keep = valid.flatten()
         return Batch(
             observations=observations[:-1].flatten(0, 1)[keep],
-            actions=buffer.actions[:rows].to(device).flatten()[keep],
-            log_probs=buffer.log_probs[:rows].to(device).flatten()[keep],
+            actions=actions.flatten()[keep],
+            log_probs=log_probs.flatten()[keep],
             values=values[:-1].flatten()[keep],
             advantages=advantages.flatten()[keep],
             returns=returns.flatten()[keep],
@@ -211,6 +221,7 @@ class PolicyGradientLearner:
         optim_tensors, optim_data = optimizer_state(self.optimizer)
         tensors |= {f"optim.{k}": v for k, v in optim_tensors.items()}
         tensors["rng.torch"] = self.generator.get_state()
+        data["rng_actions"] = self.action_rng.bit_generator.state
         collector_tensors, collector_data = self.collector.state_dict()
         tensors |= {f"collector.{k}": v for k, v in collector_tensors.items()}
         data |= {
@@ -229,6 +240,7 @@ class PolicyGradientLearner:
         load_optimizer_state(self.optimizer, with_prefix(tensors, "optim."), data["optim"])
         self.generator.set_state(tensors["rng.torch"])
         self.rng.bit_generator.state = data["rng_numpy"]
+        self.action_rng.bit_generator.state = data["rng_actions"]
         self.env_steps, self.updates = int(data["env_steps"]), int(data["updates"])
         self.collector.load_state_dict(with_prefix(tensors, "collector."), data["collector"], self.env_steps)
 

@@ -138,7 +138,7 @@ class PPOLearner(PolicyGradientLearner):
         clip_range = schedule_value(
             config.clip_range, config.clip_schedule, self.env_steps, config.schedule_steps
         )
-        rows, returns, lengths = self.collector.collect(self.buffer, self.model, self.generator)
+        rows, returns, lengths = self.collector.collect(self.buffer, self.model, self.action_rng)
         batch = self.rollout_batch(rows, config.gae_lambda)
         collected = len(batch)
         self.env_steps += collected
@@ -150,17 +150,23 @@ class PPOLearner(PolicyGradientLearner):
         result.log_scalars = True
         return result
 
+    def minibatches(self, batch: Batch) -> list[Batch]:
+        """One pass over ``batch`` in shuffled minibatches (the whole batch when it fits in one)."""
+        size = self.config.minibatch_size
+        if size >= len(batch):  # one full-batch step: the order of rows does not matter
+            return [batch]
+        order = torch.randperm(len(batch), generator=self.generator, device=self.device)
+        return [batch[order[start : start + size]] for start in range(0, len(batch), size)]
+
     def update(self, batch: Batch, clip_range: float) -> dict[str, float]:
         """``n_epochs`` passes of shuffled minibatches over ``batch``; the update's mean metrics."""
         config = self.config
         metrics: list[torch.Tensor] = []
         stopped_early = False
         for _ in range(config.n_epochs):
-            order = torch.randperm(len(batch), generator=self.generator, device=self.device)
-            for start in range(0, len(batch), config.minibatch_size):
-                minibatch = batch[order[start : start + config.minibatch_size]]
+            for minibatch in self.minibatches(batch):
                 log_probs, entropy, values = policy_loss_terms(
-                    self.model, minibatch.observations, minibatch.actions
+                    self.model, minibatch.observations, minibatch.actions, entropy_grad=config.ent_coef > 0
                 )
                 advantages = minibatch.advantages
                 if config.normalize_advantages:
@@ -172,7 +178,9 @@ class PPOLearner(PolicyGradientLearner):
                     stopped_early = True
                     break
                 v_loss = value_loss(values, minibatch.values, minibatch.returns, config.clip_range_vf)
-                loss = policy_loss - config.ent_coef * entropy + config.vf_coef * v_loss
+                loss = policy_loss + config.vf_coef * v_loss
+                if config.ent_coef > 0:
+                    loss = loss - config.ent_coef * entropy
                 self.clip_and_step(loss)
                 metrics.append(
                     torch.stack(

@@ -59,7 +59,7 @@ class ReinforceLearner(PolicyGradientLearner):
         # returns are those of whole episodes.
         self.collector.restart(int(self.rng.integers(2**32)))
         rows, returns, lengths = self.collector.collect(
-            self.buffer, self.model, self.generator, stop_when_all_ended=True
+            self.buffer, self.model, self.action_rng, stop_when_all_ended=True
         )
         # gae_lambda = 1 with values 0 is the plain discounted reward-to-go; with the baseline's
         # values it is the reward-to-go minus V(s_t) (plus the bootstrap at truncation).
@@ -70,7 +70,9 @@ class ReinforceLearner(PolicyGradientLearner):
         if collected == 0:
             return result
 
-        log_probs, entropy, values = policy_loss_terms(self.model, batch.observations, batch.actions)
+        log_probs, entropy, values = policy_loss_terms(
+            self.model, batch.observations, batch.actions, entropy_grad=config.ent_coef > 0
+        )
         weights = normalize(batch.advantages) if config.normalize_returns else batch.advantages
         policy_loss = -(weights * log_probs).mean()
         loss = policy_loss - config.ent_coef * entropy

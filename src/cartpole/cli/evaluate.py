@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
-from pathlib import Path
 from typing import Any
 
 
@@ -53,6 +51,7 @@ def run(args: argparse.Namespace) -> int:
 
     from cartpole.agents.registry import open_policy
     from cartpole.cli.errors import UsageError
+    from cartpole.cli.record import tell_skipped
     from cartpole.evaluation import evaluate
 
     if args.episodes < 1:
@@ -90,11 +89,3 @@ def run(args: argparse.Namespace) -> int:
     if video:
         console.print(f"video of the first episodes: {video['video']}", highlight=False)
     return 0
-
-
-def tell_skipped(skipped: list[str], used: Path) -> None:
-    """Say on stderr which checkpoints of a run were unusable, and which one is used instead."""
-    for problem in skipped:
-        print(f"warning: {problem}", file=sys.stderr)
-    if skipped:
-        print(f"warning: using {used} instead", file=sys.stderr)

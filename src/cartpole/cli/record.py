@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -39,7 +40,6 @@ def add_parser(sub: Any) -> None:
 def load_saved_policy(path_text: str) -> tuple[Path, Any, str]:
     """(checkpoint path, greedy policy, env id) of a run folder or checkpoint file."""
     from cartpole.agents.registry import open_policy
-    from cartpole.cli.evaluate import tell_skipped
 
     opened = open_policy(path_text)
     tell_skipped(opened.skipped, opened.path)
@@ -118,3 +118,11 @@ def default_eval_video_path(checkpoint: Path, seed: int) -> Path:
     from cartpole.recording import default_video_path
 
     return default_video_path(checkpoint, seed)
+
+
+def tell_skipped(skipped: list[str], used: Path) -> None:
+    """Say on stderr which checkpoints of a run were unusable, and which one is used instead."""
+    for problem in skipped:
+        print(f"warning: {problem}", file=sys.stderr)
+    if skipped:
+        print(f"warning: using {used} instead", file=sys.stderr)
