@@ -349,6 +349,7 @@ def trained_for(env_id: str, seed: int, env_steps: int, **overrides: str) -> tup
     return learner, returns
 
 
+@pytest.mark.learning
 def test_a_few_thousand_steps_beat_a_random_policy_by_far_on_most_seeds() -> None:
     """4000 env steps of the default preset: greedy means were 135-243 on seeds 0-4 (random: 22)."""
     means = []
@@ -358,6 +359,7 @@ def test_a_few_thousand_steps_beat_a_random_policy_by_far_on_most_seeds() -> Non
     assert float(np.median(means)) >= 4 * RANDOM_POLICY_RETURN["CartPole-v1"], means
 
 
+@pytest.mark.learning
 @pytest.mark.slow
 def test_default_preset_reaches_a_verified_solve_on_most_seeds(tmp_path: Path) -> None:
     """The benchmarks solved 20 of 20 seeds within the 50k budget; here 4 of 5 must."""
@@ -370,6 +372,7 @@ def test_default_preset_reaches_a_verified_solve_on_most_seeds(tmp_path: Path) -
     assert sum(solved) >= 4, solved
 
 
+@pytest.mark.learning
 @pytest.mark.slow
 def test_acrobot_return_improves_on_most_seeds() -> None:
     """Unchanged code on another Box/Discrete env: Acrobot-v1's training return rises from about -450.

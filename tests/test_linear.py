@@ -13,6 +13,7 @@ from cartpole.training import train
 AGENTS = ["random-search", "hill-climbing", "cem"]
 
 
+@pytest.mark.learning
 @pytest.mark.parametrize("agent", AGENTS)
 def test_each_linear_agent_solves_cartpole_on_most_seeds(agent, tmp_path):
     """A verified solve (100 fresh episodes, mean >= 475) within 40 generations on 2 of 3 seeds:
