@@ -73,7 +73,9 @@ def test_parse_seeds_ranges_and_lists():
     assert parse_seeds(" 0-1, 7 ") == [0, 1, 7]
 
 
-@pytest.mark.parametrize("text", ["", " ", "5-3", "3,3", "0-3,2", "x", "1,,2", "-1", "1-", "2**40"])
+@pytest.mark.parametrize(
+    "text", ["", " ", "5-3", "3,3", "0-3,2", "x", "1,,2", "-1", "1-", "2**40", "0-999999999", "4294967296"]
+)
 def test_parse_seeds_refuses_bad_input(text):
     with pytest.raises(InputError):
         parse_seeds(text)

@@ -20,6 +20,7 @@ import signal
 import sys
 import time
 import uuid
+from collections import Counter
 from contextlib import ExitStack, suppress
 from dataclasses import dataclass
 from pathlib import Path
@@ -68,6 +69,10 @@ def parse_seeds(text: str) -> list[int]:
             low, high = int(match.group(1)), int(match.group(2))
             if low > high:
                 raise InputError(f"--seeds range {part!r} is reversed; write {high}-{low}")
+            if len(seeds) + high - low + 1 > MAX_SEEDS:
+                raise InputError(
+                    f"--seeds asks for more than {MAX_SEEDS} seeds; split them into several runs"
+                )
             seeds += range(low, high + 1)
         elif part.isdigit():
             seeds.append(int(part))
@@ -75,7 +80,7 @@ def parse_seeds(text: str) -> list[int]:
             raise InputError(f"--seeds {text!r}: {part!r} is not a seed or a range; {hint}")
         if len(seeds) > MAX_SEEDS:
             raise InputError(f"--seeds asks for more than {MAX_SEEDS} seeds; split them into several runs")
-    duplicates = sorted({s for s in seeds if seeds.count(s) > 1}) if len(seeds) < 5000 else []
+    duplicates = sorted(seed for seed, count in Counter(seeds).items() if count > 1)
     if duplicates:
         raise InputError(f"--seeds lists seed {duplicates[0]} more than once; each seed trains once")
     too_big = [s for s in seeds if s > MAX_TRAIN_SEED]
