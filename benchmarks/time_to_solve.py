@@ -89,8 +89,9 @@ def warm_up(env_id: str) -> None:
     torch.optim.Adam([torch.zeros(1, requires_grad=True)])
 
 
-def run_ours(agent: str, preset: str, seed: int, max_seconds: float | None, env_id: str) -> dict[str, Any]:
-    """Train one seed of one of our agents; return its measurements."""
+def run_ours(agent: str, preset: str, seed: int, max_seconds: float | None, env_id: str,
+             budget_text: str | None = None) -> dict[str, Any]:  # fmt: skip
+    """Train one seed of one of our agents (with the preset's budget unless ``budget_text``)."""
     import dataclasses
 
     from cartpole.agents.registry import get_agent
@@ -101,7 +102,7 @@ def run_ours(agent: str, preset: str, seed: int, max_seconds: float | None, env_
 
     spec = get_agent(agent)
     _, settings = resolve_config(agent, spec.config_cls, preset)
-    budget = parse_budget(settings.budget)
+    budget = parse_budget(budget_text or settings.budget)
     if max_seconds:
         budget = dataclasses.replace(budget, seconds=max_seconds)
 
@@ -395,6 +396,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, default=10, help="seeds 0..N-1 per agent/preset")
     parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--env", default="CartPole-v1")
+    parser.add_argument("--budget", default=None, help="our budget, e.g. 300k (default: the preset's)")
     parser.add_argument("--max-seconds-per-run", type=float, default=None,
                         help="wall-clock cap added to each run's budget")  # fmt: skip
     parser.add_argument("--sb3", nargs="?", const="dqn", default=None, metavar="AGENTS",
@@ -403,7 +405,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sb3-steps", type=int, default=None,
                         help="SB3's env-step budget (default: DQN 100k, PPO/A2C the zoo's)")  # fmt: skip
     parser.add_argument("--sb3-eval-every", type=int, default=None,
-                        help="SB3 evaluation cadence, env steps (default: our agent's default's)")  # fmt: skip
+                        help="SB3 evaluation cadence in env steps (default: ours)")  # fmt: skip
     parser.add_argument("--jobs", type=int, default=1,
                         help="runs at once (one torch thread each); CPU s include contention")  # fmt: skip
     parser.add_argument("--json", default=None,
@@ -421,7 +423,8 @@ def main(argv: list[str] | None = None) -> int:
             result = run_sb3_on_policy(algo, task["seed"], task["max_seconds"], task["env"],
                                        task["eval_every"], task["screen"], task["total_steps"])  # fmt: skip
         else:
-            result = run_ours(task["agent"], task["preset"], task["seed"], task["max_seconds"], task["env"])
+            result = run_ours(task["agent"], task["preset"], task["seed"], task["max_seconds"], task["env"],
+                              task.get("budget"))  # fmt: skip
         print(json.dumps(result))
         return 0
 
@@ -437,7 +440,7 @@ def main(argv: list[str] | None = None) -> int:
             if preset not in preset_names(agent):
                 continue
             tasks += [{"agent": agent, "preset": preset, "seed": s, "max_seconds": args.max_seconds_per_run,
-                       "env": args.env} for s in seeds]  # fmt: skip
+                       "env": args.env, "budget": args.budget} for s in seeds]  # fmt: skip
     if args.sb3:
         try:
             import stable_baselines3  # noqa: F401

@@ -487,3 +487,47 @@ def test_reinforce_baseline_trains_a_critic_and_reports_it() -> None:
     with_baseline = make("reinforce", seed=1, baseline=True).learn().scalars
     without = make("reinforce", seed=1, baseline=False).learn().scalars
     assert "train/value_loss" in with_baseline and "train/value_loss" not in without
+
+
+# ----------------------------------------------------------------------------------------------
+# They learn (statistics over seeds, with margin: any x86-64 CPU)
+# ----------------------------------------------------------------------------------------------
+
+
+def training_returns(agent: str, seed: int, env_steps: int, env_id: str = "CartPole-v1") -> list[float]:
+    """Returns of the training episodes of ``agent``'s default preset over ``env_steps`` env steps."""
+    spec = get_agent(agent)
+    config, _ = resolve_config(agent, spec.config_cls, "default")
+    learner = spec.make_learner(config, env_info(env_id), seed, "cpu")
+    returns: list[float] = []
+    while learner.env_steps < env_steps:
+        returns += learner.learn().episode_returns
+    return returns
+
+
+def test_ppo_default_learns_over_seeds() -> None:
+    """Random play lasts ~22 steps; after 12k env steps the default preset's recent training episodes
+    average well above 150 (they reach a few hundred), over two seeds."""
+    recent = [float(np.mean(training_returns("ppo", seed, 12_000)[-20:])) for seed in (11, 12)]
+    assert float(np.mean(recent)) > 150, recent
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("agent", "seeds", "needed"), [("ppo", 5, 4), ("a2c", 5, 4), ("reinforce", 5, 3)])
+def test_default_preset_verifiably_solves_most_seeds(
+    agent: str, seeds: int, needed: int, tmp_path: Path
+) -> None:
+    solved = 0
+    for seed in range(100, 100 + seeds):
+        outcome = train(agent, seed=seed, runs_dir=tmp_path, device="cpu", quiet=True)
+        solved += bool(outcome.report is not None and outcome.report.solved)
+    assert solved >= needed, f"{agent}: {solved}/{seeds} verified solves"
+
+
+@pytest.mark.slow
+def test_ppo_acrobot_return_improves() -> None:
+    """Unchanged code on another Box/Discrete env (Gymnasium's vector env): Acrobot-v1's training
+    return rises from ~-500 (random) within 30k env steps."""
+    returns = training_returns("ppo", 0, 30_000, "Acrobot-v1")
+    first, last = float(np.mean(returns[:10])), float(np.mean(returns[-10:]))
+    assert last > first + 150 and last > -300, (first, last)

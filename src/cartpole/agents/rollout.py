@@ -101,9 +101,9 @@ def explained_variance(predicted: torch.Tensor, target: torch.Tensor) -> float:
     return 1.0 - float((target - predicted).var()) / variance
 
 
-def sample_categorical(probabilities: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """One action per row of ``probabilities`` [N, n_actions], by inverse CDF from one uniform each."""
-    uniforms = rng.random(len(probabilities))
+def sample_categorical(probabilities: np.ndarray, uniforms: np.ndarray) -> np.ndarray:
+    """One action per row of ``probabilities`` [N, n_actions], by inverse CDF from one uniform in [0, 1)
+    per row: the first action whose cumulative probability exceeds the uniform."""
     below = probabilities.cumsum(axis=1) <= uniforms[:, None]
     return np.minimum(below.sum(axis=1), probabilities.shape[1] - 1)
 
@@ -136,37 +136,40 @@ class RolloutCollector:
         """
         steps = buffer.num_steps if steps is None else steps
         actor = CategoricalPolicy(model)  # a numpy copy of the actor, fixed during the rollout
+        uniforms = rng.random((steps, len(self.autoreset)))  # one draw per action, all at once
         returns: list[float] = []
         lengths: list[int] = []
         ended_once = np.zeros(len(self.autoreset), dtype=bool)
         used = 0
         for t in range(steps):
             buffer.observations_np[t] = self.observations
-            actions = sample_categorical(actor.scores(self.observations), rng)
+            actions = sample_categorical(actor.scores(self.observations), uniforms[t])
             buffer.actions_np[t] = actions
             observations, rewards, terminated, truncated, _ = self.envs.step(actions)
             # Gymnasium's next-step autoreset: an env that ended an episode at the last step has just
             # been reset (its action was ignored): that row is not a transition.
-            valid = ~self.autoreset & ~ended_once
-            ended = (terminated | truncated) & valid
+            valid = ~(self.autoreset | ended_once)
+            done = terminated | truncated
             buffer.rewards_np[t] = rewards
             buffer.terminated_np[t] = terminated
             buffer.truncated_np[t] = truncated
             buffer.valid_np[t] = valid
-            self.episode_returns += np.where(valid, rewards, 0.0)
+            self.episode_returns += rewards * valid
             self.episode_lengths += valid
-            for i in np.flatnonzero(ended):
-                returns.append(float(self.episode_returns[i]))
-                lengths.append(int(self.episode_lengths[i]))
-            self.episode_returns[ended] = 0.0
-            self.episode_lengths[ended] = 0
-            self.autoreset = terminated | truncated  # both False on an autoreset step
+            ended = done & valid
+            if ended.any():
+                for i in np.flatnonzero(ended):
+                    returns.append(float(self.episode_returns[i]))
+                    lengths.append(int(self.episode_lengths[i]))
+                self.episode_returns[ended] = 0.0
+                self.episode_lengths[ended] = 0
+                if stop_when_all_ended:
+                    ended_once |= ended
+            self.autoreset = done  # both False on an autoreset step
             self.observations = np.asarray(observations, dtype=np.float32)
             used = t + 1
-            if stop_when_all_ended:
-                ended_once |= ended
-                if ended_once.all():
-                    break
+            if stop_when_all_ended and ended_once.all():
+                break
         buffer.observations_np[used] = self.observations
         return used, returns, lengths
 
