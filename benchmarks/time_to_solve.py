@@ -94,12 +94,15 @@ def run_ours(agent: str, preset: str, seed: int, max_seconds: float | None, env_
     """Train one seed of one of our agents (with the preset's budget unless ``budget_text``)."""
     import dataclasses
 
+    import torch
+
     from cartpole.agents.registry import get_agent
     from cartpole.training import loop as loop_module
     from cartpole.training import train
     from cartpole.training.budget import parse_budget
     from cartpole.training.config import resolve_config
 
+    torch.set_num_threads(1)  # what `cartpole train` sets by default (--torch-threads 1), once per process
     spec = get_agent(agent)
     _, settings = resolve_config(agent, spec.config_cls, preset)
     budget = parse_budget(budget_text or settings.budget)
@@ -151,7 +154,7 @@ def run_sb3(seed: int, max_seconds: float | None, env_id: str, eval_every: int, 
     from cartpole.training.callbacks import report_rank, screened_evaluation
     from cartpole.training.config import resolve_config
 
-    torch.set_num_threads(1)  # the same thread setting as our default preset
+    torch.set_num_threads(1)  # the same thread setting as ours (`cartpole train --torch-threads 1`)
     # Judged exactly as our runs are (the same function), at our default preset's cadence.
     _, settings = resolve_config("dqn", DQNConfig, "default")
     settings = dataclasses.replace(settings, eval_every=eval_every, eval_screen_episodes=screen)

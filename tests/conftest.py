@@ -6,6 +6,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
+
+# The test process decides its thread count once, as `cartpole train --torch-threads 1` does (agents
+# never set it): small nets run fastest on one thread, and a loaded machine does not stall on
+# threads waiting for each other.
+torch.set_num_threads(1)
 
 
 class AlwaysLeft:

@@ -90,3 +90,100 @@ def make_web_runs(base: Path) -> WebRuns:
     outside = base / "elsewhere" / "secret-run"
     corrupt, incomplete = make_awkward_runs(root, outside)
     return WebRuns(root, cem, acrobot, corrupt, incomplete, outside)
+
+
+DOCS_EXPERIMENT = Path(__file__).parents[1] / "docs" / "experiments" / "cem-dqn-random-search"
+"""A real `cartpole compare` report (cem, dqn, random-search:tutorial over 10 seeds) with its figures."""
+
+
+def make_experiment(runs_dir: Path, name: str = "cem-vs-dqn") -> str:
+    """An experiment folder as `cartpole compare` leaves it: its report, figures and experiment.json."""
+    folder = runs_dir / "experiments" / name
+    folder.mkdir(parents=True)
+    for file in ("report.json", "report.md", "curves.png", "solve_steps.png"):
+        shutil.copy(DOCS_EXPERIMENT / file, folder / file)
+    command = ["cartpole", "compare", "cem", "dqn", "random-search:tutorial", "--seeds", "10"]
+    (folder / "experiment.json").write_text(
+        json.dumps({"env_id": "CartPole-v1", "budget": None, "command": command}), "utf-8"
+    )
+    return name
+
+
+def make_sweep(runs_dir: Path, name: str = "dqn-2seeds") -> str:
+    """A sweep folder as `cartpole sweep` leaves it: sweep.json, an Optuna journal with a complete, a
+    pruned and a failed trial, and best.toml (made with Optuna's API, no training)."""
+    import optuna
+    from optuna.distributions import FloatDistribution, IntDistribution
+    from optuna.storages.journal import JournalFileBackend
+    from optuna.trial import TrialState, create_trial
+
+    folder = runs_dir / "sweeps" / name
+    folder.mkdir(parents=True)
+    spec = {
+        "name": name,
+        "agent": "dqn",
+        "preset": str(runs_dir.parent / "elsewhere" / "presets" / "dqn-base.toml"),
+        "env_id": "CartPole-v1",
+        "budget": "30000",
+        "seeds_per_trial": 2,
+        "trials": 3,
+        "space_text": "",
+        "storage": None,
+        "folder": str(folder),
+        "sampler_seed": 0,
+        "space": {"lr": {"low": 1e-4, "high": 1e-2, "log": True}, "batch_size": {"low": 32, "high": 256}},
+    }
+    (folder / "sweep.json").write_text(json.dumps(spec), "utf-8")
+    storage = optuna.storages.JournalStorage(JournalFileBackend(str(folder / "journal.log")))
+    study = optuna.create_study(study_name=name, storage=storage, direction="minimize")
+    distributions = {"lr": FloatDistribution(1e-4, 1e-2, log=True), "batch_size": IntDistribution(32, 256)}
+    trials = [
+        (TrialState.COMPLETE, 24066.0, {"lr": 1e-3, "batch_size": 64}, [22000.0, 26132.0]),
+        (TrialState.PRUNED, None, {"lr": 5e-3, "batch_size": 200}, [60000.0]),
+        (TrialState.COMPLETE, 19800.0, {"lr": 2e-3, "batch_size": 128}, [18000.0, 21600.0]),
+        (TrialState.FAIL, None, {"lr": 3e-4, "batch_size": 32}, []),
+    ]
+    for state, value, params, costs in trials:
+        attrs: dict[str, Any] = {}
+        for seed, cost in enumerate(costs):
+            attrs[f"cost_seed{seed}"] = cost
+            attrs[f"run_seed{seed}"] = str(
+                folder / "runs" / f"CartPole-v1__dqn__s{seed}__20261123-1000{seed}0"
+            )
+        study.add_trial(
+            create_trial(
+                state=state,
+                value=value,
+                params=params,
+                distributions=distributions,
+                user_attrs=attrs,
+                intermediate_values={0: costs[0]} if state == TrialState.PRUNED else None,
+            )
+        )
+    (folder / "best.toml").write_text(
+        f'description = "cartpole sweep {name} (dqn, from preset dqn-base.toml): trial 2"\n'
+        'lr = 0.002\nbatch_size = 128\nbudget = "30000"\n',
+        "utf-8",
+    )
+    return name
+
+
+def make_single_generation_run(runs_dir: Path, cem_run: Path) -> str:
+    """A CEM run that solved in its first generation: every metrics row at one env step. Its config
+    records a --budget that replaced the preset's (settings.budget "50gen", budget 20,000 env steps)."""
+    run = RunDir.create(runs_dir, "CartPole-v1", "cem", 11)
+    config = RunDir(cem_run).config()
+    settings = {**config.get("settings", {}), "budget": "50gen"}
+    run.write_config({**config, "seed": 11, "settings": settings, "budget": {"env_steps": 20000}})
+    step = 5726
+    run.append_metrics(
+        [
+            {"step": step, "episode": 64, "time": 1.0, "eval/mean_return": 500.0, "eval/episodes": 20},
+            {"step": step, "episode": 64, "time": 1.0, "train/iteration": 1, "train/mean_return": 89.5},
+            {"step": step, "episode": 64, "time": 2.0, "eval/mean_return": 498.0, "eval/episodes": 100},
+        ]
+    )
+    run.write_status({"state": "finished", "env_steps": step, "episodes": 64, "solved": True})
+    shutil.copy(cem_run / "checkpoints" / "best.pt", run.checkpoint_path("best"))
+    shutil.copy(cem_run / "eval.json", run.path / "eval.json")
+    return run.name

@@ -107,17 +107,26 @@ def test_ctrl_c_stops_every_worker_and_a_rerun_resumes(tmp_path):
         (["compare", "cem:nope"], "unknown preset 'nope'"),
         (["compare", "cem:/no/such/preset.toml"], "does not exist"),
         (["compare", "cem", "cem"], "given twice"),
+        (["compare", "cem:PRESET:speed = 3\n"], "unknown setting 'speed'"),
         (["compare", "cem", "--seeds", "0"], "--seeds must be >= 1"),
+        (["compare", "cem", "--first-seed", "-1"], "--first-seed must be >= 0"),
+        (["compare", "cem", "--name", "../x"], "experiment name '../x'"),
         (["compare", "cem", "--jobs", "0"], "--jobs must be >= 1"),
         (["compare", "cem", "--budget", "lots"], "bad budget"),
         (["compare", "cem", "--env", "NoSuchEnv-v9"], "unknown environment"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(args, message, tmp_path, capsys):
-    assert main([*args, "--runs-dir", str(tmp_path)]) == 2
+    runs_dir = tmp_path / "runs"
+    for i, arg in enumerate(args):  # "agent:PRESET:text": a preset file holding text
+        if ":PRESET:" in arg:
+            agent, _, text = arg.partition(":PRESET:")
+            (tmp_path / "preset.toml").write_text(text)
+            args = [*args[:i], f"{agent}:{tmp_path / 'preset.toml'}", *args[i + 1 :]]
+    assert main([*args, "--runs-dir", str(runs_dir)]) == 2
     err = capsys.readouterr().err
     assert message in err and len(err.strip().splitlines()) == 1, err
-    assert not any(tmp_path.iterdir()), "bad input must not write anything"
+    assert "Traceback" not in err and not runs_dir.exists(), "bad input must not write anything"
 
 
 def test_an_experiment_cannot_change_its_env_or_budget(tmp_path, capsys):

@@ -101,6 +101,9 @@ def write(path: Path, text: str) -> str:
         (["--trials", "2", "--storage", "not a url"], "malformed --storage URL"),
         (["--trials", "2", "--storage", "http://example.com/db"], "not supported"),
         (["--trials", "2", "--storage", "postgresql://postgres@127.0.0.1:1/db"], "at 127.0.0.1:1:"),
+        (["--trials", "2", "--storage", "postgresql://u@127.0.0.1:port/db"], "malformed --storage URL"),
+        (["--trials", "2", "--storage", "postgresql:///db"], "names no host"),
+        (["--trials", "2", "--storage", "mysql://u@127.0.0.1:1/db"], "needs its driver"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(extra, message, tmp_path, capsys):

@@ -473,3 +473,18 @@ def test_serve_binds_this_machine_only_by_default(monkeypatch, tmp_path: Path, c
     assert "warning" not in capsys.readouterr().out
     assert main(["serve", "--runs-dir", str(tmp_path), "--host", "0.0.0.0"]) == 0
     assert served[1]["host"] == "0.0.0.0" and "other machines can reach" in capsys.readouterr().out
+
+
+def test_the_web_app_never_tests_an_agents_name():
+    """What a policy's scores mean comes from its agent (AgentSpec.score_label, through the API), so a
+    new agent (ppo, a2c, ...) shows its own label with no change to the pages or the app."""
+    import re
+
+    from cartpole.agents.registry import agent_names
+
+    web = Path(__file__).parents[1] / "src" / "cartpole" / "web"
+    sources = [*web.glob("*.py"), *(web / "static").glob("*.js"), *(web / "static").glob("*.html")]
+    for agent in agent_names():
+        quoted = re.compile(rf"""["'`]{re.escape(agent)}["'`]""")
+        for source in sources:
+            assert not quoted.search(source.read_text(encoding="utf-8")), f"{source.name} names {agent!r}"

@@ -30,7 +30,14 @@ from cartpole.web.app import create_app  # noqa: E402
 from cartpole.web.security import SERVER_OPTIONS  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).parent))
-from conftest_web import WebRuns, make_cem_run, make_web_runs  # noqa: E402
+from conftest_web import (  # noqa: E402
+    WebRuns,
+    make_cem_run,
+    make_experiment,
+    make_single_generation_run,
+    make_sweep,
+    make_web_runs,
+)
 
 DESKTOP = {"width": 1280, "height": 800}
 PHONE = {"width": 390, "height": 844}
@@ -42,9 +49,21 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+EXPERIMENT = "cem-vs-dqn"
+SWEEP = "dqn-2seeds"
+
+
 @pytest.fixture(scope="module")
 def web_runs(tmp_path_factory: pytest.TempPathFactory) -> WebRuns:
-    return make_web_runs(tmp_path_factory.mktemp("browser"))
+    runs = make_web_runs(tmp_path_factory.mktemp("browser"))
+    make_experiment(runs.root, EXPERIMENT)
+    make_sweep(runs.root, SWEEP)
+    return runs
+
+
+@pytest.fixture(scope="module")
+def one_generation(web_runs: WebRuns) -> str:
+    return make_single_generation_run(web_runs.root, web_runs.root / web_runs.cem)
 
 
 class Server:
@@ -245,6 +264,9 @@ def test_every_page_renders_without_console_errors(
         "watch": watch_path(web_runs.cem),
         "play": "/play",
         "run-acrobot": f"/run?name={web_runs.acrobot}",
+        "experiments": "/experiments",
+        "experiment": f"/experiment?name={EXPERIMENT}",
+        "sweep": f"/sweep?name={SWEEP}",
     }
     try:
         for name, path in pages.items():
@@ -329,4 +351,190 @@ def test_play_page_explains_how_to_get_an_agent_and_notices_new_runs(browser: ob
         assert p.locator("#no-runs").is_hidden()  # type: ignore[attr-defined]
     finally:
         page.close()
+        srv.stop()
+
+
+# ---------------------------------------------------------------------------------------------------
+# Experiments and sweeps
+# ---------------------------------------------------------------------------------------------------
+
+
+def test_experiments_page_lists_comparisons_and_sweeps(desktop: Page):
+    page = desktop.goto("/experiments")
+    row = page.locator(f'tr[data-experiment="{EXPERIMENT}"]')
+    row.wait_for()
+    assert "random-search:tutorial" in row.inner_text() and "CartPole-v1" in row.inner_text()
+    sweep = page.locator(f'tr[data-sweep="{SWEEP}"]')
+    assert "dqn" in sweep.inner_text() and "best.toml" in sweep.inner_text()
+    assert page.locator("header nav a.active").inner_text() == "Experiments"
+    row.locator("a").first.click()
+    page.wait_for_url(re.compile(rf".*/experiment\?name={EXPERIMENT}$"))
+    page.locator("#report-table").wait_for()
+
+
+def test_experiment_page_shows_counts_cis_and_the_curves(desktop: Page):
+    page = desktop.goto(f"/experiment?name={EXPERIMENT}")
+    page.locator("#report-table").wait_for()
+    assert page.locator("#report-table tbody tr").count() == 3
+    cem = page.inner_text('tr[data-entry="cem"]')
+    assert "10 / 10" in cem and "33,014\nCI [24,506, 49,99" in cem and "498.6\nCI [491.7, 500.0]" in cem
+    random_search = page.inner_text('tr[data-entry="random-search:tutorial"]')
+    assert "5 / 10" in random_search and "≥" in random_search  # a median that unsolved runs hold up
+    assert "CartPole-v1 · 3 entries × 10 seeds" in page.inner_text("#subtitle")
+    for figure in ("curves", "solve_steps"):
+        image = page.locator(f"#figure-{figure}")
+        image.wait_for()
+        page.wait_for_function(f"() => document.querySelector('#figure-{figure}').naturalWidth > 100")
+    assert "cartpole compare cem dqn" in page.inner_text("#made")
+    assert f"--runs-dir runs/experiments/{EXPERIMENT}/runs" in page.inner_text("#made")
+
+
+def test_sweep_page_shows_trials_best_preset_and_dashboard(desktop: Page):
+    page = desktop.goto(f"/sweep?name={SWEEP}")
+    page.locator("#trials-table").wait_for()
+    assert page.locator("#trials-table tbody tr").count() == 4
+    best = page.inner_text('tr[data-trial="2"]')
+    assert "best" in best and "19,800" in best and "128" in best and "complete" in best
+    assert "pruned" in page.inner_text('tr[data-trial="1"]')
+    assert "failed" not in page.inner_text("#counts") and "1 fail" in page.inner_text("#counts")
+    assert "lr = 0.002" in page.inner_text("#best-toml")
+    assert f"optuna-dashboard runs/sweeps/{SWEEP}/journal.log" in page.inner_text("#dashboard-command")
+    assert f"cartpole train dqn --preset runs/sweeps/{SWEEP}/best.toml" in page.inner_text("#best")
+    response = page.request.get(desktop.base + page.get_attribute("#best-link", "href"))
+    assert response.status == 200 and "batch_size = 128" in response.text()
+
+
+@pytest.mark.parametrize("path", ["/experiment?name=nope", "/sweep?name=nope", "/sweep?name=..%2Fx"])
+def test_an_unknown_experiment_or_sweep_says_so(desktop: Page, path: str):
+    page = desktop.goto(path)
+    page.locator("#load-error").wait_for()
+    text = page.inner_text("#load-error")
+    assert "no sweep named" in text.lower() or "no experiment named" in text.lower()
+    assert "Trying again" not in text
+    desktop.errors = [e for e in desktop.errors if "404" not in e]  # the browser logs the 404 itself
+
+
+def test_experiments_page_says_how_to_make_one_when_there_is_none(desktop: Page):
+    desktop.page.route(
+        "**/api/experiments", lambda route: route.fulfill(json={"experiments": [], "sweeps": []}, status=200)
+    )
+    page = desktop.goto("/experiments")
+    page.locator("#no-experiments").wait_for()
+    assert "cartpole compare cem dqn --seeds 5" in page.inner_text("#no-experiments")
+    assert "cartpole sweep dqn" in page.inner_text("#no-sweeps")
+
+
+@pytest.mark.parametrize(
+    "path, ready",
+    [
+        ("/experiments", f'tr[data-experiment="{EXPERIMENT}"]'),
+        (f"/sweep?name={SWEEP}", '#trials-table tr[data-trial="2"]'),
+    ],
+    ids=["experiments", "sweep"],
+)
+def test_experiment_pages_recover_after_the_server_restarts(
+    browser: object, web_runs: WebRuns, path: str, ready: str
+):
+    port = free_port()
+    srv = Server(web_runs.root, port)
+    page = Page(browser, f"http://127.0.0.1:{port}", DESKTOP)
+    try:
+        p = page.goto(path)
+        p.locator(ready).wait_for()  # type: ignore[attr-defined]
+        srv.stop()
+        p.locator("#load-error").wait_for(timeout=20_000)  # type: ignore[attr-defined]
+        assert "Trying again" in p.inner_text("#load-error")  # type: ignore[attr-defined]
+        srv = Server(web_runs.root, port)
+        p.locator("#load-error").wait_for(state="detached", timeout=40_000)  # type: ignore[attr-defined]
+        assert p.locator(ready).count() == 1  # type: ignore[attr-defined]
+    finally:
+        page.close()
+        srv.stop()
+
+
+# ---------------------------------------------------------------------------------------------------
+# Pages that tell the truth
+# ---------------------------------------------------------------------------------------------------
+
+
+def test_watch_shows_what_the_agent_calls_its_scores(desktop: Page, web_runs: WebRuns):
+    """A policy-gradient agent's scores are action probabilities: the page shows the API's score_label
+    and the values, whatever the agent is called."""
+
+    def as_probabilities(route: object) -> None:
+        body = route.fetch().json()  # type: ignore[attr-defined]
+        body["agent"] = "some-new-agent"
+        body["score_label"] = "action probability"
+        body["scores"] = [[0.25, 0.75] if a == 1 else [0.9, 0.1] for a in body["actions"]]
+        route.fulfill(json=body)  # type: ignore[attr-defined]
+
+    desktop.page.route("**/episode?*", as_probabilities)
+    page = desktop.goto(watch_path(web_runs.cem))
+    page.wait_for_function("() => watch.episode !== null")
+    page.click("#play-pause")
+    page.locator("#prefs .pref").first.wait_for()
+    text = page.inner_text("#prefs")
+    assert "action probability" in text
+    assert "0.75" in text or "0.90" in text
+
+
+def test_a_run_solved_in_one_generation_has_a_readable_chart(desktop: Page, one_generation: str):
+    page = desktop.goto(f"/run?name={one_generation}")
+    page.locator(".uplot canvas").first.wait_for()
+    page.wait_for_function("() => state.plot !== null && state.rows.length === 3")
+    low, high = page.evaluate("() => [state.plot.scales.x.min, state.plot.scales.x.max]")
+    assert low < 5726 < high  # the one step sits inside a real range, not a zero-width one
+    assert page.evaluate("() => state.plot.data[2].every((v) => v === null)")  # no average of 1 point
+    points = page.evaluate("() => state.plot.data[1].filter((v) => v !== null).length")
+    assert points == 1
+
+
+def test_the_moving_average_waits_for_a_full_window(desktop: Page, web_runs: WebRuns):
+    page = desktop.goto(f"/run?name={web_runs.cem}")
+    page.wait_for_function("() => state.plot !== null && state.rows.length > 0")
+    returns = page.evaluate("() => state.plot.data[1].filter((v) => v !== null).length")
+    averages = page.evaluate("() => state.plot.data[2].filter((v) => v !== null).length")
+    assert averages == max(0, returns - 19)
+
+
+def test_the_config_panel_shows_one_budget(desktop: Page, one_generation: str):
+    page = desktop.goto(f"/run?name={one_generation}")
+    page.locator('#config tr[data-key="budget"]').wait_for()
+    config = page.inner_text("#config")
+    assert "20,000 env steps" in page.inner_text('#config tr[data-key="budget"]')
+    assert "50gen" not in config  # the preset's budget, which --budget replaced
+    assert page.inner_text("#config table").count("budget") == 1
+
+
+def test_live_pages_show_a_crashed_run_as_crashed(browser: object, web_runs: WebRuns, tmp_path: Path):
+    import socket as sockets
+    import subprocess
+
+    from cartpole.runs import RunDir
+
+    runs_dir = tmp_path / "runs"
+    run = RunDir.create(runs_dir, "CartPole-v1", "cem", 5)
+    run.write_config(RunDir(web_runs.root / web_runs.cem).config() | {"seed": 5})
+    alive = {"state": "running", "env_steps": 100, "episodes": 2, "pid": os.getpid()}
+    alive |= {"host": sockets.gethostname(), "heartbeat": time.time() + 600}
+    run.write_status(alive)
+    run.append_metrics([{"step": 100, "episode": 2, "time": 0.5, "train/mean_return": 20.0}])
+    port = free_port()
+    srv = Server(runs_dir, port)
+    runs_page = Page(browser, f"http://127.0.0.1:{port}", DESKTOP)
+    run_page = Page(browser, f"http://127.0.0.1:{port}", DESKTOP)
+    try:
+        listing = runs_page.goto("/")
+        detail = run_page.goto(f"/run?name={run.name}")
+        listing.locator(f'tr[data-run="{run.name}"] .badge.running').wait_for()  # type: ignore[attr-defined]
+        detail.locator("#subtitle .badge.running").wait_for()  # type: ignore[attr-defined]
+        gone = subprocess.Popen(["true"])
+        gone.wait()
+        run.write_status(alive | {"pid": gone.pid})  # the training process is gone
+        listing.locator(f'tr[data-run="{run.name}"] .badge.crashed').wait_for(timeout=15_000)  # type: ignore[attr-defined]
+        detail.locator("#subtitle .badge.crashed").wait_for(timeout=15_000)  # type: ignore[attr-defined]
+        assert "training" not in listing.inner_text(f'tr[data-run="{run.name}"]')  # type: ignore[attr-defined]
+    finally:
+        runs_page.close()
+        run_page.close()
         srv.stop()

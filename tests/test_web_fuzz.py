@@ -13,12 +13,17 @@ from hypothesis import HealthCheck, settings  # noqa: E402
 from cartpole.web.app import create_app  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).parent))
-from conftest_web import WebRuns, make_web_runs  # noqa: E402
+from conftest_web import WebRuns, make_experiment, make_sweep, make_web_runs  # noqa: E402
+
+EXPERIMENT, SWEEP = "cem-vs-dqn", "dqn-2seeds"
 
 
 @pytest.fixture(scope="module")
 def fuzz_runs(tmp_path_factory: pytest.TempPathFactory) -> WebRuns:
-    return make_web_runs(tmp_path_factory.mktemp("fuzz"))
+    runs = make_web_runs(tmp_path_factory.mktemp("fuzz"))
+    make_experiment(runs.root, EXPERIMENT)
+    make_sweep(runs.root, SWEEP)
+    return runs
 
 
 @pytest.fixture(scope="module")

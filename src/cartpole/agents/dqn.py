@@ -3,14 +3,21 @@
 What it does, in order:
 
 1. ``DQNConfig``: every knob, with a one-line docstring each (presets in ``presets/dqn.toml``).
-2. ``QNetwork``: an MLP Q-network (optional dropout, optional dueling head).
-3. ``td_targets``: the one place the Bellman target is computed (double DQN, and no bootstrap at
+2. ``td_targets``: the one place the Bellman target is computed (double DQN, and no bootstrap at
    termination; truncation by the time limit does bootstrap).
-4. ``DQNLearner``: collects one batched step from ``num_envs`` vector envs per ``learn()`` call with a
+3. ``DQNLearner``: collects one batched step from ``num_envs`` vector envs per ``learn()`` call with a
    single forward pass, stores it in the shared :class:`~cartpole.agents.replay_buffer.ReplayBuffer`,
    and runs ``gradient_steps`` updates every ``train_freq`` calls. The shared training loop does the
    rest (evaluation, best checkpoint, stop when solved, budget).
-5. ``QNetworkPolicy``: the greedy policy, from a learner or a checkpoint.
+4. Checkpoints: what a resume restores, and the greedy policy rebuilt from a checkpoint.
+
+The parts it uses live apart: the network and its greedy policy in :mod:`cartpole.agents.q_network`,
+Adam in :mod:`cartpole.agents.adam`, the replay buffer in :mod:`cartpole.agents.replay_buffer`, and
+the vector envs a checkpoint can put back mid-episode in :mod:`cartpole.agents.resumable_envs`.
+
+The learner owns every random stream it uses (network initialization, dropout masks, exploration,
+replay sampling), each seeded from the run's seed: building or training one changes nothing global
+(not torch's or numpy's global generators, not torch's thread count: that is the caller's choice).
 
 The three exploration schedules are the ones the tutorials used: linear (ours), exponential per env
 step (the PyTorch tutorial), and multiplicative per gradient step (the Keras tutorial).
@@ -19,6 +26,7 @@ step (the PyTorch tutorial), and multiplicative per gradient step (the Keras tut
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -31,13 +39,14 @@ from torch import nn
 from cartpole.agents.adam import FusedAdam
 from cartpole.agents.learner import LearnResult
 from cartpole.agents.memory import dqn_memory_problem
+from cartpole.agents.q_network import ACTIVATIONS, QNetwork, QNetworkPolicy
 from cartpole.agents.registry import AgentSpec
 from cartpole.agents.replay_buffer import ReplayBuffer
+from cartpole.agents.resumable_envs import make_resumable_vec_env, restore_vector_env_state, vector_env_state
 from cartpole.core.config import build_config, require
-from cartpole.envs import EnvInfo, check_simulator, make_vec_env
+from cartpole.envs import EnvInfo, check_simulator
 from cartpole.runs import Checkpoint, CheckpointError
 
-ACTIVATIONS: dict[str, type[nn.Module]] = {"relu": nn.ReLU, "tanh": nn.Tanh, "elu": nn.ELU, "gelu": nn.GELU}
 SCHEDULES = ("linear", "exponential", "multiplicative")
 LOSSES = ("huber", "mse")
 
@@ -45,15 +54,6 @@ LOSSES = ("huber", "mse")
 # ----------------------------------------------------------------------------------------------
 # 1. Configuration
 # ----------------------------------------------------------------------------------------------
-
-
-def seed_everything(seed: int) -> np.random.Generator:
-    """Seed torch's and Python's global generators; return a numpy Generator for the caller."""
-    import random
-
-    random.seed(seed)
-    torch.manual_seed(seed)
-    return np.random.default_rng(seed)
 
 
 @dataclass
@@ -121,8 +121,6 @@ class DQNConfig:
     # runtime
     simulator: str = "fast"
     """Training simulator: fast (our batched CartPole; other envs use Gymnasium) or gymnasium."""
-    torch_threads: int = 1
-    """CPU threads for torch (0: leave torch's default); 1 is fastest for small nets on CPU."""
 
     def validate(self) -> None:
         """Reject bad values with one clear line each."""
@@ -151,149 +149,12 @@ class DQNConfig:
         require(0.0 < self.epsilon_decay_rate <= 1.0, "epsilon_decay_rate must be in (0, 1]")
         require(self.short_episode_length >= 0, "short_episode_length must be >= 0")
         check_simulator(self.simulator)
-        require(self.torch_threads >= 0, "torch_threads must be >= 0")
         problem = dqn_memory_problem(self.buffer_size, self.hidden_sizes, self.batch_size)
         require(problem is None, problem or "")
 
 
 # ----------------------------------------------------------------------------------------------
-# 2. The Q-network
-# ----------------------------------------------------------------------------------------------
-
-
-class Dropout(nn.Dropout):
-    """``nn.Dropout`` with its mask drawn from ``torch.rand_like``: the same distribution (zero with
-    probability p, else scaled by 1/(1-p)) from another random stream.
-
-    On CPU torch's ``bernoulli_`` costs ~15 ns per element against ~4 for ``rand_like``: with the Keras
-    tutorial's 512/256/64 net that was a third of each gradient step.
-    """
-
-    def forward(self, input: torch.Tensor) -> torch.Tensor:
-        if not self.training or self.p == 0.0:
-            return input
-        scaled_mask = torch.rand_like(input).ge_(self.p).mul_(1.0 / (1.0 - self.p))  # 0 or 1/(1-p)
-        return input * scaled_mask
-
-
-class QNetwork(nn.Module):
-    """MLP from observations to one Q-value per action.
-
-    ``forward`` is the torch computation (training, and big or non-CPU batches); ``q_values`` is the
-    greedy-time entry point for numpy observations, which on CPU evaluates the *same* parameters with
-    numpy when the batch is small (acting in a few envs, evaluation, the web app's one observation per
-    request): there torch's ~4 us per op is most of the cost, and numpy's is ~1 us.
-    """
-
-    def __init__(self, obs_dim: int, n_actions: int, config: DQNConfig):
-        super().__init__()
-        layers: list[nn.Module] = []
-        width = obs_dim
-        for hidden in config.hidden_sizes:
-            layers += [nn.Linear(width, hidden), ACTIVATIONS[config.activation]()]
-            if config.dropout > 0:
-                layers.append(Dropout(config.dropout))
-            width = hidden
-        self.body = nn.Sequential(*layers)
-        self.head = nn.Linear(width, n_actions)
-        self.value = nn.Linear(width, 1) if config.dueling else None
-        self._linears = [m for m in self.modules() if isinstance(m, nn.Linear)]
-        self._widest_layer = max(m.weight.numel() for m in self._linears)
-        self._numpy_cache: tuple[tuple[int, ...], list[Any] | None] | None = None
-
-    def forward(self, observations: torch.Tensor) -> torch.Tensor:
-        # module.forward(x), not module(x): nn.Module.__call__'s hook handling costs more than a
-        # 64x64 layer's matmul here (no hooks are used on the layers).
-        features = observations
-        for module in self.body:
-            features = module.forward(features)
-        q = self.head.forward(features)
-        if self.value is not None:  # dueling: the head gives advantages
-            q = self.value.forward(features) + q - q.mean(dim=1, keepdim=True)
-        return q
-
-    def q_values(self, observations: np.ndarray, plan: list[Any] | None = None) -> np.ndarray:
-        """Q-values [N, n_actions] of numpy observations, without autograd (eval mode: no dropout).
-
-        ``plan`` is a numpy plan the caller knows to be current (a frozen policy keeps one); by
-        default it is looked up, which checks that the parameters were not replaced.
-        """
-        observations = np.asarray(observations, dtype=np.float32)
-        if plan is None and not self.training:
-            plan = self._numpy_plan()
-        if plan is None or len(observations) * self._widest_layer > NUMPY_MAX_WORK:
-            device = self.head.weight.device
-            with torch.inference_mode():
-                return self.forward(torch.as_tensor(observations, device=device)).cpu().numpy()
-        features = observations
-        for step in plan:
-            if isinstance(step, tuple):  # a linear layer: x W^T + b
-                features = features @ step[0]
-                features += step[1]
-            else:
-                features = step(features)
-        return features
-
-    def _numpy_plan(self) -> list[Any] | None:
-        """The layers as numpy steps over views of the parameters (no copies), or None when numpy
-        cannot run this net (not on CPU, not float32, or an activation numpy lacks)."""
-        tensors = [t for layer in self._linears for t in (layer.weight, layer.bias)]
-        # A parameter's memory only changes by replacement (.to(), deepcopy, assign=True loads), which
-        # changes its address; in-place updates (optimizer, target lerp, load_state_dict) keep the
-        # views current. The views keep the memory alive, so an address is never reused meanwhile.
-        key = tuple(t.data_ptr() for t in tensors)
-        if self._numpy_cache is None or self._numpy_cache[0] != key:
-            usable = all(t.device.type == "cpu" and t.dtype == torch.float32 for t in tensors)
-            self._numpy_cache = (key, self._build_numpy_plan() if usable else None)
-        return self._numpy_cache[1]
-
-    def _build_numpy_plan(self) -> list[Any] | None:
-        def affine(layer: nn.Linear) -> tuple[np.ndarray, np.ndarray]:
-            return layer.weight.detach().numpy().T, layer.bias.detach().numpy()
-
-        plan: list[Any] = []
-        for module in self.body:
-            if isinstance(module, nn.Linear):
-                plan.append(affine(module))
-            elif isinstance(module, nn.Dropout):
-                continue  # identity in eval mode
-            elif type(module) in NUMPY_ACTIVATIONS:
-                plan.append(NUMPY_ACTIVATIONS[type(module)])
-            else:
-                return None
-        head = affine(self.head)
-        if self.value is None:
-            return [*plan, head]
-        value = affine(self.value)
-
-        def dueling(features: np.ndarray) -> np.ndarray:
-            advantages = features @ head[0] + head[1]
-            return (features @ value[0] + value[1]) + advantages - advantages.mean(axis=1, keepdims=True)
-
-        return [*plan, dueling]
-
-
-def _relu(x: np.ndarray) -> np.ndarray:
-    return np.maximum(x, 0.0, out=x)
-
-
-def _tanh(x: np.ndarray) -> np.ndarray:
-    return np.tanh(x, out=x)
-
-
-def _elu(x: np.ndarray) -> np.ndarray:
-    return np.where(x > 0.0, x, np.expm1(np.minimum(x, 0.0)))
-
-
-NUMPY_ACTIVATIONS: dict[type[nn.Module], Any] = {nn.ReLU: _relu, nn.Tanh: _tanh, nn.ELU: _elu}
-"""Activations with a numpy twin for ``QNetwork.q_values`` (GELU needs erf: it stays on torch)."""
-NUMPY_MAX_WORK = 100 * 64 * 64
-"""Largest rows x (widest layer's weights) ``q_values`` computes with numpy: beyond ~100 rows of a
-64x64 layer OpenBLAS starts a second thread (more CPU, not less), and torch is as fast there."""
-
-
-# ----------------------------------------------------------------------------------------------
-# 3. The Bellman target
+# 2. The Bellman target
 # ----------------------------------------------------------------------------------------------
 
 
@@ -319,7 +180,7 @@ def td_targets(
 
 
 # ----------------------------------------------------------------------------------------------
-# 4. The learner
+# 3. The learner
 # ----------------------------------------------------------------------------------------------
 
 
@@ -333,6 +194,12 @@ def epsilon_at(config: DQNConfig, env_steps: int, multiplied: float) -> float:
     return multiplied
 
 
+def derived_seed(seed: int, stream: str) -> int:
+    """A seed for one named random stream of a run, independent of the run seed's other uses."""
+    words = np.random.SeedSequence([seed, *stream.encode()]).generate_state(2, dtype=np.uint32)
+    return int(words[0]) << 32 | int(words[1])
+
+
 class DQNLearner:
     """DQN as a Learner of the shared loop: one ``learn()`` = one batched env step + due updates."""
 
@@ -340,21 +207,24 @@ class DQNLearner:
         config.validate()
         self.config, self.env_info, self.seed = config, env, seed
         self.device = torch.device(device)
-        if config.torch_threads:
-            torch.set_num_threads(config.torch_threads)
-        self.rng = seed_everything(seed)  # global seeding: agents owning their generators is on its way
-        self.q_net = QNetwork(env.obs_dim, env.n_actions, config).to(self.device).eval()
+        # The learner's own random streams, one per use, so that none depends on another's draws.
+        init_generator = torch.Generator().manual_seed(derived_seed(seed, "init"))
+        self.dropout_generator = torch.Generator(self.device).manual_seed(derived_seed(seed, "dropout"))
+        self.replay_generator = torch.Generator(self.device).manual_seed(derived_seed(seed, "replay"))
+        self.rng = np.random.default_rng(derived_seed(seed, "explore"))
+        """Exploration: which envs act at random, and their random actions."""
+
+        self.q_net = QNetwork(env.obs_dim, env.n_actions, config, init_generator).to(self.device).eval()
+        self.q_net.use_dropout_generator(self.dropout_generator)
         self.target_net = copy.deepcopy(self.q_net) if config.target_network else None
         self.parameters = list(self.q_net.parameters())
         self.target_parameters = list(self.target_net.parameters()) if self.target_net is not None else []
-        # torch's fused Adam kernel, the fastest on CPU and GPU for small nets, without torch.optim's
-        # per-step wrapper and its one-off ~1.8 s import of torch._dynamo (see agents/adam.py).
+        # Adam as torch.optim.Adam(fused=True) computes it, without torch.optim's one-off ~1.8 s import
+        # of torch._dynamo and its per-step wrapper (see agents/adam.py).
         self.optimizer = FusedAdam(self.parameters, lr=config.lr)
         self.buffer = ReplayBuffer(config.buffer_size, env.obs_dim, self.device)
-        self.replay_generator = torch.Generator(self.device)
-        """Draws the replay minibatches (on the learner's device); seeded apart from the other streams."""
-        self.replay_generator.manual_seed(_derived_seed(seed, "replay"))
-        self.envs = make_vec_env(env.env_id, config.num_envs, simulator=config.simulator)
+
+        self.envs = make_resumable_vec_env(env.env_id, config.num_envs, check_simulator(config.simulator))
         self.observations, _ = self.envs.reset(seed=seed)
         n = config.num_envs
         self.autoreset = np.zeros(n, dtype=bool)
@@ -367,7 +237,7 @@ class DQNLearner:
         self.epsilon_multiplied = config.epsilon_start
         self.last_loss = float("nan")
         self.last_q_mean = float("nan")
-        self.use_dropout = config.dropout > 0
+        self.uses_dropout = config.dropout > 0
 
     # -- acting ----------------------------------------------------------------------------
 
@@ -452,20 +322,19 @@ class DQNLearner:
         """One update of the online net; returns its loss and Q-values (tensors: no sync here)."""
         config = self.config
         batch = self.buffer.sample(min(config.batch_size, len(self.buffer)), self.replay_generator)
-        if self.use_dropout:
-            self.q_net.train()
-        # forward(), not __call__: no hooks are used, and the call's wrapper is ~2% of a gradient step.
-        q_all = self.q_net.forward(batch.observations)
-        if self.use_dropout:
+        if self.uses_dropout:  # dropout only while fitting; acting and the targets run without it
+            q_all = self.q_net.train()(batch.observations)
             self.q_net.eval()
+        else:  # (switching modes walks every module: skipped when it changes nothing)
+            q_all = self.q_net(batch.observations)
         with torch.no_grad():
             # Without a target network the online net (without dropout) values s', as the tutorials do.
             target_net = self.target_net if self.target_net is not None else self.q_net
-            next_q_target = target_net.forward(batch.next_observations)
+            next_q_target = target_net(batch.next_observations)
             next_q_online = None
             if config.double_dqn:
                 same = self.target_net is None
-                next_q_online = next_q_target if same else self.q_net.forward(batch.next_observations)
+                next_q_online = next_q_target if same else self.q_net(batch.next_observations)
             targets = td_targets(batch.rewards, batch.terminated, next_q_target, next_q_online, config.gamma)
         q = q_all.gather(1, batch.actions.unsqueeze(1)).squeeze(1)
         loss = F.smooth_l1_loss(q, targets) if config.loss == "huber" else F.mse_loss(q, targets)
@@ -485,11 +354,12 @@ class DQNLearner:
 
     @torch.no_grad()
     def update_target(self) -> None:
-        online, target = self.parameters, self.target_parameters
-        if self.config.tau >= 1.0:
-            torch._foreach_copy_(target, online)
-        else:
-            torch._foreach_lerp_(target, online, self.config.tau)
+        """Polyak update: target <- target + tau * (online - target); a copy when tau is 1."""
+        for target, online in zip(self.target_parameters, self.parameters, strict=True):
+            if self.config.tau >= 1.0:
+                target.copy_(online)
+            else:
+                target.lerp_(online, self.config.tau)
 
     # -- policy and checkpoints ---------------------------------------------------------------
 
@@ -498,17 +368,19 @@ class DQNLearner:
         return QNetworkPolicy(copy.deepcopy(self.q_net), self.device)
 
     def state_dict(self, resume: bool) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
-        tensors = {f"q_net.{k}": v for k, v in self.q_net.state_dict().items()}
+        """The weights (always); with ``resume`` everything a resume needs to continue exactly: target
+        net, Adam, replay rows, the learner's random streams, its counters and the envs' episodes in
+        progress (see :mod:`cartpole.agents.resumable_envs` for exactly what of the envs is kept)."""
+        tensors = prefixed("q_net.", self.q_net.state_dict())
         data: dict[str, Any] = {"obs_dim": self.env_info.obs_dim, "n_actions": self.env_info.n_actions}
         if not resume:
             return tensors, data
         if self.target_net is not None:
-            tensors |= {f"target_net.{k}": v for k, v in self.target_net.state_dict().items()}
+            tensors |= prefixed("target_net.", self.target_net.state_dict())
         optim_tensors, optim_data = self.optimizer.state_dict()
-        tensors |= {f"optim.{k}": v for k, v in optim_tensors.items()}
         replay_tensors, replay_data = self.buffer.state_dict()
-        tensors |= {f"replay.{k}": v for k, v in replay_tensors.items()}
-        tensors["rng.torch"] = torch.get_rng_state()
+        tensors |= prefixed("optim.", optim_tensors) | prefixed("replay.", replay_tensors)
+        tensors["rng.dropout"] = self.dropout_generator.get_state()
         tensors["rng.replay"] = self.replay_generator.get_state()
         tensors["envs.observations"] = torch.from_numpy(np.asarray(self.observations, dtype=np.float32))
         data |= {
@@ -522,22 +394,24 @@ class DQNLearner:
             "autoreset": self.autoreset.tolist(),
             "episode_returns": self.episode_returns.tolist(),
             "episode_lengths": self.episode_lengths.tolist(),
-            "env_state": _vector_env_state(self.envs),
+            "env_state": vector_env_state(self.envs),
         }
         return tensors, data
 
     def load_state_dict(self, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None:
-        self.q_net.load_state_dict(_with_prefix(tensors, "q_net."))
+        """Restore what ``state_dict`` gave; touches only this learner (and its envs)."""
+        self.q_net.load_state_dict(unprefixed("q_net.", tensors))
         if "env_steps" not in data:  # a policy-only checkpoint: weights only
             if self.target_net is not None:
                 self.target_net.load_state_dict(self.q_net.state_dict())
             return
         if self.target_net is not None:
-            self.target_net.load_state_dict(_with_prefix(tensors, "target_net."))
-        self.optimizer.load_state_dict(_with_prefix(tensors, "optim."))
-        self.buffer.load_state_dict(_with_prefix(tensors, "replay."), data["replay"])
-        torch.set_rng_state(tensors["rng.torch"])
-        if "rng.replay" in tensors:  # absent from checkpoints older than the torch-sampled replay
+            self.target_net.load_state_dict(unprefixed("target_net.", tensors))
+        self.optimizer.load_state_dict(unprefixed("optim.", tensors))
+        self.buffer.load_state_dict(unprefixed("replay.", tensors), data["replay"])
+        if "rng.dropout" in tensors:  # absent from checkpoints written before the learner owned it
+            self.dropout_generator.set_state(tensors["rng.dropout"])
+        if "rng.replay" in tensors:
             self.replay_generator.set_state(tensors["rng.replay"])
         self.rng.bit_generator.state = data["rng_numpy"]
         self.env_steps, self.calls = int(data["env_steps"]), int(data["calls"])
@@ -546,11 +420,12 @@ class DQNLearner:
         self.autoreset = np.asarray(data["autoreset"], dtype=bool)
         self.episode_returns = np.asarray(data["episode_returns"], dtype=np.float64)
         self.episode_lengths = np.asarray(data["episode_lengths"], dtype=np.int64)
-        if _restore_vector_env_state(self.envs, data.get("env_state")):
+        saved_envs = data.get("env_state")
+        if restore_vector_env_state(self.envs, saved_envs, self.episode_lengths, self.autoreset):
             self.observations = tensors["envs.observations"].numpy().copy()
         else:
-            # The env's internal state could not be saved: start fresh episodes from a seed derived
-            # from the run's seed and progress (deterministic), dropping the episodes in progress.
+            # The envs' state could not be saved (see resumable_envs): start fresh episodes from a
+            # seed derived from the run's seed and progress (deterministic), dropping those in progress.
             seed = int(np.random.SeedSequence([self.seed, self.env_steps]).generate_state(1)[0])
             self.observations, _ = self.envs.reset(seed=seed)
             self.autoreset[:] = False
@@ -558,79 +433,28 @@ class DQNLearner:
             self.episode_lengths[:] = 0
 
 
-def _derived_seed(seed: int, stream: str) -> int:
-    """A seed for one named random stream of a run, independent of the run seed's other uses."""
-    words = np.random.SeedSequence([seed, *stream.encode()]).generate_state(2, dtype=np.uint32)
-    return int(words[0]) << 32 | int(words[1])
+def prefixed(prefix: str, tensors: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    return {prefix + k: v for k, v in tensors.items()}
 
 
-def _with_prefix(tensors: dict[str, torch.Tensor], prefix: str) -> dict[str, torch.Tensor]:
+def unprefixed(prefix: str, tensors: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
     return {k.removeprefix(prefix): v for k, v in tensors.items() if k.startswith(prefix)}
 
 
-# The per-env state of the batched CartPole vector envs: Gymnasium's CartPoleVectorEnv (public names)
-# and our fast simulator (private names). Other vector envs restart their episodes on resume.
-_GYMNASIUM_CARTPOLE_FIELDS = ("state", "steps", "prev_done")
-"""The public state of Gymnasium's CartPoleVectorEnv (our fast simulator has ``snapshot()``)."""
-
-
-def _vector_env_state(envs: Any) -> dict[str, Any] | None:
-    """Plain-data snapshot of a batched CartPole vector env, or None if we do not know its state."""
-    base = envs.unwrapped
-    if hasattr(base, "snapshot"):  # our fast simulator
-        return {"snapshot": base.snapshot()}
-    fields = {name: getattr(base, name, None) for name in _GYMNASIUM_CARTPOLE_FIELDS}
-    if not all(isinstance(v, np.ndarray) for v in fields.values()):
-        return None
-    arrays = {k: {"values": v.tolist(), "dtype": str(v.dtype)} for k, v in fields.items()}
-    return {"fields": arrays, "np_random": base.np_random.bit_generator.state}
-
-
-def _restore_vector_env_state(envs: Any, saved: dict[str, Any] | None) -> bool:
-    """Put a vector env back where :func:`_vector_env_state` found it; False if it cannot."""
-    if not saved:
-        return False
-    base = envs.unwrapped
-    if "snapshot" in saved:
-        base.restore(saved["snapshot"])
-        return True
-    for name, value in saved["fields"].items():
-        setattr(base, name, np.asarray(value["values"], dtype=value["dtype"]))
-    base.np_random.bit_generator.state = saved["np_random"]
-    return True
-
-
 # ----------------------------------------------------------------------------------------------
-# 5. The greedy policy
+# 4. The greedy policy from a checkpoint
 # ----------------------------------------------------------------------------------------------
-
-
-class QNetworkPolicy:
-    """Greedy policy of a Q-network: ``act`` = argmax of ``scores`` (the Q-values)."""
-
-    def __init__(self, q_net: QNetwork, device: str | torch.device = "cpu"):
-        self.q_net = q_net.eval()
-        self.device = torch.device(device)
-        # The net is a frozen copy: its numpy plan, built once, stays current (the web app asks
-        # for one observation at a time, where checking the plan would cost as much as using it).
-        self._plan = q_net._numpy_plan()
-
-    def scores(self, observations: np.ndarray) -> np.ndarray:
-        """Q-values, shape [N, n_actions]."""
-        return self.q_net.q_values(observations, self._plan)
-
-    def act(self, observations: np.ndarray) -> np.ndarray:
-        return self.scores(observations).argmax(axis=1)
 
 
 def policy_from_checkpoint(checkpoint: Checkpoint) -> QNetworkPolicy:
     """Rebuild the greedy policy on CPU from a checkpoint's tensors."""
     try:
-        config = build_config(DQNConfig, checkpoint.meta["config"])
+        known = {f.name for f in dataclasses.fields(DQNConfig)}  # older checkpoints hold retired settings
+        config = build_config(DQNConfig, {k: v for k, v in checkpoint.meta["config"].items() if k in known})
         data = checkpoint.meta["learner"]
         q_net = QNetwork(int(data["obs_dim"]), int(data["n_actions"]), config)
-        q_net.load_state_dict(_with_prefix(checkpoint.tensors, "q_net."))
-    except (KeyError, RuntimeError, TypeError) as err:
+        q_net.load_state_dict(unprefixed("q_net.", checkpoint.tensors))
+    except (KeyError, RuntimeError, TypeError, AttributeError) as err:
         raise CheckpointError(f"not a usable dqn checkpoint: {err!s:.120}") from err
     return QNetworkPolicy(q_net, "cpu")
 
@@ -649,4 +473,14 @@ AGENT = AgentSpec(
     score_label="Q-values",
 )
 
-__all__ = ["AGENT", "DQNConfig", "DQNLearner", "QNetwork", "QNetworkPolicy", "td_targets"]
+__all__ = [
+    "AGENT",
+    "DQNConfig",
+    "DQNLearner",
+    "QNetwork",
+    "QNetworkPolicy",
+    "epsilon_at",
+    "make_learner",
+    "policy_from_checkpoint",
+    "td_targets",
+]

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from typing import Any
 
@@ -22,21 +21,6 @@ def parse_overrides(pairs: list[str]) -> dict[str, Any]:
             raise UsageError(f"--set expects KEY=VALUE, got {pair!r}")
         overrides[key.strip().replace("-", "_")] = value.strip()
     return overrides
-
-
-def set_torch_threads(threads: int) -> None:
-    """Cap torch's CPU threads (a process-wide setting: the CLI's business, never the library's).
-
-    Without torch imported yet, the environment variable torch reads at import does it (agents that do
-    not use torch then never import it).
-    """
-    if threads <= 0:
-        return
-    torch = sys.modules.get("torch")
-    if torch is not None:
-        torch.set_num_threads(threads)
-    else:
-        os.environ["OMP_NUM_THREADS"] = str(threads)
 
 
 def add_parser(sub: Any) -> None:
@@ -103,11 +87,11 @@ def add_parser(sub: Any) -> None:
         help="keep training after the first verified solve, to the budget",
     )
     parser.add_argument(
-        "--threads",
+        "--torch-threads",
         type=int,
         default=1,
         metavar="N",
-        help="torch CPU threads (default: 1, the fastest for these small nets; 0: torch's default)",
+        help="CPU threads for torch (default: 1, the fastest for small nets; 0: torch's default)",
     )
     parser.add_argument("--resume", metavar="RUN_DIR", help="continue this run from checkpoints/latest.pt")
     parser.add_argument("--quiet", action="store_true", help="no progress output")
@@ -127,15 +111,32 @@ def add_parser(sub: Any) -> None:
     parser.set_defaults(run=run)
 
 
+def configure_process(torch_threads: int, seed: int) -> None:
+    """The process-wide settings, decided once here and never by library code: torch's CPU thread
+    count, and seeds for the global generators of Python, numpy and torch (our agents draw only from
+    generators they own; this makes any library that draws from the global ones repeat too)."""
+    import random
+
+    import numpy as np
+    import torch
+
+    if torch_threads:
+        torch.set_num_threads(torch_threads)
+    seed %= 2**32  # numpy's range; a seed out of the run's range is refused later, in one line
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
 def run(args: argparse.Namespace) -> int:
     from cartpole.cli.errors import UsageError
     from cartpole.training import AlreadyFinished, parse_budget, resume, train
     from cartpole.training.population import is_population_run
 
+    if args.torch_threads < 0:
+        raise UsageError(f"--torch-threads must be >= 0, got {args.torch_threads}")
+    configure_process(args.torch_threads, args.seed)
     console = Console(soft_wrap=True)
-    if args.threads < 0:
-        raise UsageError(f"--threads must be >= 0, got {args.threads}")
-    set_torch_threads(args.threads)
     if args.seeds is not None or (args.resume and is_population_run(args.resume)):
         return run_population(args)  # issue 15
     if args.resume:

@@ -156,7 +156,7 @@ def describe_url(url: str) -> tuple[str, str]:
 
     try:
         parsed = make_url(url)
-    except ArgumentError:
+    except (ArgumentError, ValueError):  # ValueError: a port that is not a number
         raise ExperimentError(
             f"malformed --storage URL {url!r}; use postgresql://USER@HOST:PORT/DB (or sqlite:///FILE.db)"
         ) from None
@@ -197,9 +197,14 @@ def open_storage(spec: SweepSpec, attempts: int = 5) -> Any:
                 return optuna.storages.RDBStorage(
                     url, engine_kwargs=engine, heartbeat_interval=30, grace_period=120
                 )
-        except ModuleNotFoundError as err:
+        except ImportError as err:  # Optuna re-raises the driver's ModuleNotFoundError as ImportError
             raise ExperimentError(
-                f"--storage {backend}:// needs its driver ({err.name}); pip install 'cartpole[postgres]'"
+                f"--storage {backend}:// needs its driver ({missing_module(err)}), which is not installed"
+                + (
+                    "; use postgresql://USER@HOST:PORT/DB and pip install 'cartpole[postgres]'"
+                    if backend == "postgresql"
+                    else ""
+                )
             ) from None
         except OperationalError as err:  # no server there, or a wrong host, port, user or database
             reason = str(err.orig or err).strip().splitlines()[0]
@@ -210,6 +215,12 @@ def open_storage(spec: SweepSpec, attempts: int = 5) -> Any:
                 raise ExperimentError(f"the {backend} study storage at {where} failed: {reason}") from None
             time.sleep(1.0 + attempt)
     raise AssertionError("unreachable")
+
+
+def missing_module(err: ImportError) -> str:
+    """The name of the module whose import failed, looking through Optuna's re-raise."""
+    cause = err.__cause__ if isinstance(err.__cause__, ImportError) else err
+    return cause.name or str(cause)
 
 
 def open_study(spec: SweepSpec, storage: Any) -> Any:

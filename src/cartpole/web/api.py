@@ -79,7 +79,9 @@ class EpisodeOut(BaseModel):
     states: list[list[float]]
     actions: list[int]
     rewards: list[float]
-    scores: list[list[float]] | None = Field(description="Q-values, or the linear [-s, s], per step")
+    scores: list[list[float]] | None = Field(
+        description="the policy's score of each action at each step (what they are: score_label)"
+    )
     score_label: str | None
     limits: dict[str, float]
 

@@ -19,13 +19,22 @@ from starlette.exceptions import HTTPException
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 
 from cartpole.core.version import __version__
-from cartpole.web import api, live
+from cartpole.web import api, experiments_api, live
 from cartpole.web.episodes import EpisodeWorkers
+from cartpole.web.experiments_folder import ExperimentsFolder
 from cartpole.web.runs_folder import RunsFolder
 from cartpole.web.security import SameOriginWebSockets, SecurityHeaders, URLLengthLimit, allowed_hosts
 
 STATIC = Path(__file__).parent / "static"
-PAGES = {"/": "runs.html", "/run": "run.html", "/watch": "watch.html", "/play": "play.html"}
+PAGES = {
+    "/": "runs.html",
+    "/run": "run.html",
+    "/watch": "watch.html",
+    "/play": "play.html",
+    "/experiments": "experiments.html",
+    "/experiment": "experiment.html",
+    "/sweep": "sweep.html",
+}
 
 
 def create_app(runs_dir: Path | str = "runs", allow_hosts: Iterable[str] = ()) -> FastAPI:
@@ -44,6 +53,7 @@ def create_app(runs_dir: Path | str = "runs", allow_hosts: Iterable[str] = ()) -
         lifespan=_warm_up,
     )
     app.state.runs = RunsFolder(Path(runs_dir))
+    app.state.experiments = ExperimentsFolder(Path(runs_dir))
     app.state.episodes = EpisodeWorkers.shared()
     app.add_exception_handler(HTTPException, _without_machine_paths)
     # Outermost last: headers on every answer, then the URL size, the Host, the WebSocket Origin.
@@ -52,6 +62,7 @@ def create_app(runs_dir: Path | str = "runs", allow_hosts: Iterable[str] = ()) -
     app.add_middleware(URLLengthLimit)
     app.add_middleware(SecurityHeaders)
     app.include_router(api.router)
+    app.include_router(experiments_api.router)
     app.include_router(live.router)
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
     for route, page in PAGES.items():

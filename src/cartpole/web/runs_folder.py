@@ -25,7 +25,7 @@ class NotFound(LookupError):
     """No such run or checkpoint (or a name that is not allowed)."""
 
 
-def _inside(path: Path, parent: Path) -> bool:
+def inside(path: Path, parent: Path) -> bool:
     try:
         path.resolve(strict=True).relative_to(parent.resolve())
     except (OSError, ValueError):
@@ -35,7 +35,7 @@ def _inside(path: Path, parent: Path) -> bool:
 
 def _is_checkpoint_file(path: Path, run: RunDir) -> bool:
     """A regular file (not a symlink, dangling or not) inside the run's folder."""
-    return not path.is_symlink() and path.is_file() and _inside(path, run.path)
+    return not path.is_symlink() and path.is_file() and inside(path, run.path)
 
 
 class RunsFolder:
@@ -49,7 +49,7 @@ class RunsFolder:
         if not SAFE_NAME.match(name) or ".." in name:
             raise NotFound(f"no run named {name!r}")
         path = self.root / name
-        if not path.is_dir() or not _inside(path, self.root):
+        if not path.is_dir() or not inside(path, self.root):
             raise NotFound(f"no run named {name!r} in the runs folder")
         return RunDir(path)
 
@@ -73,7 +73,7 @@ class RunsFolder:
         rows = []
         for summary in list_runs(self.root):
             path = Path(summary.path)
-            if path.is_symlink() and not _inside(path, self.root):
+            if path.is_symlink() and not inside(path, self.root):
                 continue  # a link to elsewhere is not one of our runs
             row = _as_shown(summary)
             row["rule"] = solved_rule(RunDir(path).eval_report())

@@ -3,6 +3,7 @@
 
 const NAV = [
   ["/", "Runs"],
+  ["/experiments", "Experiments"],
   ["/play", "Play"],
 ];
 
@@ -91,8 +92,38 @@ function emptyState(runsDir) {
     <p>It appears here by itself. Meanwhile, <a href="/play">play CartPole yourself</a>.</p></div>`;
 }
 
+// Fetch `url` every `everyMs` and hand the body to `render` (only when it changed). When the server
+// cannot be reached (restarted, stopped) `showError(message, seconds)` says so and it retries with
+// backoff (doubling up to 30 s); the first answer after that renders again.
+function poll(url, render, showError, everyMs = 3000) {
+  let last = "";
+  let retryMs = everyMs;
+  async function tick() {
+    try {
+      const body = await getJSON(url);
+      const text = JSON.stringify(body);
+      if (text !== last) {
+        last = text;
+        render(body);
+      }
+      retryMs = everyMs;
+      setTimeout(tick, everyMs);
+    } catch (err) {
+      if (err.status && err.status < 500) {
+        showError(err.message, null); // a 4xx (an unknown name): asking again will not help
+        return;
+      }
+      last = "";
+      showError(err.message, Math.round(retryMs / 1000));
+      setTimeout(tick, retryMs);
+      retryMs = Math.min(30000, retryMs * 2);
+    }
+  }
+  tick();
+}
+
 function param(name) {
   return new URLSearchParams(window.location.search).get(name);
 }
 
-window.CP = { renderHeader, getJSON, validationText, escapeHTML, fmtInt, fmtNum, fmtDate, stateBadge, solvedBadge, emptyState, param };
+window.CP = { renderHeader, getJSON, validationText, escapeHTML, fmtInt, fmtNum, fmtDate, stateBadge, solvedBadge, emptyState, poll, param };

@@ -72,6 +72,15 @@ function valueText(value) {
   return CP.escapeHTML(String(value));
 }
 
+// The budget the run trained under, e.g. "50 iterations" or "20,000 env steps, 60 seconds". A --budget
+// given on the command line replaces the preset's, so settings.budget (the preset's) is not shown
+// beside it: two budgets that disagree would leave the reader guessing which one held.
+function budgetText(budget) {
+  if (!budget || typeof budget !== "object") return null;
+  const parts = Object.entries(budget).map(([k, v]) => `${CP.fmtInt(v)} ${k.replace(/_/g, " ")}`);
+  return parts.length ? parts.join(", ") : "none";
+}
+
 function renderConfig(config) {
   const box = document.getElementById("config");
   if (!config) {
@@ -80,11 +89,17 @@ function renderConfig(config) {
   }
   const rows = [];
   for (const [key, value] of Object.entries(config.config || {})) rows.push([key, value]);
-  for (const key of ["preset", "budget", "settings", "device", "package_version"]) {
+  const budget = budgetText(config.budget) ?? (config.settings && config.settings.budget);
+  if (budget !== undefined && budget !== null) rows.push(["budget", budget]);
+  if (config.settings && typeof config.settings === "object") {
+    const { budget: _presetBudget, ...settings } = config.settings;
+    rows.push(["settings", settings]);
+  }
+  for (const key of ["preset", "device", "package_version"]) {
     if (key in config) rows.push([key, config[key]]);
   }
   const command = Array.isArray(config.command) ? `<p class="small muted">Made by</p><pre class="mono small wrap">${CP.escapeHTML(config.command.join(" "))}</pre>` : "";
-  box.innerHTML = `<table class="kv">${rows.map(([k, v]) => `<tr><td>${CP.escapeHTML(k)}</td><td>${valueText(v)}</td></tr>`).join("")}</table>${command}`;
+  box.innerHTML = `<table class="kv">${rows.map(([k, v]) => `<tr data-key="${CP.escapeHTML(k)}"><td>${CP.escapeHTML(k)}</td><td>${valueText(v)}</td></tr>`).join("")}</table>${command}`;
 }
 
 // ------------------------------------------------------------------------------------------------
@@ -113,7 +128,8 @@ function chartData() {
       window.push(r);
       sum += r;
       if (window.length > MA_WINDOW) sum -= window.shift();
-      averages.push(sum / window.length);
+      // Only full windows: an "average" of the first few generations would be the noise it should smooth.
+      averages.push(window.length === MA_WINDOW ? sum / MA_WINDOW : null);
     } else {
       averages.push(null);
     }
@@ -130,7 +146,9 @@ function makePlot() {
   const opts = {
     width: Math.max(280, el.clientWidth),
     height: el.clientWidth < 500 ? 260 : 340,
-    scales: { x: { time: false } },
+    // Every row at one step (a CEM run that solved in its first generation): uPlot would get an x range
+    // of zero width and draw nothing; show 0 to twice that step instead.
+    scales: { x: { time: false, range: (u, min, max) => (min === max ? [0, max > 0 ? 2 * max : 1] : [min, max]) } },
     axes: [
       { label: "env steps", stroke: "#5d6678", grid: { stroke: "#eef0f5" } },
       { label: "return", stroke: "#5d6678", grid: { stroke: "#eef0f5" } },
@@ -154,7 +172,7 @@ function updateChart() {
     note.textContent = "No metrics yet: rows appear here as training logs them.";
   } else {
     const kind = state.returnKey && state.returnKey[0] === "train/mean_return" ? "Each point is a generation's mean return over its candidates. " : "";
-    note.textContent = `${kind}Green dots: greedy evaluations. Dashed line: the env's reward_threshold. Drag to zoom, double-click to reset.`;
+    note.textContent = `${kind}Dark line: moving average of the last ${MA_WINDOW} points (drawn once there are ${MA_WINDOW}). Green dots: greedy evaluations. Dashed line: the env's reward_threshold. Drag to zoom, double-click to reset.`;
   }
   if (!state.plot) {
     if (!state.detail) return;

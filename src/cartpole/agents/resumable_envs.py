@@ -1,0 +1,148 @@
+"""Vector envs that a checkpoint can put back mid-episode, from public per-env state only.
+
+A learner that collects from a vector env must, on resume, continue the episodes in progress: the
+same states, the same random start states after them, the same time limits. No private internals of
+Gymnasium's vector envs are saved; a checkpoint holds, as plain JSON data:
+
+- our fast CartPole simulator: its public ``snapshot()`` (states, step counters, pending autoresets,
+  reset bounds, generator state), given back to ``restore()``;
+- Gymnasium's ``CartPoleVectorEnv``: its public ``state`` array and its ``np_random`` bit-generator
+  state; its ``steps`` and ``prev_done`` are set from the episode lengths and pending autoresets the
+  learner tracks itself;
+- every other env (Acrobot-v1, MountainCar-v0, ...): Gymnasium's ``SyncVectorEnv`` over single envs
+  whose time limit is :class:`EpisodeClock` instead of Gymnasium's ``TimeLimit`` (whose step count is
+  private). Per env, ``env.unwrapped.state`` and ``env.unwrapped.np_random``'s bit-generator state are
+  saved; the clock's elapsed steps and pending reset are set from the learner's own counters.
+
+An env whose state is not reachable this way (e.g. Box2D envs, whose ``unwrapped.state`` does not
+exist) cannot be saved: :func:`vector_env_state` returns None and the learner starts fresh episodes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import Any, SupportsFloat
+
+import gymnasium as gym
+import numpy as np
+
+from cartpole.envs import Simulator, env_info, make_vec_env
+
+
+class EpisodeClock(gym.Wrapper[Any, Any, Any, Any]):
+    """Gymnasium's ``TimeLimit`` with public counters: truncates once ``elapsed_steps`` reaches
+    ``max_episode_steps`` (the same rule, the same flags), and lets a checkpoint set where it stands.
+
+    ``reset_pending`` makes the next ``step`` a reset (reward 0, not terminated, not truncated, the
+    action ignored): exactly what ``SyncVectorEnv``'s next-step autoreset does for an env that ended an
+    episode, so a restored env that was awaiting its autoreset gets it.
+    """
+
+    def __init__(self, env: gym.Env[Any, Any], max_episode_steps: int | None):
+        super().__init__(env)
+        self.max_episode_steps = max_episode_steps
+        self.elapsed_steps = 0
+        self.reset_pending = False
+
+    def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:
+        if self.reset_pending:
+            observation, info = self.reset()
+            return observation, 0.0, False, False, info
+        observation, reward, terminated, truncated, info = self.env.step(action)
+        self.elapsed_steps += 1
+        if self.max_episode_steps is not None and self.elapsed_steps >= self.max_episode_steps:
+            truncated = True
+        return observation, reward, terminated, truncated, info
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict]:
+        self.elapsed_steps = 0
+        self.reset_pending = False
+        return self.env.reset(seed=seed, options=options)
+
+
+def make_resumable_vec_env(env_id: str, num_envs: int, simulator: Simulator) -> gym.vector.VectorEnv:
+    """A vector env of ``num_envs`` copies of ``env_id`` (next-step autoreset) that
+    :func:`restore_vector_env_state` can put back mid-episode."""
+    info = env_info(env_id)
+    if info.is_cartpole:  # batched CartPole, ours or Gymnasium's: both keep their per-env state public
+        return make_vec_env(env_id, num_envs, simulator=simulator)
+    without_limit = dataclasses.replace(gym.spec(env_id), max_episode_steps=None)
+    clock = functools.partial(EpisodeClock, max_episode_steps=info.max_episode_steps)
+    return gym.make_vec(without_limit, num_envs, vectorization_mode="sync", wrappers=[clock])
+
+
+def vector_env_state(envs: gym.vector.VectorEnv) -> dict[str, Any] | None:
+    """The per-env state of ``envs`` as plain data, or None when it is not reachable publicly."""
+    base = envs.unwrapped
+    snapshot = getattr(base, "snapshot", None)
+    if snapshot is not None:  # our fast simulator
+        return {"kind": "snapshot", "snapshot": snapshot()}
+    sub_envs = getattr(base, "envs", None)
+    if sub_envs is not None:  # SyncVectorEnv: one state per env, if every env has a clock and a state
+        if not all(isinstance(env, EpisodeClock) for env in sub_envs):
+            return None
+        # Acrobot keeps an array, MountainCar a (position, velocity) tuple: both restore as an array.
+        states = [getattr(env.unwrapped, "state", None) for env in sub_envs]
+        arrays = [np.asarray(state) for state in states if isinstance(state, np.ndarray | tuple)]
+        if len(arrays) != len(sub_envs):
+            return None
+        return {
+            "kind": "per_env",
+            "envs": [
+                {"state": _array_data(state), "np_random": env.unwrapped.np_random.bit_generator.state}
+                for env, state in zip(sub_envs, arrays, strict=True)
+            ],
+        }
+    state = getattr(base, "state", None)
+    if isinstance(state, np.ndarray) and hasattr(base, "prev_done"):  # Gymnasium's CartPoleVectorEnv
+        return {
+            "kind": "batched",
+            "state": _array_data(state),
+            "np_random": base.np_random.bit_generator.state,
+        }
+    return None
+
+
+def restore_vector_env_state(
+    envs: gym.vector.VectorEnv,
+    saved: dict[str, Any] | None,
+    episode_lengths: np.ndarray,
+    reset_pending: np.ndarray,
+) -> bool:
+    """Put ``envs`` (freshly made and reset) back where :func:`vector_env_state` found them.
+
+    ``episode_lengths`` (steps of each env's episode in progress) and ``reset_pending`` (envs whose
+    last step ended an episode) are the learner's own counters. False when ``saved`` is None.
+    """
+    if saved is None or "kind" not in saved:  # not saved, or by a version that pickled other internals
+        return False
+    base = envs.unwrapped
+    if saved["kind"] == "snapshot":
+        base.restore(saved["snapshot"])  # type: ignore[attr-defined]
+    elif saved["kind"] == "per_env":
+        sub_envs = base.envs  # type: ignore[attr-defined]
+        if len(sub_envs) != len(saved["envs"]):
+            raise ValueError(f"a state of {len(saved['envs'])} envs cannot restore {len(sub_envs)} envs")
+        for env, env_state, elapsed, pending in zip(
+            sub_envs, saved["envs"], episode_lengths, reset_pending, strict=True
+        ):
+            env.unwrapped.state = _array(env_state["state"])
+            env.unwrapped.np_random.bit_generator.state = env_state["np_random"]
+            env.elapsed_steps, env.reset_pending = int(elapsed), bool(pending)
+    elif saved["kind"] == "batched":
+        base.state = _array(saved["state"])  # type: ignore[attr-defined]
+        base.np_random.bit_generator.state = saved["np_random"]
+        base.steps = np.asarray(episode_lengths, dtype=np.int32)  # type: ignore[attr-defined]
+        base.prev_done = np.asarray(reset_pending, dtype=np.bool_)  # type: ignore[attr-defined]
+    else:
+        raise ValueError(f"unknown vector env state kind {saved['kind']!r}")
+    return True
+
+
+def _array_data(array: np.ndarray) -> dict[str, Any]:
+    return {"values": array.tolist(), "dtype": str(array.dtype)}  # floats survive JSON exactly
+
+
+def _array(data: dict[str, Any]) -> np.ndarray:
+    return np.asarray(data["values"], dtype=data["dtype"])
