@@ -101,6 +101,13 @@ def add_parser(sub: Any) -> None:
         action="store_true",
         help="also log metrics as TensorBoard events in RUN/tensorboard/ (needs the tensorboard extra)",
     )
+    # --- issue 15: population training (run_population below) ---
+    parser.add_argument(
+        "--seeds",
+        metavar="SEEDS",
+        help="train these seeds in one process, a run folder each: a range (0-99), a list (3,5,8) or "
+        "both; ppo only. --resume of any of them continues them all",
+    )
     parser.set_defaults(run=run)
 
 
@@ -124,11 +131,14 @@ def configure_process(torch_threads: int, seed: int) -> None:
 def run(args: argparse.Namespace) -> int:
     from cartpole.cli.errors import UsageError
     from cartpole.training import AlreadyFinished, parse_budget, resume, train
+    from cartpole.training.population import is_population_run
 
     if args.torch_threads < 0:
         raise UsageError(f"--torch-threads must be >= 0, got {args.torch_threads}")
     configure_process(args.torch_threads, args.seed)
     console = Console(soft_wrap=True)
+    if args.seeds is not None or (args.resume and is_population_run(args.resume)):
+        return run_population(args)  # issue 15
     if args.resume:
         if args.agent or args.overrides or args.budget is not None:
             raise UsageError("--resume continues a run with its recorded config; drop AGENT/--set/--budget")
@@ -176,4 +186,61 @@ def run(args: argparse.Namespace) -> int:
     if report is not None:
         color = "green" if report.solved else "red"
         console.print(f"[bold {color}]{report.verdict}[/]", highlight=False)
+    return 0
+
+
+# --- issue 15: population training -------------------------------------------------------------
+
+
+def run_population(args: argparse.Namespace) -> int:
+    """``cartpole train AGENT --seeds 0-99`` (or ``--resume`` of a population's run)."""
+    from cartpole.cli.errors import UsageError
+    from cartpole.training import parse_budget
+    from cartpole.training.population import (
+        check_population_agent,
+        parse_seeds,
+        population_summary,
+        resume_population,
+        train_population,
+    )
+
+    console = Console(soft_wrap=True)
+    if args.resume:
+        if args.agent or args.overrides or args.budget is not None or args.seeds is not None:
+            raise UsageError(
+                "--resume continues a population with its recorded config; drop AGENT/--set/--budget/--seeds"
+            )
+        outcome = resume_population(args.resume, quiet=args.quiet)
+    else:
+        agent = args.agent or DEFAULT_AGENT
+        check_population_agent(agent)
+        seeds = parse_seeds(args.seeds)
+        if args.tensorboard:
+            raise UsageError("--tensorboard is not offered with --seeds yet; train one seed with --seed N")
+        try:
+            budget = None if args.budget is None else parse_budget(args.budget)
+        except ValueError as err:
+            raise UsageError(f"--budget: {err}") from None
+        outcome = train_population(
+            agent,
+            seeds,
+            args.env,
+            preset=args.preset,
+            overrides=parse_overrides(args.overrides),
+            budget=budget,
+            runs_dir=args.runs_dir,
+            device=args.device,
+            stop_when_solved=False if args.no_stop_when_solved else None,
+            quiet=args.quiet,
+            command=["cartpole", *sys.argv[1:]],
+        )
+    for line in population_summary(outcome):
+        console.print(line, highlight=False)
+    if outcome.signal is not None:
+        first = outcome.runs[min(outcome.runs)]
+        console.print(
+            "interrupted: every seed saved checkpoints/latest.pt. Resume them all with:\n"
+            f"  cartpole train --resume {first.path}"
+        )
+        return 128 + outcome.signal
     return 0

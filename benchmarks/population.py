@@ -1,0 +1,155 @@
+"""Population training vs single runs: 100 PPO seeds in one process against 20 ordinary runs.
+
+    python benchmarks/population.py                   # 100 population seeds, 20 single runs
+    python benchmarks/population.py --seeds 20 --singles 5
+
+Each part runs in its own child process (so peak RSS and CPU are that part's alone), with one torch
+thread (as ``cartpole train`` runs). Printed:
+
+- population: verified solves (each seed's kept best on 100 fresh episodes of Gymnasium's env), wall
+  time from start to the last verdict, CPU seconds (user + system, the whole child: imports, training,
+  verdicts) per seed, peak RSS, env steps/s, seeds/min;
+- single runs: the same verdicts, and the training CPU seconds per run (``cartpole.training.train``,
+  in one process; a separate process per run would add its imports on top);
+- the CPU ratio, and the solve-step distributions of both (first verified solve in training, env
+  steps): medians and a two-sample Mann-Whitney U test's p-value (scipy).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+
+def cpu_seconds() -> float:
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
+def peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: KiB
+
+
+def run_population_part(seeds: int, preset: str, runs_dir: Path) -> dict[str, object]:
+    from cartpole.training.population import train_population
+
+    started = time.perf_counter()
+    outcome = train_population(
+        "ppo", list(range(seeds)), preset=preset, runs_dir=runs_dir, quiet=False, device="cpu"
+    )
+    wall = time.perf_counter() - started
+    states = outcome.states.values()
+    return {
+        "wall": wall,
+        "cpu": cpu_seconds(),
+        "rss_mb": peak_rss_mb(),
+        "steps": sum(s.env_steps for s in states),
+        "solved_at": [s.solved_at_step for s in states],
+        "verified": sum(r.solved for r in outcome.reports.values()),
+    }
+
+
+def run_singles_part(seeds: int, preset: str, runs_dir: Path) -> dict[str, object]:
+    import time as clock
+
+    from cartpole.training import train
+
+    cpu, solved_at, verified = [], [], 0
+    for seed in range(seeds):
+        before = clock.process_time()
+        outcome = train("ppo", seed=seed, preset=preset, runs_dir=runs_dir, device="cpu")
+        cpu.append(clock.process_time() - before)
+        solved_at.append(outcome.state.solved_at_step)
+        verified += bool(outcome.report and outcome.report.solved)
+        print(
+            f"single seed {seed}: {cpu[-1]:.1f} CPU s, solved at {solved_at[-1]}", file=sys.stderr, flush=True
+        )
+    return {"cpu_per_run": cpu, "solved_at": solved_at, "verified": verified, "rss_mb": peak_rss_mb()}
+
+
+def child(part: str, seeds: int, preset: str, out: Path) -> dict[str, object]:
+    """Run one part in its own process; its result is also kept as ``out/<part>.json``."""
+    with tempfile.TemporaryDirectory() as tmp:
+        command = [sys.executable, __file__, "--part", part, "--n", str(seeds), "--preset", preset]
+        done = subprocess.run([*command, "--dir", tmp], stdout=subprocess.PIPE, text=True, check=True)
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    (out / f"{part}.json").write_text(json.dumps(result))
+    return result
+
+
+def median(values: list[int]) -> float:
+    import numpy as np
+
+    return float(np.median(values)) if values else float("nan")
+
+
+def report(population: dict[str, object], singles: dict[str, object], seeds: int, runs: int) -> None:
+    from scipy.stats import mannwhitneyu
+
+    pop_cpu = float(population["cpu"]) / seeds  # type: ignore[arg-type]
+    single_cpu = median(singles["cpu_per_run"])  # type: ignore[arg-type]
+    wall = float(population["wall"])  # type: ignore[arg-type]
+    pop_steps = [s for s in population["solved_at"] if s is not None]  # type: ignore[attr-defined]
+    single_steps = [s for s in singles["solved_at"] if s is not None]  # type: ignore[attr-defined]
+    p_value = mannwhitneyu(pop_steps, single_steps).pvalue if pop_steps and single_steps else float("nan")
+    rows = [
+        ("population seeds", f"{seeds}"),
+        ("verified solves (population)", f"{population['verified']}/{seeds}"),
+        ("wall, start to last verdict", f"{wall:.1f} s"),
+        ("CPU per seed, population (whole process)", f"{pop_cpu:.2f} s"),
+        ("CPU per run, single runs (median of training)", f"{single_cpu:.2f} s"),
+        ("CPU ratio single / population", f"{single_cpu / pop_cpu:.1f}x"),
+        ("peak RSS, population process", f"{population['rss_mb']:.0f} MB"),
+        ("env steps/s (all seeds)", f"{float(population['steps']) / wall:,.0f}"),  # type: ignore[arg-type]
+        ("seeds/min", f"{seeds / wall * 60:.1f}"),
+        ("verified solves (single runs)", f"{singles['verified']}/{runs}"),
+        ("median solve step, population", f"{median(pop_steps):,.0f} ({len(pop_steps)} solved in training)"),
+        (
+            "median solve step, single runs",
+            f"{median(single_steps):,.0f} ({len(single_steps)} solved in training)",
+        ),
+        ("Mann-Whitney U p-value (solve steps)", f"{p_value:.3f}"),
+    ]
+    width = max(len(name) for name, _ in rows)
+    for name, value in rows:
+        print(f"{name:<{width}}  {value}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--seeds", type=int, default=100, help="population size (default 100)")
+    parser.add_argument("--singles", type=int, default=20, help="single runs to compare with (default 20)")
+    parser.add_argument("--preset", default="default")
+    parser.add_argument("--out", default="runs/population-benchmark", help="where each part's JSON is kept")
+    parser.add_argument("--report-only", action="store_true", help="print the table from --out's JSON files")
+    parser.add_argument("--part", choices=["population", "singles"], help=argparse.SUPPRESS)
+    parser.add_argument("--n", type=int, help=argparse.SUPPRESS)
+    parser.add_argument("--dir", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.part:
+        import torch
+
+        torch.set_num_threads(1)  # as `cartpole train` runs (--threads 1)
+        run = run_population_part if args.part == "population" else run_singles_part
+        print(json.dumps(run(args.n, args.preset, Path(args.dir))))
+        return
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    if args.report_only:
+        population = json.loads((out / "population.json").read_text())
+        singles = json.loads((out / "singles.json").read_text())
+        report(population, singles, len(population["solved_at"]), len(singles["solved_at"]))
+        return
+    population = child("population", args.seeds, args.preset, out)
+    singles = child("singles", args.singles, args.preset, out)
+    report(population, singles, args.seeds, args.singles)
+
+
+if __name__ == "__main__":
+    main()

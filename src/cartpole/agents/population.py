@@ -1,0 +1,674 @@
+"""PPO for a population of seeds in one process: S independent training runs, batched.
+
+Every seed is the single-run PPO of :mod:`cartpole.agents.ppo` with the same config: its own network
+(initialized as the single run initializes it), its own 8 (``num_envs``) CartPole envs seeded as the
+single run seeds them, its own action sampling, minibatch shuffling and Adam state. What is shared is
+only the arithmetic:
+
+- ``StackedActorCritic``: the parameters of all S actor-critics in one flat ``[S, P]`` tensor; each
+  layer is a view ``[S, out, in]`` of it and runs as one ``torch.baddbmm`` over the seed axis.
+  Batched matmuls, not ``torch.func.vmap`` over ``functional_call``: measured on this 2-core CPU,
+  vmap's per-call batching rules cost more than these small layers' arithmetic, while ``baddbmm``
+  is one kernel per layer; and ``baddbmm`` gives every seed the same bits whatever the batch holds
+  (tested), so a seed's run does not depend on which seeds share the process.
+- ``PopulationEnvs``: S x N CartPoles stepped by one call of the fast simulator's kernel
+  (:func:`~cartpole.envs.fast.step_cartpole`), with Gymnasium's next-step autoreset, and the start
+  states of each seed's envs drawn from that seed's own generator in Gymnasium's order (so they are
+  the start states of the single run's vector env).
+- ``PopulationAdam``: one Adam step for all seeds over the flat parameters. Adam is per element,
+  so seeds stay independent; each seed has its own learning rate (schedules follow the seed's own
+  env steps), step count, and can sit a step out (its last minibatch is empty, or it stopped on the
+  target KL).
+- ``PopulationPPO``: one ``learn()`` = one rollout and one PPO update for every active seed, with
+  masked minibatches (seeds have different numbers of valid rows). ``remove`` drops seeds that have
+  stopped (solved or out of budget), so they cost nothing more; ``seed_state_dict`` and
+  ``seed_policy`` give one seed's checkpoint and greedy policy in the single run's format, so
+  ``load_policy``, ``cartpole eval`` and the web app read them unchanged.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from gymnasium.utils.seeding import np_random
+from torch import nn
+
+from cartpole.agents.actor_critic import ActorCritic, CategoricalPolicy, schedule_value
+from cartpole.agents.env_state import derived_seed
+from cartpole.agents.learner import LearnResult
+from cartpole.agents.ppo import PPOConfig
+from cartpole.agents.rollout import generalized_advantages
+from cartpole.core.errors import ConfigError
+from cartpole.envs import EnvInfo
+from cartpole.envs.fast import DEFAULT_RESET_HIGH, DEFAULT_RESET_LOW, step_cartpole
+
+POPULATION_AGENTS = ("ppo",)
+"""Agents that can train a population of seeds in one process."""
+
+TORCH_ACTIVATIONS: dict[type[nn.Module], Callable[[torch.Tensor], torch.Tensor]] = {
+    nn.Tanh: torch.tanh,
+    nn.ReLU: torch.relu,
+    nn.ELU: nn.functional.elu,
+}
+
+Layer = tuple[str, str] | Callable[[torch.Tensor], torch.Tensor]
+"""A step of a forward pass: (weight name, bias name) of a linear layer, or an activation."""
+
+
+def build_actor_critic(config: PPOConfig, env: EnvInfo, seed: int) -> ActorCritic:
+    """Seed ``seed``'s network, initialized exactly as its single run initializes it."""
+    return ActorCritic(
+        env.obs_dim,
+        env.n_actions,
+        config.hidden_sizes,
+        config.activation,
+        config.shared_trunk,
+        config.orthogonal_init,
+        generator=torch.Generator().manual_seed(derived_seed(seed, "init")),
+    )
+
+
+def forward_plan(model: ActorCritic, trunk_name: str, head_name: str) -> list[Layer]:
+    """The steps from observation to one head's output, by parameter name."""
+    plan: list[Layer] = []
+    for index, layer in enumerate(getattr(model, trunk_name)):
+        if isinstance(layer, nn.Linear):
+            plan.append((f"{trunk_name}.{index}.weight", f"{trunk_name}.{index}.bias"))
+        else:
+            plan.append(TORCH_ACTIVATIONS[type(layer)])
+    return [*plan, (f"{head_name}.weight", f"{head_name}.bias")]
+
+
+class StackedActorCritic:
+    """The actor-critics of S seeds: all parameters in one ``[S, P]`` tensor (``flat``), each
+    parameter a ``[S, *shape]`` view of it, each linear layer one ``torch.baddbmm`` for all seeds.
+
+    The gradients likewise live in one ``[S, P]`` tensor (``grad``; autograd accumulates into the
+    views in place), so clipping and Adam are a handful of operations for the whole population.
+    """
+
+    def __init__(self, models: list[ActorCritic]):
+        template = models[0]
+        self.template = template
+        self.names = [name for name, _ in template.named_parameters()]
+        self.shapes = {name: tuple(p.shape) for name, p in template.named_parameters()}
+        self.offsets: dict[str, tuple[int, int]] = {}
+        offset = 0
+        for name, shape in self.shapes.items():
+            self.offsets[name] = (offset, offset + math.prod(shape))
+            offset += math.prod(shape)
+        self.size = offset
+        with torch.no_grad():
+            self.flat = torch.stack([torch.cat([p.reshape(-1) for p in m.parameters()]) for m in models])
+        self.bind()
+        critic_trunk = "actor_trunk" if template.shared_trunk else "critic_trunk"
+        self.actor_plan = forward_plan(template, "actor_trunk", "policy_head")
+        self.critic_plan = forward_plan(template, critic_trunk, "value_head")
+
+    def bind(self) -> None:
+        """Make the per-parameter leaves (views of ``flat``) and their gradients (views of ``grad``)."""
+        self.grad = torch.zeros_like(self.flat)
+        self.params: dict[str, torch.Tensor] = {}
+        for name, (start, end) in self.offsets.items():
+            leaf = self.flat[:, start:end].view(-1, *self.shapes[name]).requires_grad_(True)
+            leaf.grad = self.grad[:, start:end].view(-1, *self.shapes[name])
+            self.params[name] = leaf
+
+    @staticmethod
+    def run(plan: list[Layer], params: dict[str, torch.Tensor], x: torch.Tensor) -> torch.Tensor:
+        """``x`` [S, B, in] through ``plan``: one baddbmm per linear layer for all seeds."""
+        for step in plan:
+            if isinstance(step, tuple):
+                weight, bias = params[step[0]], params[step[1]]
+                x = torch.baddbmm(bias.unsqueeze(1), x, weight.transpose(1, 2))
+            else:
+                x = step(x)
+        return x
+
+    def logits(self, observations: torch.Tensor) -> torch.Tensor:
+        """Action logits [S, B, n_actions] of observations [S, B, obs_dim]."""
+        return self.run(self.actor_plan, self.params, observations)
+
+    def values(self, observations: torch.Tensor) -> torch.Tensor:
+        """State values [S, B]."""
+        return self.run(self.critic_plan, self.params, observations).squeeze(-1)
+
+    def logits_and_values(self, observations: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.logits(observations), self.values(observations)
+
+    def unstack(self, index: int) -> ActorCritic:
+        """Seed ``index``'s network as an ordinary :class:`ActorCritic` (the template, overwritten)."""
+        with torch.no_grad():
+            for name, p in self.template.named_parameters():
+                start, end = self.offsets[name]
+                p.copy_(self.flat[index, start:end].view_as(p))
+        return self.template
+
+    def load_row(self, index: int, model: ActorCritic) -> None:
+        """Put ``model``'s parameters into seed ``index``'s row."""
+        with torch.no_grad():
+            self.flat[index] = torch.cat([p.reshape(-1) for p in model.parameters()])
+
+    def keep(self, rows: torch.Tensor) -> None:
+        """Keep only the seeds at ``rows``."""
+        self.flat = self.flat[rows]
+        self.bind()
+
+
+class PopulationAdam:
+    """Adam (torch.optim.Adam's update) over ``[S, P]`` parameters with a learning rate, a step count
+    and a "sit this step out" flag per seed."""
+
+    def __init__(self, rows: int, size: int, eps: float, betas: tuple[float, float] = (0.9, 0.999)):
+        self.eps, self.betas = eps, betas
+        self.exp_avg = torch.zeros(rows, size)
+        self.exp_avg_sq = torch.zeros(rows, size)
+        self.steps = torch.zeros(rows, 1, dtype=torch.float64)
+
+    @torch.no_grad()
+    def step(self, params: torch.Tensor, grads: torch.Tensor, lr: torch.Tensor, active: torch.Tensor) -> None:
+        """One step of the seeds where ``active`` [S] is True; ``lr`` is [S]."""
+        beta1, beta2 = self.betas
+        every = bool(active.all())
+        if not every:
+            old = (params.clone(), self.exp_avg.clone(), self.exp_avg_sq.clone())
+        self.steps += active.unsqueeze(1).to(self.steps.dtype)
+        steps = self.steps.clamp(min=1.0)
+        step_size = (lr.double().unsqueeze(1) / (1.0 - beta1**steps)).float()
+        correction2 = (1.0 - beta2**steps).sqrt().float()
+        self.exp_avg.lerp_(grads, 1.0 - beta1)
+        self.exp_avg_sq.mul_(beta2).addcmul_(grads, grads, value=1.0 - beta2)
+        denom = (self.exp_avg_sq.sqrt() / correction2).add_(self.eps)
+        params.addcdiv_(self.exp_avg * step_size, denom, value=-1.0)
+        if not every:
+            keep = active.unsqueeze(1)
+            params.copy_(torch.where(keep, params, old[0]))
+            self.exp_avg.copy_(torch.where(keep, self.exp_avg, old[1]))
+            self.exp_avg_sq.copy_(torch.where(keep, self.exp_avg_sq, old[2]))
+
+    def keep(self, rows: torch.Tensor) -> None:
+        self.exp_avg, self.exp_avg_sq, self.steps = (
+            self.exp_avg[rows],
+            self.exp_avg_sq[rows],
+            self.steps[rows],
+        )
+
+
+class PopulationEnvs:
+    """S x N CartPoles with Gymnasium's next-step autoreset, stepped together; seed s's envs draw
+    their start states from ``np_random(seed)`` as its single run's vector env does."""
+
+    def __init__(self, seeds: list[int], num_envs: int, max_episode_steps: int):
+        self.num_envs, self.max_episode_steps = num_envs, max_episode_steps
+        self.rngs = [np_random(seed)[0] for seed in seeds]
+        draws = [rng.uniform(DEFAULT_RESET_LOW, DEFAULT_RESET_HIGH, size=(4, num_envs)) for rng in self.rngs]
+        self.state = np.concatenate([d.T for d in draws]).astype(np.float32)  # [S * N, 4]
+        self.steps = np.zeros(len(self.state), dtype=np.int64)
+        self.pending = np.zeros(len(self.state), dtype=bool)
+        """Envs whose episode ended on the last step: the next step resets them."""
+
+    def observations(self) -> np.ndarray:
+        return self.state.copy()
+
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(observations, rewards, terminated, truncated), each for all S x N envs."""
+        self.state, terminated = step_cartpole(self.state, actions)
+        self.steps += 1
+        truncated = self.steps >= self.max_episode_steps
+        rewards = np.ones(len(self.state), dtype=np.float32)
+        resets = np.flatnonzero(self.pending)
+        if resets.size:
+            owners = resets // self.num_envs
+            for owner in np.unique(owners):
+                mine = resets[owners == owner]
+                draws = self.rngs[owner].uniform(DEFAULT_RESET_LOW, DEFAULT_RESET_HIGH, size=(4, len(mine)))
+                self.state[mine] = draws.T.astype(np.float32)
+            self.steps[resets] = 0
+            rewards[resets] = 0.0
+            terminated[resets] = False
+            truncated[resets] = False
+        self.pending = terminated | truncated
+        return self.state.copy(), rewards, terminated, truncated
+
+    def keep(self, seed_rows: np.ndarray) -> None:
+        envs = (seed_rows[:, None] * self.num_envs + np.arange(self.num_envs)).reshape(-1)
+        self.rngs = [self.rngs[i] for i in seed_rows]
+        self.state, self.steps, self.pending = self.state[envs], self.steps[envs], self.pending[envs]
+
+    def seed_state(self, row: int) -> dict[str, Any]:
+        envs = slice(row * self.num_envs, (row + 1) * self.num_envs)
+        return {
+            "state": self.state[envs].tolist(),
+            "steps": self.steps[envs].tolist(),
+            "pending": self.pending[envs].tolist(),
+            "np_random": self.rngs[row].bit_generator.state,
+        }
+
+    def load_seed_state(self, row: int, data: dict[str, Any]) -> None:
+        envs = slice(row * self.num_envs, (row + 1) * self.num_envs)
+        self.state[envs] = np.asarray(data["state"], dtype=np.float32)
+        self.steps[envs] = data["steps"]
+        self.pending[envs] = data["pending"]
+        self.rngs[row].bit_generator.state = data["np_random"]
+
+
+def masked_mean(x: torch.Tensor, mask: torch.Tensor, count: torch.Tensor) -> torch.Tensor:
+    """Per-seed mean of ``x`` [S, B] over the rows where ``mask`` (float) is 1; [S]."""
+    return (x * mask).sum(dim=1) / count.clamp(min=1.0)
+
+
+def masked_normalize(x: torch.Tensor, mask: torch.Tensor, count: torch.Tensor) -> torch.Tensor:
+    """Per seed, ``(x - mean) / (std + 1e-8)`` over the masked rows (a single row is only centred),
+    as :func:`~cartpole.agents.rollout.normalize` does for one seed."""
+    mean = masked_mean(x, mask, count).unsqueeze(1)
+    centred = (x - mean) * mask
+    variance = centred.square().sum(dim=1) / (count - 1.0).clamp(min=1.0)
+    std = torch.where(count > 1.0, variance.sqrt() + 1e-8, torch.ones_like(variance))
+    return centred / std.unsqueeze(1)
+
+
+@dataclass
+class Rollout:
+    """One rollout of every active seed: rows ``[S, T * N]`` (time-major within a seed)."""
+
+    observations: torch.Tensor
+    actions: torch.Tensor
+    log_probs: torch.Tensor
+    values: torch.Tensor
+    advantages: torch.Tensor
+    returns: torch.Tensor
+    valid: torch.Tensor
+    counts: torch.Tensor
+    """Valid rows per seed [S]."""
+
+
+ROW_METRICS = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction")
+
+
+class PopulationPPO:
+    """PPO for seeds ``seeds``, all with ``config``: one ``learn()`` = a rollout and an update each."""
+
+    def __init__(self, config: PPOConfig, env: EnvInfo, seeds: list[int], device: str = "cpu"):
+        config.validate()
+        if not env.is_cartpole or config.simulator != "fast":
+            raise ConfigError("population training runs CartPole on the fast simulator only")
+        if device != "cpu":
+            raise ConfigError("population training runs on cpu only for now; use --device cpu")
+        self.config, self.env_info = config, env
+        # At least two rows: torch reduces a one-row batch in another order than a many-row one, so a
+        # lone seed would not get the bits it gets beside others. A lone seed gets a ghost twin whose
+        # results are dropped.
+        self.seeds = list(seeds) if len(seeds) != 1 else [seeds[0], seeds[0]]
+        self.ghosts = [False] * len(seeds) if len(seeds) != 1 else [False, True]
+        self.model = StackedActorCritic([build_actor_critic(config, env, seed) for seed in self.seeds])
+        self.optimizer = PopulationAdam(len(self.seeds), self.model.size, config.adam_eps)
+        self.generators = [torch.Generator().manual_seed(derived_seed(s, "actions")) for s in self.seeds]
+        steps = env.max_episode_steps or 500
+        self.envs = PopulationEnvs(self.seeds, config.num_envs, steps)
+        n = len(self.seeds) * config.num_envs
+        self.observations = self.envs.observations()
+        self.autoreset = np.zeros(n, dtype=bool)
+        self.episode_returns = np.zeros(n, dtype=np.float64)
+        self.episode_lengths = np.zeros(n, dtype=np.int64)
+        self.env_steps = np.zeros(len(self.seeds), dtype=np.int64)
+        self.updates = np.zeros(len(self.seeds), dtype=np.int64)
+
+    # -- which seeds --------------------------------------------------------------------------------
+
+    def row(self, seed: int) -> int:
+        return next(i for i, s in enumerate(self.seeds) if s == seed and not self.ghosts[i])
+
+    @property
+    def active_seeds(self) -> list[int]:
+        return [s for s, ghost in zip(self.seeds, self.ghosts, strict=True) if not ghost]
+
+    def remove(self, seeds: list[int]) -> None:
+        """Stop training ``seeds`` (solved or out of budget): they leave every batch (one stays as a
+        ghost when a single seed would be left, see ``__init__``)."""
+        gone = set(seeds)
+        keep_rows = [i for i, s in enumerate(self.seeds) if s not in gone and not self.ghosts[i]]
+        ghosts = [False] * len(keep_rows)
+        if len(keep_rows) == 1:
+            keep_rows.append(next(i for i in range(len(self.seeds)) if i != keep_rows[0]))
+            ghosts.append(True)
+        self.ghosts = ghosts
+        rows = torch.tensor(keep_rows, dtype=torch.int64)
+        rows_np = np.asarray(keep_rows, dtype=np.int64)
+        envs = (rows_np[:, None] * self.config.num_envs + np.arange(self.config.num_envs)).reshape(-1)
+        self.model.keep(rows)
+        self.optimizer.keep(rows)
+        self.envs.keep(rows_np)
+        self.generators = [self.generators[i] for i in keep_rows]
+        self.seeds = [self.seeds[i] for i in keep_rows]
+        self.observations = self.observations[envs]
+        self.autoreset = self.autoreset[envs]
+        self.episode_returns = self.episode_returns[envs]
+        self.episode_lengths = self.episode_lengths[envs]
+        self.env_steps, self.updates = self.env_steps[rows_np], self.updates[rows_np]
+
+    # -- one learning step --------------------------------------------------------------------------
+
+    def learn(self) -> dict[int, LearnResult]:
+        """A rollout and an update for every active seed; each seed's result by seed."""
+        config = self.config
+        lr = [
+            schedule_value(config.lr, config.lr_schedule, int(s), config.schedule_steps)
+            for s in self.env_steps
+        ]
+        clip = [
+            max(schedule_value(config.clip_range, config.clip_schedule, int(s), config.schedule_steps), 1e-8)
+            for s in self.env_steps
+        ]
+        rollout, finished = self.collect()
+        results = {}
+        counts = rollout.counts.to(torch.int64).tolist()
+        for row, seed in enumerate(self.seeds):
+            returns, lengths = finished[row]
+            self.env_steps[row] += counts[row]
+            if not self.ghosts[row]:
+                results[seed] = LearnResult(
+                    env_steps=counts[row], episode_returns=returns, episode_lengths=lengths
+                )
+        metrics = self.update(rollout, torch.tensor(lr), torch.tensor(clip).unsqueeze(1))
+        for row, seed in enumerate(self.seeds):
+            if counts[row] == 0 or self.ghosts[row]:
+                continue
+            result = results[seed]
+            result.scalars = metrics[row] | {"train/learning_rate": lr[row], "train/clip_range": clip[row]}
+            result.log_scalars = True
+        return results
+
+    @torch.no_grad()
+    def collect(self) -> tuple[Rollout, list[tuple[list[float], list[int]]]]:
+        """``n_steps`` batched steps of all S x N envs; the rollout with GAE advantages, and each
+        seed's finished episodes (returns, lengths)."""
+        config = self.config
+        seeds, envs, steps = len(self.seeds), config.num_envs, config.n_steps
+        obs_dim = self.env_info.obs_dim
+        observations = torch.zeros(steps + 1, seeds * envs, obs_dim)
+        actions = torch.zeros(steps, seeds * envs, dtype=torch.int64)
+        log_probs = torch.zeros(steps, seeds * envs)
+        rewards = np.zeros((steps, seeds * envs), dtype=np.float32)
+        terminated = np.zeros((steps, seeds * envs), dtype=np.float32)
+        truncated = np.zeros((steps, seeds * envs), dtype=np.float32)
+        valid = np.zeros((steps, seeds * envs), dtype=bool)
+        # Each seed's uniforms for the whole rollout, from its own generator: one call per seed.
+        uniforms = torch.stack([torch.rand(steps, envs, generator=g) for g in self.generators], dim=1)
+        finished: list[tuple[list[float], list[int]]] = [([], []) for _ in range(seeds)]
+        for t in range(steps):
+            observations[t] = torch.from_numpy(self.observations)
+            logits = self.model.logits(observations[t].view(seeds, envs, obs_dim))
+            step_log_probs = torch.log_softmax(logits, dim=-1)
+            cdf = step_log_probs.exp().cumsum(dim=-1)[..., :-1]
+            chosen = (cdf < uniforms[t].unsqueeze(-1)).sum(dim=-1)  # inverse-CDF sampling
+            actions[t] = chosen.view(-1)
+            log_probs[t] = step_log_probs.gather(-1, chosen.unsqueeze(-1)).view(-1)
+            next_obs, step_rewards, step_terminated, step_truncated = self.envs.step(actions[t].numpy())
+            step_valid = ~self.autoreset
+            ended = (step_terminated | step_truncated) & step_valid
+            rewards[t], terminated[t], truncated[t], valid[t] = (
+                step_rewards,
+                step_terminated,
+                step_truncated,
+                step_valid,
+            )
+            self.episode_returns += np.where(step_valid, step_rewards, 0.0)
+            self.episode_lengths += step_valid
+            for i in np.flatnonzero(ended):
+                finished[i // envs][0].append(float(self.episode_returns[i]))
+                finished[i // envs][1].append(int(self.episode_lengths[i]))
+            self.episode_returns[ended] = 0.0
+            self.episode_lengths[ended] = 0
+            self.autoreset = step_terminated | step_truncated
+            self.observations = next_obs
+        observations[steps] = torch.from_numpy(self.observations)
+        return self.advantages(
+            observations, actions, log_probs, rewards, terminated, truncated, valid
+        ), finished
+
+    def advantages(
+        self,
+        observations: torch.Tensor,
+        actions: torch.Tensor,
+        log_probs: torch.Tensor,
+        rewards: np.ndarray,
+        terminated: np.ndarray,
+        truncated: np.ndarray,
+        valid: np.ndarray,
+    ) -> Rollout:
+        """GAE over every env of every seed at once (envs are columns), reshaped to [S, T * N]."""
+        config = self.config
+        steps, seeds, envs = config.n_steps, len(self.seeds), config.num_envs
+
+        def per_seed(x: torch.Tensor) -> torch.Tensor:  # [T, S * N, ...] -> [S, T * N, ...]
+            return (
+                x.view(steps, seeds, envs, *x.shape[2:])
+                .transpose(0, 1)
+                .reshape(seeds, steps * envs, *x.shape[2:])
+            )
+
+        obs_dim = self.env_info.obs_dim
+        by_seed = (
+            observations.view(steps + 1, seeds, envs, obs_dim).transpose(0, 1).reshape(seeds, -1, obs_dim)
+        )
+        values = (
+            self.model.values(by_seed).view(seeds, steps + 1, envs).transpose(0, 1).reshape(steps + 1, -1)
+        )
+        valid_t = torch.from_numpy(valid)
+        advantages = generalized_advantages(
+            torch.from_numpy(rewards),
+            values,
+            torch.from_numpy(terminated),
+            torch.from_numpy(truncated),
+            valid_t,
+            config.gamma,
+            config.gae_lambda,
+        )
+        valid_rows = per_seed(valid_t)
+        return Rollout(
+            observations=per_seed(observations[:steps]),
+            actions=per_seed(actions),
+            log_probs=per_seed(log_probs),
+            values=per_seed(values[:steps]),
+            advantages=per_seed(advantages),
+            returns=per_seed(advantages + values[:steps]),
+            valid=valid_rows,
+            counts=valid_rows.sum(dim=1).to(torch.float32),
+        )
+
+    def update(self, rollout: Rollout, lr: torch.Tensor, clip: torch.Tensor) -> list[dict[str, float]]:
+        """``n_epochs`` passes of each seed's shuffled valid rows in minibatches; per-seed metrics."""
+        config = self.config
+        seeds, rows = rollout.valid.shape
+        size = config.minibatch_size
+        has_rows = rollout.counts > 0
+        # Each seed's shuffles for all epochs from its own generator; invalid rows sort last.
+        keys = torch.stack([torch.rand(config.n_epochs, rows, generator=g) for g in self.generators])
+        keys.masked_fill_(~rollout.valid.unsqueeze(1), 2.0)
+        orders = keys.argsort(dim=-1, stable=True)
+        stopped = torch.zeros(seeds, dtype=torch.bool)
+        sums = torch.zeros(seeds, len(ROW_METRICS))
+        done_steps = torch.zeros(seeds)
+        batches = math.ceil(int(rollout.counts.max()) / size) if bool(has_rows.any()) else 0
+        positions = torch.arange(size)
+        for epoch in range(config.n_epochs):
+            for start in range(0, batches * size, size):
+                index = orders[:, epoch, start : start + size]
+                mask = (positions[: index.shape[1]] + start < rollout.counts.unsqueeze(1)).float()
+                count = mask.sum(dim=1)
+                active = (count > 0) & ~stopped
+                losses, row_metrics, kl = self.minibatch_loss(rollout, index, mask, count, clip)
+                if config.target_kl is not None:
+                    over = active & (kl > config.target_kl)
+                    stopped |= over
+                    active &= ~over
+                if not bool(active.any()):
+                    continue
+                self.model.grad.zero_()
+                with warnings.catch_warnings():
+                    # The gradients are views of one [S, P] tensor on purpose (see StackedActorCritic).
+                    warnings.filterwarnings("ignore", "grad and param do not obey the gradient layout")
+                    (losses * active.float()).sum().backward()
+                self.step(lr, active)
+                sums += row_metrics * active.float().unsqueeze(1)
+                done_steps += active.float()
+        self.updates += has_rows.numpy()
+        means = (sums / done_steps.clamp(min=1.0).unsqueeze(1)).tolist()
+        variance = masked_variance(rollout.returns, rollout.valid.float(), rollout.counts)
+        residual = masked_variance(rollout.returns - rollout.values, rollout.valid.float(), rollout.counts)
+        explained = torch.where(variance > 0, 1.0 - residual / variance, torch.full_like(variance, math.nan))
+        metrics = []
+        for row in range(seeds):
+            scalars = {"train/updates": float(self.updates[row]), "train/stopped_early": float(stopped[row])}
+            if done_steps[row] > 0:
+                scalars |= {f"train/{name}": v for name, v in zip(ROW_METRICS, means[row], strict=True)}
+            scalars["train/explained_variance"] = float(explained[row])
+            metrics.append(scalars)
+        return metrics
+
+    def minibatch_loss(
+        self,
+        rollout: Rollout,
+        index: torch.Tensor,
+        mask: torch.Tensor,
+        count: torch.Tensor,
+        clip: torch.Tensor,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Per-seed PPO loss [S], metrics [S, 5] (detached) and approximate KL [S] of one minibatch."""
+        config = self.config
+
+        def take(x: torch.Tensor) -> torch.Tensor:
+            if x.dim() == 2:
+                return x.gather(1, index)
+            return x.gather(1, index.unsqueeze(-1).expand(-1, -1, x.shape[-1]))
+
+        observations, actions = take(rollout.observations), take(rollout.actions)
+        old_log_probs, old_values = take(rollout.log_probs), take(rollout.values)
+        advantages, returns = take(rollout.advantages), take(rollout.returns)
+        logits, values = self.model.logits_and_values(observations)
+        log_probs_all = torch.log_softmax(logits, dim=-1)
+        log_probs = log_probs_all.gather(-1, actions.unsqueeze(-1)).squeeze(-1)
+        entropy = masked_mean(-(log_probs_all.exp() * log_probs_all).sum(dim=-1), mask, count)
+        if config.normalize_advantages:
+            advantages = masked_normalize(advantages, mask, count)
+        log_ratio = log_probs - old_log_probs
+        ratio = log_ratio.exp()
+        clipped_ratio = torch.minimum(torch.maximum(ratio, 1.0 - clip), 1.0 + clip)
+        policy_loss = masked_mean(torch.max(-advantages * ratio, -advantages * clipped_ratio), mask, count)
+        squared = (values - returns).square()
+        if config.clip_range_vf is not None:
+            vf = config.clip_range_vf
+            clipped_values = old_values + (values - old_values).clamp(-vf, vf)
+            squared = torch.max(squared, (clipped_values - returns).square())
+        value_loss = 0.5 * masked_mean(squared, mask, count)
+        loss = policy_loss - config.ent_coef * entropy + config.vf_coef * value_loss
+        with torch.no_grad():
+            approx_kl = masked_mean((ratio - 1.0) - log_ratio, mask, count)
+            clip_fraction = masked_mean(((ratio - 1.0).abs() > clip).float(), mask, count)
+            row_metrics = torch.stack([policy_loss, value_loss, entropy, approx_kl, clip_fraction], dim=1)
+        return loss, row_metrics.detach(), approx_kl
+
+    def step(self, lr: torch.Tensor, active: torch.Tensor) -> None:
+        """Clip each seed's gradient norm to ``max_grad_norm`` (as clip_grad_norm_ does), then Adam."""
+        grads = self.model.grad
+        if self.config.max_grad_norm is not None:
+            norms = grads.square().sum(dim=1, keepdim=True).sqrt()
+            grads.mul_((self.config.max_grad_norm / (norms + 1e-6)).clamp(max=1.0))
+        self.optimizer.step(self.model.flat, grads, lr, active)
+
+    # -- one seed, as a single run sees it ----------------------------------------------------------
+
+    def seed_policy(self, seed: int) -> CategoricalPolicy:
+        """Seed ``seed``'s greedy policy (a frozen copy)."""
+        return CategoricalPolicy(self.model.unstack(self.row(seed)))
+
+    def seed_state_dict(self, seed: int, resume: bool) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+        """Seed ``seed``'s checkpoint: ``model.*`` as the single run's (``load_policy`` reads it), and
+        with ``resume`` its optimizer, generators, envs and counters."""
+        row = self.row(seed)
+        model = self.model.unstack(row)
+        tensors = {f"model.{k}": v.detach().clone() for k, v in model.state_dict().items()}
+        data: dict[str, Any] = {"obs_dim": self.env_info.obs_dim, "n_actions": self.env_info.n_actions}
+        if not resume:
+            return tensors, data
+        envs = slice(row * self.config.num_envs, (row + 1) * self.config.num_envs)
+        tensors |= {
+            "optim.exp_avg": self.optimizer.exp_avg[row].clone(),
+            "optim.exp_avg_sq": self.optimizer.exp_avg_sq[row].clone(),
+            "rng.torch": self.generators[row].get_state(),
+            "collector.observations": torch.from_numpy(self.observations[envs].copy()),
+        }
+        data |= {
+            "population": True,
+            "optim_steps": float(self.optimizer.steps[row, 0]),
+            "collector": {
+                "autoreset": self.autoreset[envs].tolist(),
+                "episode_returns": self.episode_returns[envs].tolist(),
+                "episode_lengths": self.episode_lengths[envs].tolist(),
+                "env_state": self.envs.seed_state(row),
+            },
+            "env_steps": int(self.env_steps[row]),
+            "updates": int(self.updates[row]),
+        }
+        return tensors, data
+
+    def load_seed_state_dict(self, seed: int, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None:
+        """Restore what ``seed_state_dict(seed, resume=True)`` gave."""
+        if not data.get("population"):
+            raise ConfigError("not a population checkpoint: resume it as a single run")
+        row = self.row(seed)
+        model = self.model.template
+        model.load_state_dict(
+            {k.removeprefix("model."): v for k, v in tensors.items() if k.startswith("model.")}
+        )
+        self.model.load_row(row, model)
+        self.optimizer.exp_avg[row] = tensors["optim.exp_avg"]
+        self.optimizer.exp_avg_sq[row] = tensors["optim.exp_avg_sq"]
+        self.optimizer.steps[row, 0] = float(data["optim_steps"])
+        self.generators[row].set_state(tensors["rng.torch"])
+        envs = slice(row * self.config.num_envs, (row + 1) * self.config.num_envs)
+        collector = data["collector"]
+        self.observations[envs] = tensors["collector.observations"].numpy()
+        self.autoreset[envs] = collector["autoreset"]
+        self.episode_returns[envs] = collector["episode_returns"]
+        self.episode_lengths[envs] = collector["episode_lengths"]
+        self.envs.load_seed_state(row, collector["env_state"])
+        self.env_steps[row], self.updates[row] = int(data["env_steps"]), int(data["updates"])
+
+
+def masked_variance(x: torch.Tensor, mask: torch.Tensor, count: torch.Tensor) -> torch.Tensor:
+    """Per-seed unbiased variance of ``x`` [S, B] over the masked rows (0 with fewer than 2)."""
+    mean = masked_mean(x, mask, count).unsqueeze(1)
+    variance = ((x - mean) * mask).square().sum(dim=1) / (count - 1.0).clamp(min=1.0)
+    return torch.where(count > 1.0, variance, torch.zeros_like(variance))
+
+
+def bytes_per_seed(config: PPOConfig, env: EnvInfo) -> int:
+    """What one seed of a population holds, roughly: parameters with their gradient and Adam state,
+    the rollout, a minibatch's activations, and the per-seed bookkeeping (run folder, callbacks)."""
+    sizes = [env.obs_dim, *config.hidden_sizes]
+    trunk = sum(n_in * n_out + n_out for n_in, n_out in itertools.pairwise(sizes))
+    heads = sizes[-1] * (env.n_actions + 1) + env.n_actions + 1
+    parameters = trunk * (1 if config.shared_trunk else 2) + heads
+    rows = config.n_steps * config.num_envs
+    rollout = rows * (env.obs_dim + 8) * 4 * 3
+    activations = config.minibatch_size * sum(config.hidden_sizes) * 4 * 12
+    bookkeeping = 2 * 1024**2
+    return parameters * 4 * 6 + rollout + activations + bookkeeping
+
+
+__all__ = [
+    "POPULATION_AGENTS",
+    "PopulationAdam",
+    "PopulationEnvs",
+    "PopulationPPO",
+    "StackedActorCritic",
+    "bytes_per_seed",
+]

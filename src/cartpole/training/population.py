@@ -1,0 +1,563 @@
+"""Train a population of seeds in one process: ``cartpole train ppo --seeds 0-99``.
+
+Each seed is an ordinary run: its own run folder (config, status, metrics, checkpoints, verdict),
+written by the same callbacks a single run uses (:func:`cartpole.training.session.make_callbacks`),
+so ``cartpole runs``, ``eval`` and ``plot`` read it unchanged. Only the learning is shared: one
+:class:`~cartpole.agents.population.PopulationPPO` steps every seed's envs and updates every seed's
+network per ``learn()``. A seed that stops (verified solve with stop-when-solved, or its budget)
+leaves the batch at once; the population ends when every seed has stopped. The final verdicts (100
+greedy episodes per seed on Gymnasium's own env, seeds from :func:`final_eval_seed`) run as one
+batched evaluation on one Gymnasium vector env.
+
+The config records ``population`` (an id and the seeds): ``--resume`` of any member continues every
+unfinished member of its population.
+"""
+
+from __future__ import annotations
+
+import re
+import signal
+import sys
+import time
+import uuid
+from collections import Counter
+from contextlib import ExitStack, suppress
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+
+from cartpole.agents.population import POPULATION_AGENTS, PopulationPPO, bytes_per_seed
+from cartpole.agents.registry import get_agent
+from cartpole.core.config import config_to_dict
+from cartpole.core.errors import InputError
+from cartpole.core.names import CheckpointName, RunState, StopReason
+from cartpole.core.seeding import MAX_TRAIN_SEED, final_eval_seed
+from cartpole.core.version import __version__
+from cartpole.envs import check_simulator, env_info, make_vec_env
+from cartpole.evaluation import MIN_EPISODES_FOR_SOLVED, EvalReport, Policy, start_states
+from cartpole.runs import LiveStatus, RunDir, displayed_state, load_checkpoint
+from cartpole.runs.run_dir import utc_now
+from cartpole.training.budget import Budget, parse_budget
+from cartpole.training.callbacks import status_fields
+from cartpole.training.config import resolve_config
+from cartpole.training.loop import LoopState, TrainingLoop
+from cartpole.training.session import RESUMABLE_STOPS, STOP_SIGNALS, RunSetup, make_callbacks, resolve_device
+
+MAX_SEEDS = 4096
+"""More seeds than this in one process: split them (each seed holds a run folder and a status thread)."""
+
+# ----------------------------------------------------------------------------------------------
+# --seeds
+# ----------------------------------------------------------------------------------------------
+
+_RANGE = re.compile(r"^(\d+)-(\d+)$")
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``0-99`` (inclusive range) or ``3,5,8`` or a mix (``0-9,20``); InputError on anything else:
+    empty, malformed, reversed ranges, duplicates, seeds out of range."""
+    hint = "use a range (0-99), a list (3,5,8) or both (0-9,20)"
+    if not text.strip():
+        raise InputError(f"--seeds is empty; {hint}")
+    seeds: list[int] = []
+    for part in text.split(","):
+        part = part.strip()
+        match = _RANGE.match(part)
+        if match:
+            low, high = int(match.group(1)), int(match.group(2))
+            if low > high:
+                raise InputError(f"--seeds range {part!r} is reversed; write {high}-{low}")
+            if len(seeds) + high - low + 1 > MAX_SEEDS:
+                raise InputError(
+                    f"--seeds asks for more than {MAX_SEEDS} seeds; split them into several runs"
+                )
+            seeds += range(low, high + 1)
+        elif part.isdigit():
+            seeds.append(int(part))
+        else:
+            raise InputError(f"--seeds {text!r}: {part!r} is not a seed or a range; {hint}")
+        if len(seeds) > MAX_SEEDS:
+            raise InputError(f"--seeds asks for more than {MAX_SEEDS} seeds; split them into several runs")
+    duplicates = sorted(seed for seed, count in Counter(seeds).items() if count > 1)
+    if duplicates:
+        raise InputError(f"--seeds lists seed {duplicates[0]} more than once; each seed trains once")
+    too_big = [s for s in seeds if s > MAX_TRAIN_SEED]
+    if too_big:
+        raise InputError(f"seed {too_big[0]} is out of range; seeds are 0 to {MAX_TRAIN_SEED}")
+    return seeds
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to a new allocation (Linux ``MemAvailable``), None if unknown."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as handle:
+            for line in handle:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return None
+
+
+def check_memory(needed: int, seeds: int) -> None:
+    """InputError, before anything is allocated, when ``needed`` bytes will not fit."""
+    free = available_memory()
+    if free is not None and needed > 0.8 * free:
+        raise InputError(
+            f"{seeds} seeds would take about {needed / 2**30:.1f} GiB but {free / 2**30:.1f} GiB is "
+            f"available; use fewer seeds (about {int(seeds * 0.8 * free / needed)} fit)"
+        )
+
+
+def check_population_agent(agent: str) -> None:
+    if agent not in POPULATION_AGENTS:
+        raise InputError(
+            f"--seeds trains a population in one process, which only {', '.join(POPULATION_AGENTS)} offers; "
+            f"train {agent} one seed at a time with --seed N"
+        )
+
+
+# ----------------------------------------------------------------------------------------------
+# One seed, as the shared callbacks see it
+# ----------------------------------------------------------------------------------------------
+
+
+class SeedLearner:
+    """One seed of a population behind the ``Learner`` protocol: what callbacks and checkpoints use.
+
+    ``learn`` is the population's business (all seeds at once), so it is not offered here.
+    """
+
+    def __init__(self, population: PopulationPPO, seed: int):
+        self.population, self.seed = population, seed
+
+    def learn(self) -> Any:
+        raise RuntimeError("a population seed learns through PopulationPPO.learn")
+
+    def policy(self) -> Policy:
+        return self.population.seed_policy(self.seed)
+
+    def state_dict(self, resume: bool) -> tuple[dict[str, Any], dict[str, Any]]:
+        return self.population.seed_state_dict(self.seed, resume)
+
+    def load_state_dict(self, tensors: dict[str, Any], data: dict[str, Any]) -> None:
+        self.population.load_seed_state_dict(self.seed, tensors, data)
+
+
+class SeedLoop(TrainingLoop):
+    """A seed's :class:`TrainingLoop`, advanced one population step at a time instead of ``run()``:
+    the same counters and callback calls, in the same order."""
+
+    def start(self, clock_start: float) -> None:
+        self.clock_start = clock_start - self.state.elapsed
+        for cb in self.callbacks:
+            cb.on_start(self)
+
+    def advance(self, result: Any, now: float) -> None:
+        state = self.state
+        state.env_steps += result.env_steps
+        state.iterations += 1
+        state.elapsed = now - self.clock_start
+        state.scalars.update(result.scalars)
+        state.episodes += result.summarized_episodes
+        keep_going = True
+        for ret, length in zip(result.episode_returns, result.episode_lengths, strict=True):
+            state.episodes += 1
+            state.recent_returns.append(ret)
+            keep_going &= all([cb.on_episode(self, ret, length) for cb in self.callbacks])
+        keep_going &= all([cb.on_step(self, result) for cb in self.callbacks])
+        if not keep_going:
+            state.stop(StopReason.CALLBACK, "stopped by a callback")
+
+    def end(self, now: float) -> None:
+        self.state.elapsed = now - self.clock_start
+        for cb in self.callbacks:
+            cb.on_end(self)
+
+
+@dataclass
+class Member:
+    """One seed's run: its setup, status and loop."""
+
+    setup: RunSetup
+    status: LiveStatus
+    loop: SeedLoop
+
+    @property
+    def seed(self) -> int:
+        return self.setup.seed
+
+
+@dataclass
+class PopulationOutcome:
+    """What a population session produced, per seed."""
+
+    runs: dict[int, RunDir]
+    states: dict[int, LoopState]
+    reports: dict[int, EvalReport]
+    """Final verdicts (empty when interrupted)."""
+    seconds: float
+    signal: int | None = None
+
+
+# ----------------------------------------------------------------------------------------------
+# Train and resume
+# ----------------------------------------------------------------------------------------------
+
+
+def train_population(
+    agent: str,
+    seeds: list[int],
+    env_id: str = "CartPole-v1",
+    *,
+    preset: str = "default",
+    overrides: dict[str, Any] | None = None,
+    budget: Budget | str | None = None,
+    runs_dir: Path | str = "runs",
+    device: str = "auto",
+    stop_when_solved: bool | None = None,
+    quiet: bool = True,
+    command: list[str] | None = None,
+    stream: TextIO | None = None,
+) -> PopulationOutcome:
+    """Train ``agent`` with every seed of ``seeds`` in one process; a run folder per seed."""
+    check_population_agent(agent)
+    if not seeds:
+        raise InputError("no seeds to train")
+    if len(set(seeds)) != len(seeds):
+        raise InputError("each seed may appear once in a population")
+    spec = get_agent(agent)
+    env = env_info(env_id)
+    config, settings = resolve_config(agent, spec.config_cls, preset, overrides)
+    if stop_when_solved is not None:
+        settings.stop_when_solved = stop_when_solved
+    if isinstance(budget, str):
+        budget = parse_budget(budget)
+    budget = budget or parse_budget(settings.budget)
+    device = "cpu" if device == "auto" else resolve_device(device)
+    check_memory(bytes_per_seed(config, env) * len(seeds), len(seeds))
+    population = PopulationPPO(config, env, seeds, device)
+    population_record = {"id": uuid.uuid4().hex[:12], "seeds": list(seeds)}
+    base = {
+        "agent": agent,
+        "env_id": env_id,
+        "preset": preset,
+        "config": config_to_dict(config),
+        "settings": config_to_dict(settings),
+        "overrides": overrides or {},
+        "budget": budget.to_dict(),
+        "device": device,
+        "command": command or list(sys.argv),
+        "package_version": __version__,
+        "created": utc_now(),
+        "tensorboard": False,
+        "population": population_record,
+    }
+    runs_path = Path(runs_dir)
+    with ExitStack() as stack:
+        setups = []
+        for seed in seeds:
+            run = RunDir.create(runs_path, env_id, agent, seed)
+            stack.enter_context(run.lock())
+            record = base | {"seed": seed}
+            run.write_config(record)
+            setups.append(RunSetup.from_record(run, record))
+        return run_population(population, setups, {}, quiet, stream)
+
+
+def population_members(run_path: Path | str) -> list[RunDir]:
+    """The run folders of the population that ``run_path`` belongs to (beside it, same id)."""
+    run = RunDir.open(Path(run_path))
+    record = run.config()
+    population = record.get("population")
+    if not population:
+        return [run]
+    members = []
+    for path in sorted(run.path.parent.iterdir()):
+        try:
+            other = RunDir.open(path).config()
+        except InputError:
+            continue
+        if (other.get("population") or {}).get("id") == population["id"]:
+            members.append(RunDir(path))
+    return members
+
+
+def is_population_run(run_path: Path | str) -> bool:
+    return bool(RunDir.open(Path(run_path)).config().get("population"))
+
+
+def resume_population(
+    run_path: Path | str, *, quiet: bool = True, stream: TextIO | None = None
+) -> PopulationOutcome:
+    """Continue every unfinished member of ``run_path``'s population from its ``latest.pt``."""
+    runs = [
+        run for run in population_members(run_path) if displayed_state(run.status()) is not RunState.FINISHED
+    ]
+    if not runs:
+        raise InputError(f"every run of {Path(run_path).name}'s population has finished; nothing to resume")
+    with ExitStack() as stack:
+        for run in runs:
+            stack.enter_context(run.lock())
+        setups = [RunSetup.from_record(run, run.config()) for run in runs]
+        first = setups[0]
+        population = PopulationPPO(first.config, first.env, [s.seed for s in setups], "cpu")
+        states: dict[int, LoopState] = {}
+        for setup in setups:
+            latest = setup.run.checkpoint_path(CheckpointName.LATEST)
+            if not latest.exists():
+                setup.run.truncate_metrics_after(0)
+                continue  # killed before its first latest: starts over, the same run
+            checkpoint = load_checkpoint(latest)
+            population.load_seed_state_dict(setup.seed, checkpoint.tensors, checkpoint.meta["learner"])
+            state = LoopState.from_dict(checkpoint.meta["loop"])
+            if state.stop_reason in RESUMABLE_STOPS:
+                state.clear_stop()
+            states[setup.seed] = state
+            setup.run.truncate_metrics_after(state.env_steps)
+        return run_population(population, setups, states, quiet, stream)
+
+
+def run_population(
+    population: PopulationPPO,
+    setups: list[RunSetup],
+    states: dict[int, LoopState],
+    quiet: bool,
+    stream: TextIO | None,
+) -> PopulationOutcome:
+    """Train every member until each has stopped, then give all the verdicts in one batch."""
+    started = time.perf_counter()
+    received: list[int] = []
+    members: list[Member] = []
+    with ExitStack() as stack:
+        for setup in setups:
+            status = stack.enter_context(LiveStatus(setup.run))
+            loop = SeedLoop(
+                SeedLearner(population, setup.seed),
+                make_callbacks(setup, status, True),
+                states.get(setup.seed),
+            )
+            members.append(Member(setup, status, loop))
+        progress = PopulationProgress(
+            len(members), setups[0].budget, None if quiet else (stream or sys.stderr)
+        )
+        previous = {s: signal.signal(s, lambda signum, frame: received.append(signum)) for s in STOP_SIGNALS}
+        active: dict[int, Member] = {}
+        try:
+            for member in members:
+                member.loop.start(started)
+                active[member.seed] = member
+            end_stopped(population, active, time.perf_counter())
+            while active and not received:
+                results = population.learn()
+                now = time.perf_counter()
+                for seed, result in results.items():
+                    active[seed].loop.advance(result, now)
+                end_stopped(population, active, now)
+                progress.update(members, now - started)
+            if received:
+                return interrupt(population, members, active, received[0], started)
+        except BaseException as error:
+            now = time.perf_counter()
+            for member in active.values():
+                member.loop.state.stop(StopReason.FAILED, f"failed: {type(error).__name__}: {error}")
+                with suppress(Exception):  # as a single run does: save latest if the state allows
+                    member.loop.end(now)
+                with suppress(OSError):
+                    member.status.write(RunState.FAILED, status_fields(member.loop.state))
+            raise
+        finally:
+            for s, handler in previous.items():
+                signal.signal(s, handler)
+        reports = final_verdicts(members)
+        for member in members:
+            report = reports[member.seed]
+            member.status.write(
+                RunState.FINISHED, status_fields(member.loop.state) | {"solved": report.solved}
+            )
+        progress.finish(members, reports, time.perf_counter() - started)
+        return PopulationOutcome(
+            runs={m.seed: m.setup.run for m in members},
+            states={m.seed: m.loop.state for m in members},
+            reports=reports,
+            seconds=time.perf_counter() - started,
+        )
+
+
+def end_stopped(population: PopulationPPO, active: dict[int, Member], now: float) -> None:
+    """End the loops of members that have stopped (their callbacks save ``latest``, judge the last
+    policy), then drop them from the population's batch."""
+    stopped = [seed for seed, m in active.items() if m.loop.state.stop_reason is not None]
+    for seed in stopped:
+        active.pop(seed).loop.end(now)
+    if stopped and active:
+        population.remove(stopped)
+
+
+def interrupt(
+    population: PopulationPPO, members: list[Member], active: dict[int, Member], signum: int, started: float
+) -> PopulationOutcome:
+    """A stop signal: every member still training saves ``latest`` and is marked interrupted."""
+    now = time.perf_counter()
+    detail = f"interrupted ({signal.Signals(signum).name})"
+    for member in active.values():
+        member.loop.state.stop(StopReason.INTERRUPTED, detail)
+        member.loop.end(now)
+        member.status.write(RunState.INTERRUPTED, status_fields(member.loop.state))
+    for member in members:
+        if member.seed not in active:  # stopped before the signal: training complete, verdict missing
+            member.status.write(RunState.INTERRUPTED, status_fields(member.loop.state))
+    return PopulationOutcome(
+        runs={m.seed: m.setup.run for m in members},
+        states={m.seed: m.loop.state for m in members},
+        reports={},
+        seconds=now - started,
+        signal=signum,
+    )
+
+
+# ----------------------------------------------------------------------------------------------
+# The final verdicts, batched
+# ----------------------------------------------------------------------------------------------
+
+
+def final_verdicts(members: list[Member]) -> dict[int, EvalReport]:
+    """Each member's kept best checkpoint on ``max(eval_episodes, 100)`` greedy episodes from seeds
+    ``final_eval_seed(seed) + i``: the verdict :func:`cartpole.training.session.final_verdict` gives
+    a single run, for all members in one vector env. Written to each ``eval.json``."""
+    first = members[0].setup
+    episodes = max(first.settings.eval_episodes, MIN_EPISODES_FOR_SOLVED)
+    simulator = check_simulator(first.settings.eval_simulator)
+    policies = [
+        m.setup.spec.policy_from_checkpoint(load_checkpoint(m.setup.run.checkpoint_path(CheckpointName.BEST)))
+        for m in members
+    ]
+    episode_seeds = [[final_eval_seed(m.seed) + i for i in range(episodes)] for m in members]
+    returns, lengths = play_greedy_episodes(policies, first.env.env_id, episode_seeds, simulator)
+    reports = {}
+    for i, member in enumerate(members):
+        report = EvalReport(
+            env_id=first.env.env_id,
+            simulator=simulator,
+            returns=returns[i].tolist(),
+            lengths=lengths[i].tolist(),
+            seeds=episode_seeds[i],
+            threshold=first.env.reward_threshold,
+            max_episode_steps=first.env.max_episode_steps,
+        )
+        member.setup.run.write_eval(report.to_dict())
+        reports[member.seed] = report
+    return reports
+
+
+def play_greedy_episodes(
+    policies: list[Policy], env_id: str, seeds: list[list[int]], simulator: str
+) -> tuple[np.ndarray, np.ndarray]:
+    """Policy i plays one greedy episode from each of ``seeds[i]`` (the start state Gymnasium's
+    single env gives for that seed), all in one vector env; returns and lengths ``[P, E]``."""
+    count, episodes = len(policies), len(seeds[0])
+    n = count * episodes
+    env = make_vec_env(env_id, n, simulator=simulator)
+    try:
+        env.reset(seed=seeds[0][0])
+        states = start_states(env_id, [s for row in seeds for s in row])
+        base = env.unwrapped
+        if hasattr(base, "set_state"):  # our fast simulator
+            base.set_state(states)
+        else:  # Gymnasium's CartPoleVectorEnv keeps its state as [4, num_envs] float64
+            base.state = states.T.copy()  # type: ignore[attr-defined]
+        observations = states.astype(np.float32)
+        returns = np.zeros(n, dtype=np.float64)
+        lengths = np.zeros(n, dtype=np.int64)
+        running = np.ones(n, dtype=bool)
+        actions = np.zeros(n, dtype=np.int64)
+        while running.any():
+            for i, policy in enumerate(policies):
+                rows = slice(i * episodes, (i + 1) * episodes)
+                if running[rows].any():
+                    actions[rows] = policy.act(observations[rows])
+            observations, rewards, terminated, truncated, _ = env.step(actions)
+            returns += np.where(running, rewards, 0.0)
+            lengths += running
+            running &= ~(terminated | truncated)
+        return returns.reshape(count, episodes), lengths.reshape(count, episodes)
+    finally:
+        env.close()
+
+
+# ----------------------------------------------------------------------------------------------
+# Progress
+# ----------------------------------------------------------------------------------------------
+
+
+class PopulationProgress:
+    """A line every few seconds: seeds solved, seeds still training, the slowest seed's steps."""
+
+    SECONDS = 5.0
+
+    def __init__(self, seeds: int, budget: Budget, stream: TextIO | None):
+        self.seeds, self.budget, self.stream = seeds, budget, stream
+        self.last = time.perf_counter()
+
+    def update(self, members: list[Member], elapsed: float) -> None:
+        now = time.perf_counter()
+        if self.stream is None or now - self.last < self.SECONDS:
+            return
+        self.last = now
+        print(f"[{elapsed:7.1f}s] {self.describe(members, elapsed)}", file=self.stream, flush=True)
+
+    def describe(self, members: list[Member], elapsed: float) -> str:
+        states = [m.loop.state for m in members]
+        solved = sum(s.solved for s in states)
+        training = [s for s in states if s.stop_reason is None]
+        total = sum(s.env_steps for s in states)
+        limit = f"/{self.budget.env_steps:,}" if self.budget.env_steps else ""
+        slowest = min((s.env_steps for s in training), default=max(s.env_steps for s in states))
+        return (
+            f"solved {solved}/{self.seeds} seeds, {len(training)} training, "
+            f"slowest seed {slowest:,}{limit} steps, {total / max(elapsed, 1e-9):,.0f} steps/s"
+        )
+
+    def finish(self, members: list[Member], reports: dict[int, EvalReport], elapsed: float) -> None:
+        if self.stream is None:
+            return
+        verified = sum(r.solved for r in reports.values())
+        print(
+            f"[{elapsed:7.1f}s] done: {verified}/{self.seeds} seeds verified solved on fresh episodes; "
+            f"{self.describe(members, elapsed)}",
+            file=self.stream,
+            flush=True,
+        )
+
+
+def population_summary(outcome: PopulationOutcome) -> list[str]:
+    """Lines for the CLI: where the runs are, how many solved, the solve steps."""
+    seeds = sorted(outcome.runs)
+    folder = outcome.runs[seeds[0]].path.parent
+    lines = [f"{len(seeds)} runs in {folder}/ (seeds {seeds[0]}..{seeds[-1]}), {outcome.seconds:.1f} s"]
+    solved_at = [s.solved_at_step for s in outcome.states.values() if s.solved_at_step is not None]
+    if solved_at:
+        lines.append(
+            f"solved in training: {len(solved_at)}/{len(seeds)}, "
+            f"median {int(np.median(solved_at)):,} env steps"
+        )
+    if outcome.reports:
+        verified = sum(r.solved for r in outcome.reports.values())
+        lines.append(
+            f"verdicts: {verified}/{len(seeds)} SOLVED on 100 fresh episodes of Gymnasium's env each"
+        )
+    return lines
+
+
+__all__ = [
+    "MAX_SEEDS",
+    "PopulationOutcome",
+    "check_population_agent",
+    "is_population_run",
+    "parse_seeds",
+    "population_summary",
+    "resume_population",
+    "train_population",
+]

@@ -1,0 +1,256 @@
+"""Population training (``cartpole train ppo --seeds``): independent seeds, ordinary run folders,
+batched verdicts that match single evaluations, resume, and bad input refused before any folder."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+import pytest
+import torch
+
+from cartpole.agents.learner import LearnResult
+from cartpole.agents.population import PopulationPPO
+from cartpole.agents.ppo import PPOConfig
+from cartpole.agents.registry import load_policy
+from cartpole.cli.main import main
+from cartpole.core.errors import InputError
+from cartpole.core.seeding import final_eval_seed
+from cartpole.envs import env_info
+from cartpole.evaluation import evaluate
+from cartpole.training.population import parse_seeds, train_population
+
+CARTPOLE = env_info("CartPole-v1")
+SMALL = {"n_steps": 8, "num_envs": 4, "n_epochs": 2, "minibatch_size": 16, "hidden_sizes": (16, 16)}
+
+
+@pytest.fixture(autouse=True, scope="module")
+def one_thread():
+    """As ``cartpole train`` runs (--threads 1): on a shared 2-core machine a second torch thread makes
+    these small ops wait for each other."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def small_config(**changes: object) -> PPOConfig:
+    return PPOConfig(**(SMALL | changes))  # type: ignore[arg-type]
+
+
+def weights(population: PopulationPPO, seed: int) -> dict[str, torch.Tensor]:
+    tensors, _ = population.seed_state_dict(seed, resume=True)
+    return {k: v for k, v in tensors.items() if not k.startswith("rng")}
+
+
+def assert_same(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]) -> None:
+    assert a.keys() == b.keys()
+    for key in a:
+        assert torch.equal(a[key], b[key]), key
+
+
+def learn(population: PopulationPPO, times: int) -> list[dict[int, LearnResult]]:
+    return [population.learn() for _ in range(times)]
+
+
+def same(a: LearnResult, b: LearnResult) -> bool:
+    """Equal results, NaN metrics (no update yet) included."""
+    return json.dumps(asdict(a)) == json.dumps(asdict(b))
+
+
+# -- --seeds ----------------------------------------------------------------------------------------
+
+
+def test_parse_seeds_ranges_and_lists():
+    assert parse_seeds("0-3") == [0, 1, 2, 3]
+    assert parse_seeds("3,5,8") == [3, 5, 8]
+    assert parse_seeds(" 0-1, 7 ") == [0, 1, 7]
+
+
+@pytest.mark.parametrize(
+    "text", ["", " ", "5-3", "3,3", "0-3,2", "x", "1,,2", "-1", "1-", "2**40", "0-999999999", "4294967296"]
+)
+def test_parse_seeds_refuses_bad_input(text):
+    with pytest.raises(InputError):
+        parse_seeds(text)
+
+
+# -- independence -----------------------------------------------------------------------------------
+
+
+def test_a_seed_does_not_depend_on_its_neighbours():
+    config = small_config()
+    with_5 = PopulationPPO(config, CARTPOLE, [3, 5])
+    with_7 = PopulationPPO(config, CARTPOLE, [3, 7])
+    results_5, results_7 = learn(with_5, 3), learn(with_7, 3)
+    for a, b in zip(results_5, results_7, strict=True):
+        assert same(a[3], b[3])  # env steps, episodes, every metric
+    assert_same(weights(with_5, 3), weights(with_7, 3))
+    assert not torch.equal(
+        weights(with_5, 5)["model.policy_head.weight"], weights(with_7, 7)["model.policy_head.weight"]
+    )
+
+
+def test_removing_a_stopped_seed_leaves_the_others_unchanged():
+    config = small_config()
+    three = PopulationPPO(config, CARTPOLE, [3, 5, 7])
+    two = PopulationPPO(config, CARTPOLE, [3, 7])
+    learn(three, 2)
+    learn(two, 2)
+    three.remove([5])
+    after_three, after_two = three.learn(), two.learn()
+    assert same(after_three[3], after_two[3]) and same(after_three[7], after_two[7])
+    assert_same(weights(three, 7), weights(two, 7))
+
+
+def test_seeds_start_as_their_single_runs():
+    """Same initial network and the same start states of the envs as the single run of the seed."""
+    from cartpole.agents.ppo import PPOLearner
+
+    config = small_config()
+    population = PopulationPPO(config, CARTPOLE, [4, 9])
+    single = PPOLearner(config, CARTPOLE, 9, "cpu")
+    tensors, _ = population.seed_state_dict(9, resume=False)
+    for name, value in single.model.state_dict().items():
+        assert torch.equal(tensors[f"model.{name}"], value), name
+    start = population.observations[config.num_envs :]
+    assert (start == single.collector.observations).all()
+
+
+def test_settings_reach_the_batched_update():
+    """A setting of the single run changes the population's run too (epochs, clip range, entropy)."""
+
+    def trained(**change: object) -> torch.Tensor:
+        population = PopulationPPO(small_config(**change), CARTPOLE, [1])
+        learn(population, 3)
+        return weights(population, 1)["model.actor_trunk.0.weight"]
+
+    base = trained()
+    changes = ({"n_epochs": 1}, {"clip_range": 0.001}, {"ent_coef": 0.5}, {"target_kl": 1e-6}, {"lr": 1e-4})
+    for change in (*changes, {"max_grad_norm": 0.001}, {"normalize_advantages": False}, {"vf_coef": 0.0}):
+        assert not torch.equal(trained(**change), base), change
+
+
+def test_resume_of_a_seed_continues_exactly():
+    config = small_config()
+    straight = PopulationPPO(config, CARTPOLE, [2, 6])
+    learn(straight, 2)
+    tensors, data = straight.seed_state_dict(6, resume=True)
+    resumed = PopulationPPO(config, CARTPOLE, [6])
+    resumed.load_seed_state_dict(6, tensors, json.loads(json.dumps(data)))
+    assert same(straight.learn()[6], resumed.learn()[6])
+    assert_same(weights(straight, 6), weights(resumed, 6))
+
+
+# -- the session ------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def population_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, dict[int, Path]]:
+    root = tmp_path_factory.mktemp("population")
+    found = {}
+    for name, seeds in (("a", [3, 5]), ("b", [3, 7])):
+        outcome = train_population(
+            "ppo", seeds, overrides=SMALL | {"eval_every": 200}, budget="600", runs_dir=root / name
+        )
+        found[name] = {seed: run.path for seed, run in outcome.runs.items()}
+    return found
+
+
+def metric_rows(run: Path) -> list[dict[str, object]]:
+    rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+    return [{k: v for k, v in row.items() if k not in ("time", "time/sps")} for row in rows]
+
+
+def test_each_seed_leaves_an_ordinary_run_folder(population_runs):
+    run = population_runs["a"][5]
+    names = {p.name for p in run.iterdir()} | {p.name for p in (run / "checkpoints").iterdir()}
+    assert {"config.json", "status.json", "metrics.jsonl", "eval.json", "latest.pt", "best.pt"} <= names
+    config = json.loads((run / "config.json").read_text())
+    assert config["seed"] == 5 and config["agent"] == "ppo" and config["population"]["seeds"] == [3, 5]
+    status = json.loads((run / "status.json").read_text())
+    assert status["state"] == "finished" and status["env_steps"] >= 600
+    assert load_policy(run).act(torch.zeros(3, 4).numpy()).shape == (3,)
+
+
+def test_seed_3_has_the_same_run_beside_5_or_7(population_runs):
+    a, b = population_runs["a"][3], population_runs["b"][3]
+    assert metric_rows(a) == metric_rows(b)
+    latest_a = torch.load(a / "checkpoints" / "latest.pt", weights_only=True)["tensors"]
+    latest_b = torch.load(b / "checkpoints" / "latest.pt", weights_only=True)["tensors"]
+    assert_same(latest_a, latest_b)
+
+
+def test_batched_verdict_is_the_single_evaluation(population_runs):
+    run = population_runs["a"][5]
+    verdict = json.loads((run / "eval.json").read_text())
+    single = evaluate(load_policy(run), "CartPole-v1", 100, seed=final_eval_seed(5))
+    assert verdict["returns"] == single.returns and verdict["seeds"] == single.seeds
+    assert verdict["simulator"] == "gymnasium"
+
+
+# -- the command --------------------------------------------------------------------------------------
+
+
+def run_cli(*args: str, **kwargs: object) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "cartpole", *args], capture_output=True, text=True, timeout=300, **kwargs
+    )
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["ppo", "--seeds", "5-3"],
+        ["ppo", "--seeds", "1,1"],
+        ["ppo", "--seeds", ""],
+        ["ppo", "--seeds", "a-b"],
+        ["dqn", "--seeds", "0-3"],
+        ["ppo", "--seeds", "0-4000", "--set", "hidden_sizes=2048,2048"],
+    ],
+)
+def test_bad_population_input_is_one_line_exit_2_and_no_folder(tmp_path, capsys, args):
+    assert main(["train", *args, "--runs-dir", str(tmp_path / "runs")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "error:" in err
+    assert not (tmp_path / "runs").exists()
+
+
+def test_bad_population_input_through_the_command(tmp_path):
+    done = run_cli("train", "ppo", "--seeds", "9-0", "--runs-dir", str(tmp_path / "runs"))
+    assert done.returncode == 2 and "reversed" in done.stderr and "Traceback" not in done.stderr
+    assert not (tmp_path / "runs").exists()
+
+
+@pytest.mark.slow
+def test_sigint_saves_every_seed_and_resume_continues_them_all(tmp_path):
+    runs_dir = tmp_path / "runs"
+    args = ["train", "ppo", "--seeds", "0-2", "--budget", "20k", "--runs-dir", str(runs_dir), "--quiet"]
+    process = subprocess.Popen(
+        [sys.executable, "-m", "cartpole", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        statuses = list(runs_dir.glob("*/status.json")) if runs_dir.exists() else []
+        if len(statuses) == 3 and all(json.loads(p.read_text()).get("env_steps", 0) > 0 for p in statuses):
+            break
+        time.sleep(0.2)
+    os.kill(process.pid, signal.SIGINT)
+    process.communicate(timeout=120)
+    assert process.returncode == 128 + signal.SIGINT
+    runs = sorted(runs_dir.iterdir())
+    assert len(runs) == 3
+    for run in runs:
+        assert json.loads((run / "status.json").read_text())["state"] == "interrupted"
+        assert (run / "checkpoints" / "latest.pt").exists()
+    done = run_cli("train", "--resume", str(runs[1]), "--quiet")
+    assert done.returncode == 0, done.stderr
+    for run in runs:
+        assert json.loads((run / "status.json").read_text())["state"] == "finished"
+        assert (run / "eval.json").exists()
