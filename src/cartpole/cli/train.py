@@ -101,7 +101,7 @@ def add_parser(sub: Any) -> None:
         action="store_true",
         help="also log metrics as TensorBoard events in RUN/tensorboard/ (needs the tensorboard extra)",
     )
-    # --- issue 15: population training (run_population below) ---
+    # --- population training (run_population below) ---
     parser.add_argument(
         "--seeds",
         metavar="SEEDS",
@@ -138,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
     configure_process(args.torch_threads, args.seed)
     console = Console(soft_wrap=True)
     if args.seeds is not None or (args.resume and is_population_run(args.resume)):
-        return run_population(args)  # issue 15
+        return run_population(args)
     if args.resume:
         if args.agent or args.overrides or args.budget is not None:
             raise UsageError("--resume continues a run with its recorded config; drop AGENT/--set/--budget")
@@ -189,7 +189,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-# --- issue 15: population training -------------------------------------------------------------
+# --- population training -------------------------------------------------------------
 
 
 def run_population(args: argparse.Namespace) -> int:
