@@ -83,6 +83,8 @@ def start_training(runs_dir: Path) -> tuple[subprocess.Popen[str], RunDir]:
 
 def test_kill_9_shows_crashed_and_resume_finishes_with_a_verdict(tmp_path):
     process, run = start_training(tmp_path / "runs")
+    # Frozen (it keeps its lock and its pid), so it cannot finish while the second trainer starts up.
+    process.send_signal(signal.SIGSTOP)
 
     # One process per run folder: a second trainer of the same folder gets one line, exit 2.
     second = subprocess.run(
