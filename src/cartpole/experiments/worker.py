@@ -211,13 +211,15 @@ def make_population_record(
     task: Task, seed: int, outcome: PopulationOutcome, cpu_share: float, before: dict[str, Any] | None
 ) -> dict[str, Any]:
     """:func:`make_record` for one seed of a population: CPU seconds are its share of the population's
-    (summed over resumed sessions); at the first solve, that share scaled by the seed's wall time."""
+    (summed over resumed sessions); at the first solve, that share times the fraction of the population's
+    wall time the seed took to solve."""
     state, report = outcome.states[seed], outcome.reports.get(seed)
     cpu_before = (before or {}).get("cpu_seconds", 0.0) if resumable(before) else 0.0
     solve_cpu = (before or {}).get("solve_cpu_seconds") if resumable(before) else None
     cpu = cpu_before + cpu_share
     if solve_cpu is None and state.solved_at_seconds is not None:
-        solve_cpu = cpu * min(1.0, state.solved_at_seconds / max(state.elapsed, 1e-9))
+        longest = max(s.elapsed for s in outcome.states.values())
+        solve_cpu = cpu * min(1.0, state.solved_at_seconds / max(longest, 1e-9))
     clock = SolveClock(cpu_before, solve_cpu)
     clock.cpu = cpu
     fields = {
