@@ -40,6 +40,23 @@ def test_compare_writes_its_report(tmp_path):
     assert (folder / "curves.png").is_file() and "| cem | 2 |" in (folder / "report.md").read_text()
 
 
+def test_compare_trains_a_population_agent_in_one_process(tmp_path):
+    runs_dir = tmp_path / "runs"
+    done = run_cli("compare", "ppo", "--seeds", "2", "--budget", "2gen", "--runs-dir", str(runs_dir))
+    assert done.returncode == 0, done.stderr
+    folder = runs_dir / "experiments" / "ppo"
+    (entry,) = json.loads((folder / "report.json").read_text())["entries"]
+    assert entry["runs"] == 2 and entry["seeds"] == [0, 1]
+    runs = run_folders(folder)
+    assert len(runs) == 2 and all((run / "eval.json").is_file() for run in runs)
+    populations = {json.loads((run / "config.json").read_text())["population"]["id"] for run in runs}
+    assert len(populations) == 1  # both seeds trained as one population
+    records = [json.loads(p.read_text()) for p in sorted((folder / "records").iterdir())]
+    assert [r["seed"] for r in records] == [0, 1] and all(r["population"] for r in records)
+    assert all(r["cpu_seconds"] > 0 and Path(r["run"]) in runs for r in records)
+    assert len(list((folder / "logs").iterdir())) == 1  # one worker process
+
+
 @pytest.mark.slow
 def test_compare_reports_resumes_and_adds_seeds(tmp_path):
     runs_dir = tmp_path / "runs"

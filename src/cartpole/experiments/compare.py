@@ -9,7 +9,8 @@ Layout of ``D/experiments/NAME/``::
     report.json, report.md, curves.png, solve_steps.png
 
 Re-running the same command resumes: finished runs are kept, interrupted ones resume from their
-``latest.pt``, and new seeds are added when ``--seeds`` grows.
+``latest.pt``, and new seeds are added when ``--seeds`` grows. An entry whose agent trains populations
+(``POPULATION_AGENTS``) runs its pending seeds as one job: one process, ordinary run folders, a record each.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from cartpole.agents.population import POPULATION_AGENTS
 from cartpole.experiments.entries import Entry, ExperimentError
 from cartpole.experiments.processes import Job, python_module, run_jobs
 from cartpole.experiments.worker import FINISHED, Task, read_record
@@ -121,7 +123,24 @@ class Experiment:
                     todo.append((entry, seed))
         return todo
 
-    def job(self, entry: Entry, seed: int) -> Job:
+    def jobs(self) -> list[Job]:
+        """A job per pending run; the pending seeds of an entry whose agent trains populations make one
+        job (one process for all of them)."""
+        jobs: list[Job] = []
+        grouped: dict[Entry, list[int]] = {}
+        for entry, seed in self.pending():
+            if entry.agent in POPULATION_AGENTS:
+                grouped.setdefault(entry, []).append(seed)
+            else:
+                jobs.append(self.job(entry, [seed]))
+        return [self.job(entry, seeds) for entry, seeds in grouped.items()] + jobs
+
+    def job(self, entry: Entry, seeds: list[int]) -> Job:
+        """Train ``seeds`` of ``entry``: one seed, or several as one population."""
+        seed = seeds[0]
+        population = None
+        if entry.agent in POPULATION_AGENTS:
+            population = {s: str(self.record_path(entry, s)) for s in seeds}
         task = Task(
             agent=entry.agent,
             preset=str(Path(entry.preset).resolve()) if entry.preset.endswith(".toml") else entry.preset,
@@ -131,15 +150,13 @@ class Experiment:
             runs_dir=str(self.folder / "runs"),
             record=str(self.record_path(entry, seed)),
             command=self.command,
+            population=population,
         )
-        path = self.folder / "tasks" / f"{entry.slug}__s{seed}.json"
+        name = f"{entry.slug}__s{seed}" if len(seeds) == 1 else f"{entry.slug}__s{seed}-{seeds[-1]}"
+        path = self.folder / "tasks" / f"{name}.json"
         path.parent.mkdir(parents=True, exist_ok=True)
         write_json_atomic(path, task.__dict__)
-        return Job(
-            python_module(WORKER, str(path)),
-            self.folder / "logs" / f"{entry.slug}__s{seed}.log",
-            (entry, seed),
-        )
+        return Job(python_module(WORKER, str(path)), self.folder / "logs" / f"{name}.log", (entry, seeds))
 
     def run(self, jobs: int, progress: Callable[[str, int, int, int], None] | None = None) -> list[str]:
         """Run every pending seed, ``jobs`` at a time; return problems (failed workers) as lines.
@@ -160,15 +177,16 @@ class Experiment:
 
         def on_done(job: Job, code: int) -> None:
             nonlocal done, solved
-            entry, seed = job.key
-            record = read_record(self.record_path(entry, seed))
-            if record and record.get("state") == FINISHED:
-                done += 1
-                solved += bool(record.get("solved_in_training"))
-            elif code not in (0, 130, -2):
-                problems.append(f"{entry.label} seed {seed} failed (exit {code}); see {job.log}")
+            entry, seeds = job.key
+            for seed in seeds:
+                record = read_record(self.record_path(entry, seed))
+                if record and record.get("state") == FINISHED:
+                    done += 1
+                    solved += bool(record.get("solved_in_training"))
+                elif code not in (0, 130, -2):
+                    problems.append(f"{entry.label} seed {seed} failed (exit {code}); see {job.log}")
             if progress:
                 progress("run", done, solved, total)
 
-        run_jobs([self.job(entry, seed) for entry, seed in self.pending()], jobs, on_done)
+        run_jobs(self.jobs(), jobs, on_done)
         return problems

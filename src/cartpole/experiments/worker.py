@@ -1,7 +1,8 @@
-"""One run of an experiment, in its own process: train (or resume) one seed of one entry.
+"""One job of an experiment, in its own process: train (or resume) one seed of one entry, or every
+pending seed of an entry whose agent trains populations (:data:`POPULATION_AGENTS`) in one process.
 
-``python -m cartpole.experiments.worker TASK.json`` trains the seed the task names and writes what it
-measured to the task's ``record`` file (atomically). A record whose run is ``finished`` means the work is
+``python -m cartpole.experiments.worker TASK.json`` trains the seeds the task names and writes what it
+measured to each seed's ``record`` file (atomically). A record whose run is ``finished`` means the work is
 done; an ``interrupted`` one names the run folder that a later worker resumes. SIGINT and SIGTERM stop
 training at the next step with ``checkpoints/latest.pt`` saved (the training session's own handling).
 """
@@ -18,6 +19,8 @@ from typing import Any
 from cartpole.evaluation import EvalReport
 from cartpole.runs.atomic import write_json_atomic
 from cartpole.training import Callback, TrainingLoop, TrainOutcome
+from cartpole.training.loop import LoopState
+from cartpole.training.population import PopulationOutcome
 
 FINISHED = "finished"
 INTERRUPTED = "interrupted"
@@ -57,10 +60,15 @@ class Task:
     record: str
     command: list[str]
     """The command that asked for the run (recorded in its config.json)."""
+    population: dict[int, str] | None = None
+    """Seed -> record file of every seed trained as one population (``seed``/``record`` name the first)."""
 
     @classmethod
     def load(cls, path: Path) -> Task:
-        return cls(**json.loads(path.read_text(encoding="utf-8")))
+        fields = json.loads(path.read_text(encoding="utf-8"))
+        if fields.get("population") is not None:
+            fields["population"] = {int(seed): record for seed, record in fields["population"].items()}
+        return cls(**fields)
 
 
 def read_record(path: Path) -> dict[str, Any] | None:
@@ -93,7 +101,9 @@ def resumable(record: dict[str, Any] | None) -> Path | None:
 
 
 def run_task(task: Task) -> dict[str, Any]:
-    """Train or resume the task's run; write and return its record."""
+    """Train or resume the task's run (or population); write and return its (first seed's) record."""
+    if task.population is not None:
+        return run_population_task(task, task.population)
     from cartpole.training import resume, train
 
     path = Path(task.record)
@@ -127,13 +137,18 @@ def run_task(task: Task) -> dict[str, Any]:
 
 def make_record(task: Task, outcome: TrainOutcome, clock: SolveClock) -> dict[str, Any]:
     """What the report needs about one run: its folder, when it solved, what it used, its verdict."""
-    state, report = outcome.state, outcome.report
     return {
         "agent": task.agent,
         "preset": task.preset,
         "seed": task.seed,
         "run": str(outcome.run.path),
         "state": INTERRUPTED if outcome.signal is not None else FINISHED,
+    } | run_fields(outcome.state, outcome.report, clock)
+
+
+def run_fields(state: LoopState, report: EvalReport | None, clock: SolveClock) -> dict[str, Any]:
+    """When a run solved, what it used, its verdict."""
+    return {
         "solved_in_training": state.solved,
         "solve_steps": state.solved_at_step,
         "solve_wall_seconds": state.solved_at_seconds,
@@ -146,6 +161,76 @@ def make_record(task: Task, outcome: TrainOutcome, clock: SolveClock) -> dict[st
         "final_solved": None if report is None else report.solved,
         "final_verdict": None if report is None else report.verdict,
     }
+
+
+def run_population_task(task: Task, records: dict[int, str]) -> dict[str, Any]:
+    """Resume the interrupted members, then train the new seeds, each as one population; write every
+    seed's record. A seed's CPU seconds are its population's CPU time divided by its seed count."""
+    from cartpole.training.population import resume_population, train_population
+
+    paths = {seed: Path(record) for seed, record in records.items()}
+    found = {seed: read_record(path) for seed, path in paths.items()}
+    todo = {seed for seed, record in found.items() if not record or record.get("state") != FINISHED}
+    written = {seed: record for seed, record in found.items() if seed not in todo and record}
+    if todo:
+        warm_up(task.env_id)
+    while todo:
+        previous = {seed: resumable(found[seed]) for seed in sorted(todo)}
+        interrupted = [run for run in previous.values() if run is not None]
+        cpu_start = time.process_time()
+        if interrupted:
+            outcome = resume_population(interrupted[0], quiet=True)
+        else:
+            outcome = train_population(
+                task.agent,
+                sorted(todo),
+                task.env_id,
+                preset=task.preset,
+                budget=task.budget,
+                runs_dir=task.runs_dir,
+                device="cpu",
+                quiet=True,
+                command=task.command,
+            )
+        cpu_share = (time.process_time() - cpu_start) / len(outcome.runs)
+        owned = [seed for seed in outcome.runs if seed in todo]  # a resumed population may hold others
+        if not owned:
+            raise RuntimeError(f"resuming {interrupted[0]} trained none of seeds {sorted(todo)}")
+        for seed in owned:
+            record = make_population_record(task, seed, outcome, cpu_share, found[seed])
+            paths[seed].parent.mkdir(parents=True, exist_ok=True)
+            write_json_atomic(paths[seed], record)
+            written[seed] = record
+            todo.discard(seed)
+        if outcome.signal is not None:
+            break
+    return written[min(written)] if written else {"state": INTERRUPTED}
+
+
+def make_population_record(
+    task: Task, seed: int, outcome: PopulationOutcome, cpu_share: float, before: dict[str, Any] | None
+) -> dict[str, Any]:
+    """:func:`make_record` for one seed of a population: CPU seconds are its share of the population's
+    (summed over resumed sessions); at the first solve, that share times the fraction of the population's
+    wall time the seed took to solve."""
+    state, report = outcome.states[seed], outcome.reports.get(seed)
+    cpu_before = (before or {}).get("cpu_seconds", 0.0) if resumable(before) else 0.0
+    solve_cpu = (before or {}).get("solve_cpu_seconds") if resumable(before) else None
+    cpu = cpu_before + cpu_share
+    if solve_cpu is None and state.solved_at_seconds is not None:
+        longest = max(s.elapsed for s in outcome.states.values())
+        solve_cpu = cpu * min(1.0, state.solved_at_seconds / max(longest, 1e-9))
+    clock = SolveClock(cpu_before, solve_cpu)
+    clock.cpu = cpu
+    fields = {
+        "agent": task.agent,
+        "preset": task.preset,
+        "seed": seed,
+        "run": str(outcome.runs[seed].path),
+        "state": INTERRUPTED if outcome.signal is not None else FINISHED,
+        "population": True,
+    }
+    return fields | run_fields(state, report, clock)
 
 
 def main(argv: list[str]) -> int:
