@@ -507,10 +507,13 @@ def training_returns(agent: str, seed: int, env_steps: int, env_id: str = "CartP
 
 @pytest.mark.learning
 def test_ppo_default_learns_over_seeds() -> None:
-    """Random play lasts ~22 steps; after 12k env steps (most seeds solve at 14k-22k) the default
-    preset's recent training episodes average ~90-150 over two seeds: asserted with margin, > 60."""
-    recent = [float(np.mean(training_returns("ppo", seed, 12_000)[-20:])) for seed in (11, 12)]
-    assert float(np.mean(recent)) > 60, recent
+    """Random play lasts ~22 steps. After 15k env steps of the default preset, the mean of the last 20
+    training episodes was, over seeds 0-4: medians 125-149 (min 73) as is, with
+    ATEN_CPU_CAPABILITY=default and with MKL_CBWR=COMPATIBLE. Asserted with margin: the median beats
+    60 and 4 of 5 seeds beat twice random."""
+    recent = [float(np.mean(training_returns("ppo", seed, 15_000)[-20:])) for seed in range(5)]
+    assert float(np.median(recent)) > 60, recent
+    assert sum(r > 44 for r in recent) >= 4, recent
 
 
 @pytest.mark.slow
