@@ -21,9 +21,11 @@ from cartpole.agents.ppo import PPOConfig
 from cartpole.agents.registry import load_policy
 from cartpole.cli.main import main
 from cartpole.core.errors import InputError
+from cartpole.core.names import RunState
 from cartpole.core.seeding import final_eval_seed
 from cartpole.envs import env_info
 from cartpole.evaluation import evaluate
+from cartpole.runs import RunDir, load_checkpoint, summarize_run
 from cartpole.training.population import parse_seeds, train_population
 
 CARTPOLE = env_info("CartPole-v1")
@@ -228,7 +230,6 @@ def test_bad_population_input_through_the_command(tmp_path):
     assert not (tmp_path / "runs").exists()
 
 
-@pytest.mark.slow
 def test_sigint_saves_every_seed_and_resume_continues_them_all(tmp_path):
     runs_dir = tmp_path / "runs"
     args = ["train", "ppo", "--seeds", "0-2", "--budget", "20k", "--runs-dir", str(runs_dir), "--quiet"]
@@ -254,3 +255,49 @@ def test_sigint_saves_every_seed_and_resume_continues_them_all(tmp_path):
     for run in runs:
         assert json.loads((run / "status.json").read_text())["state"] == "finished"
         assert (run / "eval.json").exists()
+
+
+def test_kill_9_loses_at_most_one_checkpoint_interval_and_resume_finishes_every_seed(tmp_path):
+    runs_dir, budget = tmp_path / "runs", 20_000
+    args = ["train", "ppo", "--seeds", "0-2", "--budget", str(budget), "--no-stop-when-solved"]
+    process = subprocess.Popen(
+        [sys.executable, "-m", "cartpole", *args, "--runs-dir", str(runs_dir), "--quiet"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+    def logged_steps(run: Path) -> int:
+        return max((row["step"] for row in RunDir(run).metrics()), default=0)
+
+    def saved_steps(run: Path) -> int:
+        return load_checkpoint(run / "checkpoints" / "latest.pt").meta["loop"]["env_steps"]
+
+    def past_a_quarter(runs: list[Path]) -> bool:
+        saved = len(runs) == 3 and all((r / "checkpoints" / "latest.pt").exists() for r in runs)
+        return saved and min(logged_steps(r) for r in runs) > budget // 4
+
+    deadline = time.monotonic() + 300
+    runs: list[Path] = []
+    while time.monotonic() < deadline and process.poll() is None:
+        runs = sorted(runs_dir.iterdir()) if runs_dir.exists() else []
+        if past_a_quarter(runs):
+            break
+        time.sleep(0.1)
+    assert process.poll() is None, "the population ended before the test could kill it"
+    os.kill(process.pid, signal.SIGKILL)
+    process.communicate(timeout=60)
+
+    interval = budget // 10  # checkpoint_fraction's default: latest.pt every 10% of the budget
+    rollout = 8 * 16  # and the rollout that crossed the interval
+    for run in runs:
+        assert summarize_run(run).state == RunState.CRASHED
+        assert logged_steps(run) - saved_steps(run) <= interval + rollout
+    done = run_cli("train", "--resume", str(runs[0]), "--quiet")
+    assert done.returncode == 0, done.stderr
+    for run in runs:
+        assert summarize_run(run).state == RunState.FINISHED
+        assert json.loads((run / "eval.json").read_text())["episodes"] >= 100
+        steps = [row["step"] for row in RunDir(run).metrics() if "train/episode_return" in row]
+        assert steps == sorted(steps)  # the lost steps were replayed, not logged twice
+        assert saved_steps(run) >= budget
