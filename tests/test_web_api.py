@@ -3,7 +3,12 @@
 from __future__ import annotations
 
 import json
+import signal
+import socket
+import subprocess
 import sys
+import time
+from contextlib import suppress
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -14,6 +19,7 @@ import pytest
 pytest.importorskip("fastapi", reason="the web app needs fastapi (a dependency of cartpole: reinstall it)")
 pytest.importorskip("httpx", reason="FastAPI's test client needs httpx")
 
+import httpx
 from fastapi.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
 
@@ -488,3 +494,51 @@ def test_the_web_app_never_tests_an_agents_name():
         quoted = re.compile(rf"""["'`]{re.escape(agent)}["'`]""")
         for source in sources:
             assert not quoted.search(source.read_text(encoding="utf-8")), f"{source.name} names {agent!r}"
+
+
+def children_of(pid: int) -> set[int]:
+    """Processes whose parent is ``pid`` (from /proc)."""
+    found = set()
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            found.add(int(stat.parent.name))
+    return found
+
+
+def alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads processes from /proc")
+@pytest.mark.parametrize("stop", [signal.SIGTERM, signal.SIGKILL], ids=["sigterm", "kill-9"])
+def test_the_episode_worker_ends_with_the_server(tmp_path, stop):
+    """However the server ends, the worker processes that compute Watch episodes end with it."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    command = [sys.executable, "-m", "cartpole", "serve", "--runs-dir", str(tmp_path), "--port", str(port)]
+    server = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        workers: set[int] = set()
+        while not workers and time.monotonic() < deadline:
+            time.sleep(0.2)
+            with suppress(httpx.TransportError):
+                httpx.get(f"http://127.0.0.1:{port}/api/info", timeout=5).raise_for_status()
+                workers = children_of(server.pid)
+        assert workers, "the server started no worker"
+    finally:
+        server.send_signal(stop)
+        server.wait(timeout=30)
+    deadline = time.monotonic() + 20
+    while any(alive(pid) for pid in workers) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not any(alive(pid) for pid in workers)

@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Annotated, Any
 
 from fastapi import APIRouter, HTTPException, Query, Request
-from fastapi.responses import JSONResponse
+from fastapi.responses import Response
 from pydantic import BaseModel, Field
 
 from cartpole.agents.registry import get_agent
@@ -213,7 +213,7 @@ async def episode(
     force_mag: Annotated[float | None, physics_query("force_mag")] = None,
     nudge_at: NudgeSteps = None,
     nudge: NudgeChanges = None,
-) -> JSONResponse:
+) -> Response:
     """The greedy episode of a checkpoint from a seed's start state, with optional physics and nudges
     (computed in a worker process: the server goes on answering meanwhile)."""
     run = open_run(request, name)
@@ -230,14 +230,15 @@ async def episode(
     nudges = nudges_from_query(nudge_at or [], nudge or [], max_steps)
     workers: EpisodeWorkers = request.app.state.episodes
     try:
-        result = await workers.episode(path, env_id, seed, overrides, nudges, score_label(agent))
+        header = {"run": run.name, "checkpoint": checkpoint, "agent": agent}
+        body = await workers.episode(path, env_id, seed, overrides, nudges, score_label(agent), header)
     except CheckpointError as err:
         raise HTTPException(409, f"checkpoint {checkpoint} cannot be loaded: {err}") from err
     except PhysicsError as err:
         raise HTTPException(422, str(err)) from err
     except EpisodesBusy as err:
         raise HTTPException(503, str(err), headers={"Retry-After": "1"}) from err
-    return JSONResponse({"run": run.name, "checkpoint": checkpoint, "agent": agent, **result})
+    return Response(body, media_type="application/json")
 
 
 def score_label(agent: str | None) -> str:
