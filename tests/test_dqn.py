@@ -241,6 +241,27 @@ def test_same_seed_same_result_on_cpu() -> None:
     assert not torch.equal(flat_params(a), flat_params(c))
 
 
+@pytest.mark.parametrize("activation", ["relu", "tanh", "elu", "gelu"])
+@pytest.mark.parametrize("dueling", [False, True], ids=["plain", "dueling"])
+def test_greedy_policy_gives_the_networks_q_values_without_dropout(activation: str, dueling: bool) -> None:
+    """The policy is a numpy snapshot of the network: its scores are the network's own Q-values in eval
+    mode (no dropout), and training the network afterwards does not change them."""
+    config = small_config(activation=activation, dueling=dueling, dropout=0.3)
+    learner = make_learner(config, seed=2)
+    for _ in range(40):
+        learner.learn()
+    policy = learner.policy()
+    observations = np.random.default_rng(1).normal(size=(64, 4)).astype(np.float32)
+    net = QNetwork(4, 2, config)
+    net.load_state_dict({k.removeprefix("q_net."): v for k, v in learner.state_dict(False)[0].items()})
+    expected = net.eval().q_values(observations)
+    np.testing.assert_allclose(policy.scores(observations), expected, rtol=1e-5, atol=1e-5)
+    np.testing.assert_array_equal(policy.act(observations), policy.scores(observations).argmax(axis=1))
+    for _ in range(40):
+        learner.learn()
+    np.testing.assert_allclose(policy.scores(observations), expected, rtol=1e-5, atol=1e-5)
+
+
 def test_save_load_gives_the_same_q_values(tmp_path: Path) -> None:
     config = small_config(dueling=True)
     learner = make_learner(config, seed=1)

@@ -5,8 +5,8 @@
   scheme CleanRL and Stable-Baselines3 use: gain sqrt(2) on hidden layers, 0.01 on the policy head,
   1 on the value head, zero biases).
 - ``CategoricalPolicy``: the greedy policy of a trained actor, frozen: ``scores`` are the action
-  probabilities, ``act`` their argmax. It runs the actor with numpy on copies of its weights (for the
-  few observations of acting, evaluation and the web app, numpy's ~1 us per op beats torch's ~4 us).
+  probabilities, ``act`` their argmax. It runs the actor with numpy on copies of its weights
+  (:class:`~cartpole.agents.numpy_mlp.NumpyMLP`).
 - ``schedule_value``: the constant and linear schedules of learning rate and clip range.
 """
 
@@ -14,15 +14,15 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Callable
-from typing import Any
 
 import numpy as np
 import torch
 from torch import nn
 
+from cartpole.agents.numpy_mlp import NumpyMLP
+
 ACTIVATIONS: dict[str, type[nn.Module]] = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
-"""Hidden-layer activations; each has a numpy twin for :class:`CategoricalPolicy`."""
+"""Hidden-layer activations; each has a numpy twin (:mod:`cartpole.agents.numpy_mlp`)."""
 SCHEDULES = ("constant", "linear")
 
 
@@ -125,25 +125,6 @@ class ActorCritic(nn.Module):
 # ----------------------------------------------------------------------------------------------
 
 
-def _relu(x: np.ndarray) -> np.ndarray:
-    return np.maximum(x, 0.0, out=x)
-
-
-def _tanh(x: np.ndarray) -> np.ndarray:
-    return np.tanh(x, out=x)
-
-
-def _elu(x: np.ndarray) -> np.ndarray:
-    return np.where(x > 0.0, x, np.expm1(np.minimum(x, 0.0)))
-
-
-NUMPY_ACTIVATIONS: dict[type[nn.Module], Callable[[np.ndarray], np.ndarray]] = {
-    nn.ReLU: _relu,
-    nn.Tanh: _tanh,
-    nn.ELU: _elu,
-}
-
-
 class CategoricalPolicy:
     """The greedy policy of an actor: ``scores`` = action probabilities, ``act`` = their argmax.
 
@@ -151,23 +132,8 @@ class CategoricalPolicy:
     """
 
     def __init__(self, model: ActorCritic):
-        self.plan: list[Any] = []
-        for layer in model.actor_layers():
-            if isinstance(layer, nn.Linear):
-                weight = layer.weight.detach().cpu().numpy().T.copy()
-                self.plan.append((weight, layer.bias.detach().cpu().numpy().copy()))
-            else:
-                self.plan.append(NUMPY_ACTIVATIONS[type(layer)])
-
-    def logits(self, observations: np.ndarray) -> np.ndarray:
-        features = np.asarray(observations, dtype=np.float32)
-        for step in self.plan:
-            if isinstance(step, tuple):  # a linear layer: x W^T + b
-                features = features @ step[0]
-                features += step[1]
-            else:
-                features = step(features)
-        return features
+        self.logits = NumpyMLP(model.actor_layers())
+        """Action logits [N, n_actions] of observations."""
 
     def scores(self, observations: np.ndarray) -> np.ndarray:
         """Action probabilities, shape [N, n_actions]."""

@@ -365,7 +365,7 @@ class DQNLearner:
 
     def policy(self) -> QNetworkPolicy:
         """A frozen copy of the current greedy policy."""
-        return QNetworkPolicy(copy.deepcopy(self.q_net), self.device)
+        return QNetworkPolicy(self.q_net)
 
     def state_dict(self, resume: bool) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
         """The weights (always); with ``resume`` everything a resume needs to continue exactly: target
@@ -456,7 +456,7 @@ def policy_from_checkpoint(checkpoint: Checkpoint) -> QNetworkPolicy:
         q_net.load_state_dict(unprefixed("q_net.", checkpoint.tensors))
     except (KeyError, RuntimeError, TypeError, AttributeError) as err:
         raise CheckpointError(f"not a usable dqn checkpoint: {err!s:.120}") from err
-    return QNetworkPolicy(q_net, "cpu")
+    return QNetworkPolicy(q_net)
 
 
 def make_learner(config: DQNConfig, env: EnvInfo, seed: int, device: str) -> DQNLearner:
