@@ -119,6 +119,19 @@ def policy_loss_terms(
     return log_probs, entropy, values
 
 
+def seeded_actor_critic(config: PolicyGradientConfig, env: EnvInfo, seed: int) -> ActorCritic:
+    """The network a learner of ``seed`` starts from (a population's seeds start from the same)."""
+    return ActorCritic(
+        env.obs_dim,
+        env.n_actions,
+        config.hidden_sizes,
+        config.activation,
+        config.shared_trunk,
+        config.orthogonal_init,
+        generator=torch.Generator().manual_seed(derived_seed(seed, "init")),
+    )
+
+
 class PolicyGradientLearner:
     """The shared part of the learners: network, collector, generators, checkpoints."""
 
@@ -134,16 +147,7 @@ class PolicyGradientLearner:
         config.validate()
         self.config, self.env_info, self.seed = config, env, seed
         self.device = torch.device(device)
-        init_generator = torch.Generator().manual_seed(derived_seed(seed, "init"))
-        self.model = ActorCritic(
-            env.obs_dim,
-            env.n_actions,
-            config.hidden_sizes,
-            config.activation,
-            config.shared_trunk,
-            config.orthogonal_init,
-            generator=init_generator,
-        ).to(self.device)
+        self.model = seeded_actor_critic(config, env, seed).to(self.device)
         self.parameters: list[torch.Tensor] = list(self.model.parameters())
         self.optimizer = make_optimizer(self.parameters)
         self.generator = torch.Generator(self.device).manual_seed(derived_seed(seed, "minibatches"))

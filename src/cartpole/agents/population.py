@@ -43,6 +43,7 @@ from torch import nn
 from cartpole.agents.actor_critic import ActorCritic, CategoricalPolicy, schedule_value
 from cartpole.agents.env_state import derived_seed
 from cartpole.agents.learner import LearnResult
+from cartpole.agents.policy_gradient import seeded_actor_critic
 from cartpole.agents.ppo import PPOConfig
 from cartpole.agents.rollout import generalized_advantages
 from cartpole.core.errors import ConfigError
@@ -60,19 +61,6 @@ TORCH_ACTIVATIONS: dict[type[nn.Module], Callable[[torch.Tensor], torch.Tensor]]
 
 Layer = tuple[str, str] | Callable[[torch.Tensor], torch.Tensor]
 """A step of a forward pass: (weight name, bias name) of a linear layer, or an activation."""
-
-
-def build_actor_critic(config: PPOConfig, env: EnvInfo, seed: int) -> ActorCritic:
-    """Seed ``seed``'s network, initialized exactly as its single run initializes it."""
-    return ActorCritic(
-        env.obs_dim,
-        env.n_actions,
-        config.hidden_sizes,
-        config.activation,
-        config.shared_trunk,
-        config.orthogonal_init,
-        generator=torch.Generator().manual_seed(derived_seed(seed, "init")),
-    )
 
 
 def forward_plan(model: ActorCritic, trunk_name: str, head_name: str) -> list[Layer]:
@@ -307,7 +295,7 @@ class PopulationPPO:
         # results are dropped.
         self.seeds = list(seeds) if len(seeds) != 1 else [seeds[0], seeds[0]]
         self.ghosts = [False] * len(seeds) if len(seeds) != 1 else [False, True]
-        self.model = StackedActorCritic([build_actor_critic(config, env, seed) for seed in self.seeds])
+        self.model = StackedActorCritic([seeded_actor_critic(config, env, seed) for seed in self.seeds])
         self.optimizer = PopulationAdam(len(self.seeds), self.model.size, config.adam_eps)
         self.generators = [torch.Generator().manual_seed(derived_seed(s, "actions")) for s in self.seeds]
         steps = env.max_episode_steps or 500

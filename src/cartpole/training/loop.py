@@ -133,6 +133,23 @@ class TrainingLoop:
             state.solved_at_seconds = state.elapsed
         return all([cb.on_eval(self, report) for cb in self.callbacks])
 
+    def count_result(self, result: LearnResult, elapsed: float) -> bool:
+        """Add one ``learn()`` result to the counters and show its episodes, then the step, to the
+        callbacks; False if one of them asks to stop."""
+        state = self.state
+        state.env_steps += result.env_steps
+        state.iterations += 1
+        state.elapsed = elapsed
+        state.scalars.update(result.scalars)
+        state.episodes += result.summarized_episodes
+        keep_going = True
+        for ret, length in zip(result.episode_returns, result.episode_lengths, strict=True):
+            state.episodes += 1
+            state.recent_returns.append(ret)
+            keep_going &= all([cb.on_episode(self, ret, length) for cb in self.callbacks])
+        keep_going &= all([cb.on_step(self, result) for cb in self.callbacks])
+        return keep_going
+
     def run(self) -> LoopState:
         """Train until a callback stops it or a stop is requested; returns the final counters."""
         state = self.state
@@ -142,17 +159,7 @@ class TrainingLoop:
         try:
             while state.stop_reason is None:
                 result = self.learner.learn()
-                state.env_steps += result.env_steps
-                state.iterations += 1
-                state.elapsed = time.perf_counter() - started
-                state.scalars.update(result.scalars)
-                state.episodes += result.summarized_episodes
-                keep_going = True
-                for ret, length in zip(result.episode_returns, result.episode_lengths, strict=True):
-                    state.episodes += 1
-                    state.recent_returns.append(ret)
-                    keep_going &= all([cb.on_episode(self, ret, length) for cb in self.callbacks])
-                keep_going &= all([cb.on_step(self, result) for cb in self.callbacks])
+                keep_going = self.count_result(result, time.perf_counter() - started)
                 if self._stop_requested:
                     state.stop(*self._stop_requested)
                 elif not keep_going:

@@ -28,22 +28,27 @@ from typing import Any, TextIO
 
 import numpy as np
 
+from cartpole.agents.learner import LearnResult
 from cartpole.agents.population import POPULATION_AGENTS, PopulationPPO, bytes_per_seed
 from cartpole.agents.registry import get_agent
-from cartpole.core.config import config_to_dict
 from cartpole.core.errors import InputError
 from cartpole.core.names import CheckpointName, RunState, StopReason
 from cartpole.core.seeding import MAX_TRAIN_SEED, final_eval_seed
-from cartpole.core.version import __version__
 from cartpole.envs import check_simulator, env_info, make_vec_env
 from cartpole.evaluation import MIN_EPISODES_FOR_SOLVED, EvalReport, Policy, start_states
 from cartpole.runs import LiveStatus, RunDir, displayed_state, load_checkpoint
-from cartpole.runs.run_dir import utc_now
 from cartpole.training.budget import Budget, parse_budget
 from cartpole.training.callbacks import status_fields
 from cartpole.training.config import resolve_config
 from cartpole.training.loop import LoopState, TrainingLoop
-from cartpole.training.session import RESUMABLE_STOPS, STOP_SIGNALS, RunSetup, make_callbacks, resolve_device
+from cartpole.training.session import (
+    RESUMABLE_STOPS,
+    STOP_SIGNALS,
+    RunSetup,
+    make_callbacks,
+    resolve_device,
+    run_record,
+)
 
 MAX_SEEDS = 4096
 """More seeds than this in one process: split them (each seed holds a run folder and a status thread)."""
@@ -155,21 +160,9 @@ class SeedLoop(TrainingLoop):
         for cb in self.callbacks:
             cb.on_start(self)
 
-    def advance(self, result: Any, now: float) -> None:
-        state = self.state
-        state.env_steps += result.env_steps
-        state.iterations += 1
-        state.elapsed = now - self.clock_start
-        state.scalars.update(result.scalars)
-        state.episodes += result.summarized_episodes
-        keep_going = True
-        for ret, length in zip(result.episode_returns, result.episode_lengths, strict=True):
-            state.episodes += 1
-            state.recent_returns.append(ret)
-            keep_going &= all([cb.on_episode(self, ret, length) for cb in self.callbacks])
-        keep_going &= all([cb.on_step(self, result) for cb in self.callbacks])
-        if not keep_going:
-            state.stop(StopReason.CALLBACK, "stopped by a callback")
+    def advance(self, result: LearnResult, now: float) -> None:
+        if not self.count_result(result, now - self.clock_start):
+            self.state.stop(StopReason.CALLBACK, "stopped by a callback")
 
     def end(self, now: float) -> None:
         self.state.elapsed = now - self.clock_start
@@ -240,28 +233,15 @@ def train_population(
     check_memory(bytes_per_seed(config, env) * len(seeds), len(seeds))
     population = PopulationPPO(config, env, seeds, device)
     population_record = {"id": uuid.uuid4().hex[:12], "seeds": list(seeds)}
-    base = {
-        "agent": agent,
-        "env_id": env_id,
-        "preset": preset,
-        "config": config_to_dict(config),
-        "settings": config_to_dict(settings),
-        "overrides": overrides or {},
-        "budget": budget.to_dict(),
-        "device": device,
-        "command": command or list(sys.argv),
-        "package_version": __version__,
-        "created": utc_now(),
-        "tensorboard": False,
-        "population": population_record,
-    }
     runs_path = Path(runs_dir)
     with ExitStack() as stack:
         setups = []
         for seed in seeds:
             run = RunDir.create(runs_path, env_id, agent, seed)
             stack.enter_context(run.lock())
-            record = base | {"seed": seed}
+            record = run_record(
+                agent, env_id, seed, preset, config, settings, overrides, budget, device, command
+            ) | {"population": population_record}
             run.write_config(record)
             setups.append(RunSetup.from_record(run, record))
         return run_population(population, setups, {}, quiet, stream)

@@ -230,6 +230,36 @@ def write_failed(status: LiveStatus, state: LoopState) -> None:
         status.write(RunState.FAILED, status_fields(state))
 
 
+def run_record(
+    agent: str,
+    env_id: str,
+    seed: int,
+    preset: str,
+    config: Any,
+    settings: TrainSettings,
+    overrides: dict[str, Any] | None,
+    budget: Budget,
+    device: str,
+    command: list[str] | None,
+) -> dict[str, Any]:
+    """What a run's config.json holds: everything ``resume`` needs to continue it."""
+    return {
+        "agent": agent,
+        "env_id": env_id,
+        "seed": seed,
+        "preset": preset,
+        "config": config_to_dict(config),
+        "settings": config_to_dict(settings),
+        "overrides": overrides or {},
+        "budget": budget.to_dict(),
+        "device": device,
+        "command": command or list(sys.argv),
+        "package_version": __version__,
+        "created": utc_now(),
+        "tensorboard": False,
+    }
+
+
 def train(
     agent: str,
     env_id: str = "CartPole-v1",
@@ -265,21 +295,8 @@ def train(
     budget = budget or parse_budget(settings.budget)
     device = resolve_device(device)
     learner = spec.make_learner(config, env, seed, device)
-    record = {
-        "agent": agent,
-        "env_id": env_id,
-        "seed": seed,
-        "preset": preset,
-        "config": config_to_dict(config),
-        "settings": config_to_dict(settings),
-        "overrides": overrides or {},
-        "budget": budget.to_dict(),
-        "device": device,
-        "command": command or list(sys.argv),
-        "package_version": __version__,
-        "created": utc_now(),
-        "tensorboard": tensorboard,
-    }
+    record = run_record(agent, env_id, seed, preset, config, settings, overrides, budget, device, command)
+    record["tensorboard"] = tensorboard
     run = RunDir.create(Path(runs_dir), env_id, agent, seed)
     with run.lock():
         run.write_config(record)
