@@ -313,8 +313,7 @@ def test_default_checkpoint_cadence_is_a_tenth_of_the_budget_and_a_minute():
 
 def test_latest_checkpoint_writes_pending_metric_rows_first(run):
     """A kill -9 right after ``latest`` is saved finds every metric row up to its step on disk."""
-    metrics = MetricsCallback(run)
-    metrics.FLUSH_SECONDS = 1e12  # never flush on time: only the checkpoint makes it write
+    metrics = MetricsCallback(run, flush_seconds=1e12)  # never on time: only the checkpoint writes
     schedule = only_every(env_steps=20)
     checkpoints = CheckpointCallback(run, get_agent("cem"), {"agent": "cem"}, schedule, metrics=metrics)
     seen: list[tuple[int, list[int]]] = []

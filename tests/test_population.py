@@ -9,16 +9,18 @@ import signal
 import subprocess
 import sys
 import time
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
+from typing import Any
 
 import pytest
 import torch
 
+from cartpole.agents.a2c import A2CConfig
 from cartpole.agents.learner import LearnResult
-from cartpole.agents.population import PopulationPPO
+from cartpole.agents.population import PopulationA2C, PopulationPPO, make_population
 from cartpole.agents.ppo import PPOConfig
-from cartpole.agents.registry import load_policy
+from cartpole.agents.registry import get_agent, load_policy
 from cartpole.cli.main import main
 from cartpole.core.errors import InputError
 from cartpole.core.names import RunState
@@ -26,7 +28,10 @@ from cartpole.core.seeding import final_eval_seed
 from cartpole.envs import env_info
 from cartpole.evaluation import evaluate
 from cartpole.runs import RunDir, load_checkpoint, summarize_run
-from cartpole.training.population import parse_seeds, train_population
+from cartpole.training import train
+from cartpole.training.callbacks import screened_evaluation
+from cartpole.training.config import TrainSettings
+from cartpole.training.population import PopulationEvaluations, parse_seeds, train_population
 
 CARTPOLE = env_info("CartPole-v1")
 SMALL = {"n_steps": 8, "num_envs": 4, "n_epochs": 2, "minibatch_size": 16, "hidden_sizes": (16, 16)}
@@ -44,6 +49,19 @@ def one_thread():
 
 def small_config(**changes: object) -> PPOConfig:
     return PPOConfig(**(SMALL | changes))  # type: ignore[arg-type]
+
+
+A2C_SMALL = {"n_steps": 8, "num_envs": 4, "hidden_sizes": (16, 16)}
+
+
+def small_population(agent: str, seeds: list[int], **changes: object) -> Any:
+    """A small PPO or A2C population (the actor-critic ones share these tests)."""
+    if agent == "ppo":
+        return PopulationPPO(small_config(**changes), CARTPOLE, seeds)
+    return PopulationA2C(A2CConfig(**(A2C_SMALL | changes)), CARTPOLE, seeds)  # type: ignore[arg-type]
+
+
+ACTOR_CRITICS = ["ppo", "a2c"]
 
 
 def weights(population: PopulationPPO, seed: int) -> dict[str, torch.Tensor]:
@@ -86,10 +104,10 @@ def test_parse_seeds_refuses_bad_input(text):
 # -- independence -----------------------------------------------------------------------------------
 
 
-def test_a_seed_does_not_depend_on_its_neighbours():
-    config = small_config()
-    with_5 = PopulationPPO(config, CARTPOLE, [3, 5])
-    with_7 = PopulationPPO(config, CARTPOLE, [3, 7])
+@pytest.mark.parametrize("agent", ACTOR_CRITICS)
+def test_a_seed_does_not_depend_on_its_neighbours(agent):
+    with_5 = small_population(agent, [3, 5])
+    with_7 = small_population(agent, [3, 7])
     results_5, results_7 = learn(with_5, 3), learn(with_7, 3)
     for a, b in zip(results_5, results_7, strict=True):
         assert same(a[3], b[3])  # env steps, episodes, every metric
@@ -99,10 +117,10 @@ def test_a_seed_does_not_depend_on_its_neighbours():
     )
 
 
-def test_removing_a_stopped_seed_leaves_the_others_unchanged():
-    config = small_config()
-    three = PopulationPPO(config, CARTPOLE, [3, 5, 7])
-    two = PopulationPPO(config, CARTPOLE, [3, 7])
+@pytest.mark.parametrize("agent", ACTOR_CRITICS)
+def test_removing_a_stopped_seed_leaves_the_others_unchanged(agent):
+    three = small_population(agent, [3, 5, 7])
+    two = small_population(agent, [3, 7])
     learn(three, 2)
     learn(two, 2)
     three.remove([5])
@@ -139,12 +157,50 @@ def test_settings_reach_the_batched_update():
         assert not torch.equal(trained(**change), base), change
 
 
-def test_resume_of_a_seed_continues_exactly():
-    config = small_config()
-    straight = PopulationPPO(config, CARTPOLE, [2, 6])
+def test_a2c_settings_reach_the_batched_update():
+    """A setting of the single A2C run changes the population's run too."""
+
+    def trained(**change: object) -> torch.Tensor:
+        population = small_population("a2c", [1], **change)
+        learn(population, 3)
+        return weights(population, 1)["model.actor_trunk.0.weight"]
+
+    base = trained()
+    changes = (
+        {"optimizer": "adam"},
+        {"rms_alpha": 0.5},
+        {"optimizer_eps": 1.0},
+        {"lr": 1e-4},
+        {"ent_coef": 0.5},
+    )
+    for change in (*changes, {"max_grad_norm": 0.001}, {"normalize_advantages": True}, {"gae_lambda": 0.5}):
+        assert not torch.equal(trained(**change), base), change
+
+
+@pytest.mark.slow
+@pytest.mark.learning
+@pytest.mark.parametrize(("agent", "needed"), [("ppo", 5), ("a2c", 5), ("cem", 5)])
+def test_a_population_verifiably_solves_as_its_single_runs_do(agent, needed, tmp_path):
+    """Seeds 100-105 of the default preset in one population: as the single runs of these agents
+    (10/10 seeds in benchmarks/time_to_solve.py), most verifiably solve within their budgets."""
+    outcome = train_population(agent, list(range(100, 106)), runs_dir=tmp_path)
+    solved = sum(report.solved for report in outcome.reports.values())
+    assert solved >= needed, f"{agent}: {solved}/6 verified solves"
+
+
+@pytest.mark.parametrize(
+    ("agent", "change"),
+    [
+        ("ppo", {}),
+        ("a2c", {}),
+        ("a2c", {"optimizer": "adam"}),
+    ],
+)
+def test_resume_of_a_seed_continues_exactly(agent, change):
+    straight = small_population(agent, [2, 6], **change)
     learn(straight, 2)
     tensors, data = straight.seed_state_dict(6, resume=True)
-    resumed = PopulationPPO(config, CARTPOLE, [6])
+    resumed = small_population(agent, [6], **change)
     resumed.load_seed_state_dict(6, tensors, json.loads(json.dumps(data)))
     assert same(straight.learn()[6], resumed.learn()[6])
     assert_same(weights(straight, 6), weights(resumed, 6))
@@ -197,6 +253,49 @@ def test_batched_verdict_is_the_single_evaluation(population_runs):
     assert verdict["simulator"] == "gymnasium"
 
 
+# -- evaluations played together --------------------------------------------------------------------
+
+
+def test_evaluations_played_together_are_each_seeds_own():
+    """The due seeds' screens (and full evaluations where the screen passes) played in one batch give
+    each seed the report its own screened evaluation gives."""
+    population = PopulationPPO(small_config(), CARTPOLE, [3, 5, 8])
+    learn(population, 3)
+    settings = TrainSettings(eval_screen_episodes=4, eval_episodes=6)
+    for env in (CARTPOLE, replace(CARTPOLE, reward_threshold=5.0)):  # the second passes every screen
+        reports = PopulationEvaluations(population, env, settings).screened([(3, 0), (8, 4)])
+        assert sorted(reports) == [3, 8]
+        for seed, index in ((3, 0), (8, 4)):
+            alone = screened_evaluation(population.seed_policy(seed), env, seed, index, settings)
+            ours = reports[seed]
+            assert (ours.returns, ours.lengths, ours.seeds) == (alone.returns, alone.lengths, alone.seeds)
+            assert ours.simulator == alone.simulator
+        assert reports[3].simulator == ("fast" if env is CARTPOLE else "gymnasium")
+
+
+# -- linear searches: a batch of populations ----------------------------------------------------------
+
+
+@pytest.mark.parametrize("agent", ["random-search", "hill-climbing", "cem"])
+def test_a_linear_search_seed_is_its_single_run(agent):
+    spec = get_agent(agent)
+    config = spec.config_cls(population=6, episodes_per_candidate=2)
+    population = make_population(agent, config, CARTPOLE, [3, 5])
+    single = spec.make_learner(config, CARTPOLE, 3, "cpu")
+    for _ in range(4):
+        assert same(population.learn()[3], single.learn())
+    assert_same(population.seed_state_dict(3, resume=True)[0], single.state_dict(resume=True)[0])
+
+
+def test_a_linear_population_run_is_the_single_runs(tmp_path):
+    """Metric rows (evaluations included: cem evaluates every generation) and verdict of a seed
+    trained beside another are those of its single run."""
+    outcome = train_population("cem", [3, 4], budget="4gen", runs_dir=tmp_path / "population")
+    single = train("cem", seed=3, budget="4gen", runs_dir=tmp_path / "single")
+    assert metric_rows(outcome.runs[3].path) == metric_rows(single.run.path)
+    assert single.report is not None and outcome.reports[3].returns == single.report.returns
+
+
 # -- the command --------------------------------------------------------------------------------------
 
 
@@ -214,6 +313,7 @@ def run_cli(*args: str, **kwargs: object) -> subprocess.CompletedProcess[str]:
         ["ppo", "--seeds", ""],
         ["ppo", "--seeds", "a-b"],
         ["dqn", "--seeds", "0-3"],
+        ["reinforce", "--seeds", "3,5,8"],
         ["ppo", "--seeds", "0-4000", "--set", "hidden_sizes=2048,2048"],
     ],
 )

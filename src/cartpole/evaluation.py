@@ -9,6 +9,7 @@ solved means a mean return >= the registry's ``reward_threshold`` over at least 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol, runtime_checkable
 
@@ -140,10 +141,13 @@ def _reset_to_seeds(env: gym.vector.VectorEnv, env_id: str, seeds: list[int]) ->
     return states.astype(np.float32)  # CartPole's observation is its state, as float32
 
 
-def _play_batch(
-    policy: Policy, env_id: str, seeds: list[int], simulator: Simulator
-) -> tuple[list[float], list[int]]:
-    """Play one greedy episode per seed, all at once; return their returns and lengths."""
+def play_greedy_episodes(
+    act: Callable[[np.ndarray], np.ndarray], env_id: str, seeds: list[int], simulator: Simulator
+) -> tuple[np.ndarray, np.ndarray]:
+    """Play one episode from each of ``seeds`` (the start state Gymnasium's single env gives for
+    it), all at once in one vector env, with ``act`` mapping observations ``[n, obs_dim]`` to
+    actions ``[n]``; the returns and lengths ``[n]``. (``act`` may serve many policies at once: the
+    population's evaluations give each policy its own block of rows.)"""
     n = len(seeds)
     env = make_vec_env(env_id, n, simulator=simulator)
     try:
@@ -152,12 +156,12 @@ def _play_batch(
         lengths = np.zeros(n, dtype=np.int64)
         running = np.ones(n, dtype=bool)
         while running.any():
-            actions = np.asarray(policy.act(observations), dtype=np.int64).reshape(n)
+            actions = np.asarray(act(observations), dtype=np.int64).reshape(n)
             observations, rewards, terminated, truncated, _ = env.step(actions)
             returns += np.where(running, rewards, 0.0)
             lengths += running
             running &= ~(terminated | truncated)
-        return returns.tolist(), lengths.tolist()
+        return returns, lengths
     finally:
         env.close()
 
@@ -188,11 +192,11 @@ def evaluate(
     returns: list[float] = []
     lengths: list[int] = []
     for start in range(0, episodes, MAX_ENVS_PER_BATCH):
-        batch_returns, batch_lengths = _play_batch(
-            policy, env_id, seeds[start : start + MAX_ENVS_PER_BATCH], used
+        batch_returns, batch_lengths = play_greedy_episodes(
+            policy.act, env_id, seeds[start : start + MAX_ENVS_PER_BATCH], used
         )
-        returns += batch_returns
-        lengths += batch_lengths
+        returns += batch_returns.tolist()
+        lengths += batch_lengths.tolist()
     return EvalReport(
         env_id=env_id,
         simulator=used,

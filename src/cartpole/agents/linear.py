@@ -69,6 +69,26 @@ def batched_scores(params: np.ndarray, observations: np.ndarray, shape: LinearPo
     return scores
 
 
+def play_candidates(
+    env: gym.vector.VectorEnv, candidates: np.ndarray, observations: np.ndarray, shape: LinearPolicy
+) -> tuple[np.ndarray, np.ndarray]:
+    """K candidates play one episode in each of their E envs (env ``k * E + e`` is candidate k's),
+    from ``observations`` (the envs were just reset), all at once; returns ``[K, E]`` and the env
+    steps each candidate used ``[K]``."""
+    k = candidates.shape[0]
+    e = env.num_envs // k
+    returns = np.zeros(k * e)
+    running = np.ones(k * e, dtype=bool)
+    steps = np.zeros(k, dtype=np.int64)
+    while running.any():
+        actions = batched_actions(candidates, observations.reshape(k, e, -1), shape).reshape(k * e)
+        observations, rewards, terminated, truncated, _ = env.step(actions)
+        returns += np.where(running, rewards, 0.0)
+        steps += running.reshape(k, e).sum(axis=1)
+        running &= ~(terminated | truncated)
+    return returns.reshape(k, e), steps
+
+
 @dataclass
 class LinearSearchConfig:
     """Settings shared by the three linear-policy searches."""
@@ -123,18 +143,15 @@ class LinearSearch:
 
     def score_candidates(self, candidates: np.ndarray) -> tuple[np.ndarray, int]:
         """Mean return of each candidate over its episodes, all played at once; and env steps used."""
-        k, e = candidates.shape[0], self.config.episodes_per_candidate
-        obs, _ = self.vec_env.reset(seed=int(self.rng.integers(2**31)))
-        returns = np.zeros(k * e)
-        running = np.ones(k * e, dtype=bool)
-        steps = 0
-        while running.any():
-            actions = batched_actions(candidates, obs.reshape(k, e, -1), self.shape).reshape(k * e)
-            obs, rewards, terminated, truncated, _ = self.vec_env.step(actions)
-            returns += np.where(running, rewards, 0.0)
-            steps += int(running.sum())
-            running &= ~(terminated | truncated)
-        return returns.reshape(k, e).mean(axis=1), steps
+        start = self.reset_episodes()
+        returns, steps = play_candidates(self.vec_env, candidates, start, self.shape)
+        return returns.mean(axis=1), int(steps.sum())
+
+    def reset_episodes(self) -> np.ndarray:
+        """Start a generation's episodes: this search's envs reset from a seed drawn from its own
+        generator; their start observations."""
+        observations, _ = self.vec_env.reset(seed=int(self.rng.integers(2**31)))
+        return observations
 
     def propose(self) -> np.ndarray:
         """The next generation's candidates, shape [population, size]."""
@@ -149,6 +166,10 @@ class LinearSearch:
     def learn(self) -> LearnResult:
         candidates = self.propose()
         scores, steps = self.score_candidates(candidates)
+        return self.finish_generation(candidates, scores, steps)
+
+    def finish_generation(self, candidates: np.ndarray, scores: np.ndarray, steps: int) -> LearnResult:
+        """Learn from a scored generation; what ``learn`` reports of it."""
         self.update(candidates, scores)
         return LearnResult(
             env_steps=steps,

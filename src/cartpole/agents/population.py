@@ -33,25 +33,73 @@ import math
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import torch
 from gymnasium.utils.seeding import np_random
 from torch import nn
 
+from cartpole.agents.a2c import A2CConfig
 from cartpole.agents.actor_critic import ActorCritic, CategoricalPolicy, schedule_value
 from cartpole.agents.env_state import derived_seed
 from cartpole.agents.learner import LearnResult
+from cartpole.agents.linear import CrossEntropyMethod, HillClimbing, RandomSearch
+from cartpole.agents.linear_population import LinearPopulation
 from cartpole.agents.policy_gradient import seeded_actor_critic
 from cartpole.agents.ppo import PPOConfig
 from cartpole.agents.rollout import generalized_advantages
 from cartpole.core.errors import ConfigError
 from cartpole.envs import EnvInfo
 from cartpole.envs.fast import DEFAULT_RESET_HIGH, DEFAULT_RESET_LOW, step_cartpole
+from cartpole.evaluation import Policy
 
-POPULATION_AGENTS = ("ppo",)
+POPULATION_AGENTS = ("ppo", "a2c", "random-search", "hill-climbing", "cem")
 """Agents that can train a population of seeds in one process."""
+
+LINEAR_SEARCHES = {"random-search": RandomSearch, "hill-climbing": HillClimbing, "cem": CrossEntropyMethod}
+
+
+class Population(Protocol):
+    """Many seeds of one agent trained side by side: what population training needs of them."""
+
+    @property
+    def active_seeds(self) -> list[int]: ...
+
+    def learn(self) -> dict[int, LearnResult]:
+        """One step (a rollout and update, or a generation) of every active seed, by seed."""
+        ...
+
+    def remove(self, seeds: list[int]) -> None:
+        """Stop training ``seeds``: they leave every batch."""
+        ...
+
+    def greedy_actor(self, seeds: list[int]) -> Callable[[np.ndarray], np.ndarray]:
+        """The greedy policies of ``seeds`` as one function of observations ``[len(seeds) * E,
+        obs_dim]`` (seed i's E rows in block i) to actions."""
+        ...
+
+    def seed_policy(self, seed: int) -> Policy: ...
+
+    def seed_state_dict(self, seed: int, resume: bool) -> tuple[dict[str, torch.Tensor], dict[str, Any]]: ...
+
+    def load_seed_state_dict(
+        self, seed: int, tensors: dict[str, torch.Tensor], data: dict[str, Any]
+    ) -> None: ...
+
+
+def make_population(
+    agent: str, config: Any, env: EnvInfo, seeds: list[int], device: str = "cpu"
+) -> Population:
+    """The population of ``agent`` (one of :data:`POPULATION_AGENTS`) for ``seeds``."""
+    if agent in LINEAR_SEARCHES:
+        return LinearPopulation(LINEAR_SEARCHES[agent], config, env, seeds)
+    if agent == "ppo":
+        return PopulationPPO(config, env, seeds, device)
+    if agent == "a2c":
+        return PopulationA2C(config, env, seeds, device)
+    raise ConfigError(f"{agent} has no population mode; agents with one: {', '.join(POPULATION_AGENTS)}")
+
 
 TORCH_ACTIVATIONS: dict[type[nn.Module], Callable[[torch.Tensor], torch.Tensor]] = {
     nn.Tanh: torch.tanh,
@@ -188,6 +236,59 @@ class PopulationAdam:
             self.steps[rows],
         )
 
+    def row_state(self, row: int) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+        tensors = {
+            "optim.exp_avg": self.exp_avg[row].clone(),
+            "optim.exp_avg_sq": self.exp_avg_sq[row].clone(),
+        }
+        return tensors, {"optim_steps": float(self.steps[row, 0])}
+
+    def load_row_state(self, row: int, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None:
+        self.exp_avg[row] = tensors["optim.exp_avg"]
+        self.exp_avg_sq[row] = tensors["optim.exp_avg_sq"]
+        self.steps[row, 0] = float(data["optim_steps"])
+
+
+class PopulationRMSprop:
+    """RMSprop (torch.optim.RMSprop's update: no momentum, not centred) over ``[S, P]`` parameters
+    with a learning rate and a "sit this step out" flag per seed."""
+
+    def __init__(self, rows: int, size: int, alpha: float, eps: float):
+        self.alpha, self.eps = alpha, eps
+        self.square_avg = torch.zeros(rows, size)
+
+    @torch.no_grad()
+    def step(self, params: torch.Tensor, grads: torch.Tensor, lr: torch.Tensor, active: torch.Tensor) -> None:
+        """One step of the seeds where ``active`` [S] is True; ``lr`` is [S]."""
+        keep = active.unsqueeze(1)
+        square_avg = self.square_avg.mul(self.alpha).addcmul_(grads, grads, value=1.0 - self.alpha)
+        update = grads / square_avg.sqrt().add_(self.eps) * lr.unsqueeze(1)
+        params.sub_(torch.where(keep, update, torch.zeros_like(update)))
+        self.square_avg = torch.where(keep, square_avg, self.square_avg)
+
+    def keep(self, rows: torch.Tensor) -> None:
+        self.square_avg = self.square_avg[rows]
+
+    def row_state(self, row: int) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+        return {"optim.square_avg": self.square_avg[row].clone()}, {}
+
+    def load_row_state(self, row: int, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None:
+        self.square_avg[row] = tensors["optim.square_avg"]
+
+
+class PopulationOptimizer(Protocol):
+    """One optimizer step for every seed of a population (see PopulationAdam, PopulationRMSprop)."""
+
+    def step(
+        self, params: torch.Tensor, grads: torch.Tensor, lr: torch.Tensor, active: torch.Tensor
+    ) -> None: ...
+
+    def keep(self, rows: torch.Tensor) -> None: ...
+
+    def row_state(self, row: int) -> tuple[dict[str, torch.Tensor], dict[str, Any]]: ...
+
+    def load_row_state(self, row: int, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None: ...
+
 
 class PopulationEnvs:
     """S x N CartPoles with Gymnasium's next-step autoreset, stepped together; seed s's envs draw
@@ -280,10 +381,21 @@ class Rollout:
 ROW_METRICS = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction")
 
 
-class PopulationPPO:
-    """PPO for seeds ``seeds``, all with ``config``: one ``learn()`` = a rollout and an update each."""
+class PopulationActorCritic:
+    """What every actor-critic population shares: the seeds' stacked networks, their envs and
+    generators, the batched rollout with GAE, gradient clipping and the optimizer step, and each
+    seed's policy and checkpoint. Subclasses say what one ``learn()`` does with a rollout."""
 
-    def __init__(self, config: PPOConfig, env: EnvInfo, seeds: list[int], device: str = "cpu"):
+    config: PPOConfig | A2CConfig
+
+    def __init__(
+        self,
+        config: PPOConfig | A2CConfig,
+        env: EnvInfo,
+        seeds: list[int],
+        device: str,
+        make_optimizer: Callable[[int, int], PopulationOptimizer],
+    ):
         config.validate()
         if not env.is_cartpole or config.simulator != "fast":
             raise ConfigError("population training runs CartPole on the fast simulator only")
@@ -296,7 +408,7 @@ class PopulationPPO:
         self.seeds = list(seeds) if len(seeds) != 1 else [seeds[0], seeds[0]]
         self.ghosts = [False] * len(seeds) if len(seeds) != 1 else [False, True]
         self.model = StackedActorCritic([seeded_actor_critic(config, env, seed) for seed in self.seeds])
-        self.optimizer = PopulationAdam(len(self.seeds), self.model.size, config.adam_eps)
+        self.optimizer = make_optimizer(len(self.seeds), self.model.size)
         self.generators = [torch.Generator().manual_seed(derived_seed(s, "actions")) for s in self.seeds]
         steps = env.max_episode_steps or 500
         self.envs = PopulationEnvs(self.seeds, config.num_envs, steps)
@@ -341,20 +453,24 @@ class PopulationPPO:
         self.episode_lengths = self.episode_lengths[envs]
         self.env_steps, self.updates = self.env_steps[rows_np], self.updates[rows_np]
 
-    # -- one learning step --------------------------------------------------------------------------
+    # -- one learning step: the shared parts --------------------------------------------------------
 
     def learn(self) -> dict[int, LearnResult]:
         """A rollout and an update for every active seed; each seed's result by seed."""
+        raise NotImplementedError
+
+    def learning_rates(self) -> list[float]:
+        """Each seed's learning rate now (schedules follow the seed's own env steps)."""
         config = self.config
-        lr = [
+        return [
             schedule_value(config.lr, config.lr_schedule, int(s), config.schedule_steps)
             for s in self.env_steps
         ]
-        clip = [
-            max(schedule_value(config.clip_range, config.clip_schedule, int(s), config.schedule_steps), 1e-8)
-            for s in self.env_steps
-        ]
-        rollout, finished = self.collect()
+
+    def count_rollout(
+        self, rollout: Rollout, finished: list[tuple[list[float], list[int]]]
+    ) -> dict[int, LearnResult]:
+        """Add each seed's rollout to its env steps; its result (steps and finished episodes)."""
         results = {}
         counts = rollout.counts.to(torch.int64).tolist()
         for row, seed in enumerate(self.seeds):
@@ -364,14 +480,33 @@ class PopulationPPO:
                 results[seed] = LearnResult(
                     env_steps=counts[row], episode_returns=returns, episode_lengths=lengths
                 )
-        metrics = self.update(rollout, torch.tensor(lr), torch.tensor(clip).unsqueeze(1))
-        for row, seed in enumerate(self.seeds):
-            if counts[row] == 0 or self.ghosts[row]:
-                continue
-            result = results[seed]
-            result.scalars = metrics[row] | {"train/learning_rate": lr[row], "train/clip_range": clip[row]}
-            result.log_scalars = True
         return results
+
+    def attach_metrics(
+        self, results: dict[int, LearnResult], rollout: Rollout, metrics: list[dict[str, float]]
+    ) -> None:
+        """Give each seed that updated its metrics row."""
+        for row, seed in enumerate(self.seeds):
+            if self.ghosts[row] or rollout.counts[row] == 0:
+                continue
+            results[seed].scalars = metrics[row]
+            results[seed].log_scalars = True
+
+    def backward_and_step(self, losses: torch.Tensor, lr: torch.Tensor, active: torch.Tensor) -> None:
+        """Gradients of every active seed's loss (``losses`` [S]), clipped per seed, one optimizer step."""
+        self.model.grad.zero_()
+        with warnings.catch_warnings():
+            # The gradients are views of one [S, P] tensor on purpose (see StackedActorCritic).
+            warnings.filterwarnings("ignore", "grad and param do not obey the gradient layout")
+            (losses * active.float()).sum().backward()
+        self.step(lr, active)
+
+    def explained_variances(self, rollout: Rollout) -> torch.Tensor:
+        """Per seed, how much of the returns' variance the values explain (NaN with no variance)."""
+        valid = rollout.valid.float()
+        variance = masked_variance(rollout.returns, valid, rollout.counts)
+        residual = masked_variance(rollout.returns - rollout.values, valid, rollout.counts)
+        return torch.where(variance > 0, 1.0 - residual / variance, torch.full_like(variance, math.nan))
 
     @torch.no_grad()
     def collect(self) -> tuple[Rollout, list[tuple[list[float], list[int]]]]:
@@ -417,9 +552,8 @@ class PopulationPPO:
             self.autoreset = step_terminated | step_truncated
             self.observations = next_obs
         observations[steps] = torch.from_numpy(self.observations)
-        return self.advantages(
-            observations, actions, log_probs, rewards, terminated, truncated, valid
-        ), finished
+        rollout = self.advantages(observations, actions, log_probs, rewards, terminated, truncated, valid)
+        return rollout, finished
 
     def advantages(
         self,
@@ -433,7 +567,7 @@ class PopulationPPO:
     ) -> Rollout:
         """GAE over every env of every seed at once (envs are columns), reshaped to [S, T * N]."""
         config = self.config
-        steps, seeds, envs = config.n_steps, len(self.seeds), config.num_envs
+        steps, seeds, envs = len(rewards), len(self.seeds), config.num_envs
 
         def per_seed(x: torch.Tensor) -> torch.Tensor:  # [T, S * N, ...] -> [S, T * N, ...]
             return (
@@ -471,6 +605,122 @@ class PopulationPPO:
             counts=valid_rows.sum(dim=1).to(torch.float32),
         )
 
+    def step(self, lr: torch.Tensor, active: torch.Tensor) -> None:
+        """Clip each seed's gradient norm to ``max_grad_norm`` (as clip_grad_norm_ does), then Adam."""
+        grads = self.model.grad
+        if self.config.max_grad_norm is not None:
+            norms = grads.square().sum(dim=1, keepdim=True).sqrt()
+            grads.mul_((self.config.max_grad_norm / (norms + 1e-6)).clamp(max=1.0))
+        self.optimizer.step(self.model.flat, grads, lr, active)
+
+    def greedy_actor(self, seeds: list[int]) -> Callable[[np.ndarray], np.ndarray]:
+        """The greedy policies of ``seeds`` as one function: observations ``[len(seeds) * E,
+        obs_dim]`` (seed i's E rows in block i) to actions, one batched forward pass per call."""
+        rows = [self.row(seed) for seed in seeds]
+        if len(rows) == 1:  # a lone seed gets the bits it gets in a batch (see ``__init__``)
+            rows = rows * 2
+        index = torch.tensor(rows, dtype=torch.int64)
+        with torch.no_grad():
+            params = {name: p.detach()[index] for name, p in self.model.params.items()}
+        plan, count = self.model.actor_plan, len(seeds)
+
+        @torch.no_grad()
+        def act(observations: np.ndarray) -> np.ndarray:
+            x = torch.from_numpy(np.asarray(observations, dtype=np.float32)).view(
+                count, -1, self.env_info.obs_dim
+            )
+            if len(rows) != count:
+                x = torch.cat([x, x])
+            logits = StackedActorCritic.run(plan, params, x)[:count]
+            return logits.argmax(dim=-1).reshape(-1).numpy()
+
+        return act
+
+    # -- one seed, as a single run sees it ----------------------------------------------------------
+
+    def seed_policy(self, seed: int) -> CategoricalPolicy:
+        """Seed ``seed``'s greedy policy (a frozen copy)."""
+        return CategoricalPolicy(self.model.unstack(self.row(seed)))
+
+    def seed_state_dict(self, seed: int, resume: bool) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+        """Seed ``seed``'s checkpoint: ``model.*`` as the single run's (``load_policy`` reads it), and
+        with ``resume`` its optimizer, generators, envs and counters."""
+        row = self.row(seed)
+        model = self.model.unstack(row)
+        tensors = {f"model.{k}": v.detach().clone() for k, v in model.state_dict().items()}
+        data: dict[str, Any] = {"obs_dim": self.env_info.obs_dim, "n_actions": self.env_info.n_actions}
+        if not resume:
+            return tensors, data
+        envs = slice(row * self.config.num_envs, (row + 1) * self.config.num_envs)
+        optim_tensors, optim_data = self.optimizer.row_state(row)
+        tensors |= optim_tensors | {
+            "rng.torch": self.generators[row].get_state(),
+            "collector.observations": torch.from_numpy(self.observations[envs].copy()),
+        }
+        data |= {
+            "population": True,
+            **optim_data,
+            "collector": {
+                "autoreset": self.autoreset[envs].tolist(),
+                "episode_returns": self.episode_returns[envs].tolist(),
+                "episode_lengths": self.episode_lengths[envs].tolist(),
+                "env_state": self.envs.seed_state(row),
+            },
+            "env_steps": int(self.env_steps[row]),
+            "updates": int(self.updates[row]),
+        }
+        return tensors, data
+
+    def load_seed_state_dict(self, seed: int, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None:
+        """Restore what ``seed_state_dict(seed, resume=True)`` gave."""
+        if not data.get("population"):
+            raise ConfigError("not a population checkpoint: resume it as a single run")
+        row = self.row(seed)
+        model = self.model.template
+        model.load_state_dict(
+            {k.removeprefix("model."): v for k, v in tensors.items() if k.startswith("model.")}
+        )
+        self.model.load_row(row, model)
+        self.optimizer.load_row_state(row, tensors, data)
+        self.generators[row].set_state(tensors["rng.torch"])
+        envs = slice(row * self.config.num_envs, (row + 1) * self.config.num_envs)
+        collector = data["collector"]
+        self.observations[envs] = tensors["collector.observations"].numpy()
+        self.autoreset[envs] = collector["autoreset"]
+        self.episode_returns[envs] = collector["episode_returns"]
+        self.episode_lengths[envs] = collector["episode_lengths"]
+        self.envs.load_seed_state(row, collector["env_state"])
+        self.env_steps[row], self.updates[row] = int(data["env_steps"]), int(data["updates"])
+
+
+class PopulationPPO(PopulationActorCritic):
+    """PPO for seeds ``seeds``, all with ``config``: one ``learn()`` = a rollout and an update each."""
+
+    config: PPOConfig
+
+    def __init__(self, config: PPOConfig, env: EnvInfo, seeds: list[int], device: str = "cpu"):
+        def make_optimizer(rows: int, size: int) -> PopulationOptimizer:
+            return PopulationAdam(rows, size, config.adam_eps)
+
+        super().__init__(config, env, seeds, device, make_optimizer)
+
+    # -- one learning step --------------------------------------------------------------------------
+
+    def learn(self) -> dict[int, LearnResult]:
+        """A rollout and an update for every active seed; each seed's result by seed."""
+        config = self.config
+        lr = self.learning_rates()
+        clip = [
+            max(schedule_value(config.clip_range, config.clip_schedule, int(s), config.schedule_steps), 1e-8)
+            for s in self.env_steps
+        ]
+        rollout, finished = self.collect()
+        results = self.count_rollout(rollout, finished)
+        metrics = self.update(rollout, torch.tensor(lr), torch.tensor(clip).unsqueeze(1))
+        extra = [{"train/learning_rate": r, "train/clip_range": c} for r, c in zip(lr, clip, strict=True)]
+        self.attach_metrics(results, rollout, [m | e for m, e in zip(metrics, extra, strict=True)])
+        return results
+
     def update(self, rollout: Rollout, lr: torch.Tensor, clip: torch.Tensor) -> list[dict[str, float]]:
         """``n_epochs`` passes of each seed's shuffled valid rows in minibatches; per-seed metrics."""
         config = self.config
@@ -499,19 +749,12 @@ class PopulationPPO:
                     active &= ~over
                 if not bool(active.any()):
                     continue
-                self.model.grad.zero_()
-                with warnings.catch_warnings():
-                    # The gradients are views of one [S, P] tensor on purpose (see StackedActorCritic).
-                    warnings.filterwarnings("ignore", "grad and param do not obey the gradient layout")
-                    (losses * active.float()).sum().backward()
-                self.step(lr, active)
+                self.backward_and_step(losses, lr, active)
                 sums += row_metrics * active.float().unsqueeze(1)
                 done_steps += active.float()
         self.updates += has_rows.numpy()
         means = (sums / done_steps.clamp(min=1.0).unsqueeze(1)).tolist()
-        variance = masked_variance(rollout.returns, rollout.valid.float(), rollout.counts)
-        residual = masked_variance(rollout.returns - rollout.values, rollout.valid.float(), rollout.counts)
-        explained = torch.where(variance > 0, 1.0 - residual / variance, torch.full_like(variance, math.nan))
+        explained = self.explained_variances(rollout)
         metrics = []
         for row in range(seeds):
             scalars = {"train/updates": float(self.updates[row]), "train/stopped_early": float(stopped[row])}
@@ -563,72 +806,60 @@ class PopulationPPO:
             row_metrics = torch.stack([policy_loss, value_loss, entropy, approx_kl, clip_fraction], dim=1)
         return loss, row_metrics.detach(), approx_kl
 
-    def step(self, lr: torch.Tensor, active: torch.Tensor) -> None:
-        """Clip each seed's gradient norm to ``max_grad_norm`` (as clip_grad_norm_ does), then Adam."""
-        grads = self.model.grad
-        if self.config.max_grad_norm is not None:
-            norms = grads.square().sum(dim=1, keepdim=True).sqrt()
-            grads.mul_((self.config.max_grad_norm / (norms + 1e-6)).clamp(max=1.0))
-        self.optimizer.step(self.model.flat, grads, lr, active)
 
-    # -- one seed, as a single run sees it ----------------------------------------------------------
+class PopulationA2C(PopulationActorCritic):
+    """A2C for seeds ``seeds``, all with ``config``: one ``learn()`` = a rollout and one gradient step
+    on all of it for each seed, as :class:`~cartpole.agents.a2c.A2CLearner` does."""
 
-    def seed_policy(self, seed: int) -> CategoricalPolicy:
-        """Seed ``seed``'s greedy policy (a frozen copy)."""
-        return CategoricalPolicy(self.model.unstack(self.row(seed)))
+    config: A2CConfig
 
-    def seed_state_dict(self, seed: int, resume: bool) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
-        """Seed ``seed``'s checkpoint: ``model.*`` as the single run's (``load_policy`` reads it), and
-        with ``resume`` its optimizer, generators, envs and counters."""
-        row = self.row(seed)
-        model = self.model.unstack(row)
-        tensors = {f"model.{k}": v.detach().clone() for k, v in model.state_dict().items()}
-        data: dict[str, Any] = {"obs_dim": self.env_info.obs_dim, "n_actions": self.env_info.n_actions}
-        if not resume:
-            return tensors, data
-        envs = slice(row * self.config.num_envs, (row + 1) * self.config.num_envs)
-        tensors |= {
-            "optim.exp_avg": self.optimizer.exp_avg[row].clone(),
-            "optim.exp_avg_sq": self.optimizer.exp_avg_sq[row].clone(),
-            "rng.torch": self.generators[row].get_state(),
-            "collector.observations": torch.from_numpy(self.observations[envs].copy()),
-        }
-        data |= {
-            "population": True,
-            "optim_steps": float(self.optimizer.steps[row, 0]),
-            "collector": {
-                "autoreset": self.autoreset[envs].tolist(),
-                "episode_returns": self.episode_returns[envs].tolist(),
-                "episode_lengths": self.episode_lengths[envs].tolist(),
-                "env_state": self.envs.seed_state(row),
-            },
-            "env_steps": int(self.env_steps[row]),
-            "updates": int(self.updates[row]),
-        }
-        return tensors, data
+    def __init__(self, config: A2CConfig, env: EnvInfo, seeds: list[int], device: str = "cpu"):
+        def make_optimizer(rows: int, size: int) -> PopulationOptimizer:
+            if config.optimizer == "adam":
+                return PopulationAdam(rows, size, config.optimizer_eps)
+            return PopulationRMSprop(rows, size, config.rms_alpha, config.optimizer_eps)
 
-    def load_seed_state_dict(self, seed: int, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None:
-        """Restore what ``seed_state_dict(seed, resume=True)`` gave."""
-        if not data.get("population"):
-            raise ConfigError("not a population checkpoint: resume it as a single run")
-        row = self.row(seed)
-        model = self.model.template
-        model.load_state_dict(
-            {k.removeprefix("model."): v for k, v in tensors.items() if k.startswith("model.")}
-        )
-        self.model.load_row(row, model)
-        self.optimizer.exp_avg[row] = tensors["optim.exp_avg"]
-        self.optimizer.exp_avg_sq[row] = tensors["optim.exp_avg_sq"]
-        self.optimizer.steps[row, 0] = float(data["optim_steps"])
-        self.generators[row].set_state(tensors["rng.torch"])
-        envs = slice(row * self.config.num_envs, (row + 1) * self.config.num_envs)
-        collector = data["collector"]
-        self.observations[envs] = tensors["collector.observations"].numpy()
-        self.autoreset[envs] = collector["autoreset"]
-        self.episode_returns[envs] = collector["episode_returns"]
-        self.episode_lengths[envs] = collector["episode_lengths"]
-        self.envs.load_seed_state(row, collector["env_state"])
-        self.env_steps[row], self.updates[row] = int(data["env_steps"]), int(data["updates"])
+        super().__init__(config, env, seeds, device, make_optimizer)
+
+    def learn(self) -> dict[int, LearnResult]:
+        config = self.config
+        lr = self.learning_rates()
+        rollout, finished = self.collect()
+        results = self.count_rollout(rollout, finished)
+        valid, count = rollout.valid.float(), rollout.counts
+        logits, values = self.model.logits_and_values(rollout.observations)
+        log_probs_all = torch.log_softmax(logits, dim=-1)
+        log_probs = log_probs_all.gather(-1, rollout.actions.unsqueeze(-1)).squeeze(-1)
+        entropy = masked_mean(-(log_probs_all.exp() * log_probs_all).sum(dim=-1), valid, count)
+        advantages = rollout.advantages
+        if config.normalize_advantages:
+            advantages = masked_normalize(advantages, valid, count)
+        policy_loss = masked_mean(-(advantages * log_probs), valid, count)
+        value_loss = 0.5 * masked_mean((values - rollout.returns).square(), valid, count)
+        loss = policy_loss - config.ent_coef * entropy + config.vf_coef * value_loss
+        active = count > 0
+        self.backward_and_step(loss, torch.tensor(lr), active)
+        self.updates += active.numpy()
+        with torch.no_grad():  # how far the step moved each policy on its own batch
+            new_log_probs = torch.log_softmax(self.model.logits(rollout.observations), dim=-1)
+            log_ratio = (
+                new_log_probs.gather(-1, rollout.actions.unsqueeze(-1)).squeeze(-1) - rollout.log_probs
+            )
+            approx_kl = masked_mean((log_ratio.exp() - 1.0) - log_ratio, valid, count)
+            rows = torch.stack([policy_loss, value_loss, entropy, approx_kl], dim=1).tolist()
+        explained = self.explained_variances(rollout).tolist()
+        names = ("policy_loss", "value_loss", "entropy", "approx_kl")
+        metrics = [
+            {f"train/{name}": v for name, v in zip(names, row, strict=True)}
+            | {
+                "train/explained_variance": explained[i],
+                "train/learning_rate": lr[i],
+                "train/updates": float(self.updates[i]),
+            }
+            for i, row in enumerate(rows)
+        ]
+        self.attach_metrics(results, rollout, metrics)
+        return results
 
 
 def masked_variance(x: torch.Tensor, mask: torch.Tensor, count: torch.Tensor) -> torch.Tensor:
@@ -638,25 +869,34 @@ def masked_variance(x: torch.Tensor, mask: torch.Tensor, count: torch.Tensor) ->
     return torch.where(count > 1.0, variance, torch.zeros_like(variance))
 
 
-def bytes_per_seed(config: PPOConfig, env: EnvInfo) -> int:
+def bytes_per_seed(config: Any, env: EnvInfo) -> int:
     """What one seed of a population holds, roughly: parameters with their gradient and Adam state,
-    the rollout, a minibatch's activations, and the per-seed bookkeeping (run folder, callbacks)."""
+    the rollout, a minibatch's activations, and the per-seed bookkeeping (run folder, callbacks);
+    for a linear search, its generation's envs and the bookkeeping."""
+    bookkeeping = 2 * 1024**2
+    if not isinstance(config, PPOConfig | A2CConfig):
+        envs = config.population * config.episodes_per_candidate
+        return envs * (env.obs_dim + 8) * 8 * 4 + bookkeeping
     sizes = [env.obs_dim, *config.hidden_sizes]
     trunk = sum(n_in * n_out + n_out for n_in, n_out in itertools.pairwise(sizes))
     heads = sizes[-1] * (env.n_actions + 1) + env.n_actions + 1
     parameters = trunk * (1 if config.shared_trunk else 2) + heads
     rows = config.n_steps * config.num_envs
     rollout = rows * (env.obs_dim + 8) * 4 * 3
-    activations = config.minibatch_size * sum(config.hidden_sizes) * 4 * 12
-    bookkeeping = 2 * 1024**2
+    batch = config.minibatch_size if isinstance(config, PPOConfig) else rows
+    activations = batch * sum(config.hidden_sizes) * 4 * 12
     return parameters * 4 * 6 + rollout + activations + bookkeeping
 
 
 __all__ = [
     "POPULATION_AGENTS",
+    "Population",
+    "PopulationA2C",
     "PopulationAdam",
     "PopulationEnvs",
     "PopulationPPO",
+    "PopulationRMSprop",
     "StackedActorCritic",
     "bytes_per_seed",
+    "make_population",
 ]

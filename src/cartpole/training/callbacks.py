@@ -71,8 +71,17 @@ class EvalCallback(Callback):
     :func:`eval_seed`, disjoint from training seeds and different at every evaluation.
     """
 
-    def __init__(self, env: EnvInfo, seed: int, settings: TrainSettings):
+    def __init__(
+        self,
+        env: EnvInfo,
+        seed: int,
+        settings: TrainSettings,
+        evaluator: Callable[[TrainingLoop], EvalReport | None] | None = None,
+    ):
         self.env, self.seed, self.settings = env, seed, settings
+        self.evaluator = evaluator
+        """Where a report may already be waiting (a population evaluates its seeds together);
+        None from it, or no evaluator, and this callback evaluates the policy itself."""
 
     def on_step(self, loop: TrainingLoop, result: LearnResult) -> bool:
         if loop.state.env_steps - loop.state.last_eval_step < self.settings.eval_every:
@@ -89,6 +98,9 @@ class EvalCallback(Callback):
             loop.record_eval(self.evaluate(loop))
 
     def evaluate(self, loop: TrainingLoop) -> EvalReport:
+        report = self.evaluator(loop) if self.evaluator is not None else None
+        if report is not None:
+            return report
         return screened_evaluation(
             loop.learner.policy(), self.env, self.seed, loop.state.evaluations, self.settings
         )
@@ -229,12 +241,12 @@ def finite(scalars: dict[str, float]) -> dict[str, float]:
 
 
 class MetricsCallback(Callback):
-    """Appends metric rows to ``metrics.jsonl`` every ``FLUSH_SECONDS`` (and before each ``latest``)."""
+    """Appends metric rows to ``metrics.jsonl`` every ``flush_seconds`` (and before each ``latest``)."""
 
     FLUSH_SECONDS = 1.0
 
-    def __init__(self, run: RunDir):
-        self.run = run
+    def __init__(self, run: RunDir, flush_seconds: float = FLUSH_SECONDS):
+        self.run, self.flush_seconds = run, flush_seconds
         self.pending: list[dict[str, Any]] = []
         self.listeners: list[Callable[[list[dict[str, Any]]], None]] = []
         """Also given every batch of rows written (e.g. :class:`TensorBoardCallback`)."""
@@ -262,7 +274,7 @@ class MetricsCallback(Callback):
             row = self.base_row(loop) | {"train/iteration": loop.state.iterations}
             self.pending.append(row | finite(result.scalars))
         now = time.perf_counter()
-        if now - self.last_flush >= self.FLUSH_SECONDS:
+        if now - self.last_flush >= self.flush_seconds:
             self.flush(loop, now)
         return True
 
@@ -317,7 +329,7 @@ def status_fields(state: LoopState) -> dict[str, Any]:
 
 
 class StatusCallback(Callback):
-    """Keeps ``status.json`` "running" with fresh counters every ``FLUSH_SECONDS``.
+    """Keeps ``status.json`` "running" with fresh counters every ``flush_seconds``.
 
     It never writes an end state: the session does, once ``latest`` and the verdict are on disk.
     (The heartbeat between writes comes from :class:`~cartpole.runs.LiveStatus`'s thread.)
@@ -325,8 +337,8 @@ class StatusCallback(Callback):
 
     FLUSH_SECONDS = 1.0
 
-    def __init__(self, status: LiveStatus):
-        self.status = status
+    def __init__(self, status: LiveStatus, flush_seconds: float = FLUSH_SECONDS):
+        self.status, self.flush_seconds = status, flush_seconds
         self.last_write = 0.0
 
     def write(self, loop: TrainingLoop) -> None:
@@ -337,7 +349,7 @@ class StatusCallback(Callback):
         self.write(loop)
 
     def on_step(self, loop: TrainingLoop, result: LearnResult) -> bool:
-        if time.perf_counter() - self.last_write >= self.FLUSH_SECONDS:
+        if time.perf_counter() - self.last_write >= self.flush_seconds:
             self.write(loop)
         return True
 

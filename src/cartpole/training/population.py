@@ -3,11 +3,12 @@
 Each seed is an ordinary run: its own run folder (config, status, metrics, checkpoints, verdict),
 written by the same callbacks a single run uses (:func:`cartpole.training.session.make_callbacks`),
 so ``cartpole runs``, ``eval`` and ``plot`` read it unchanged. Only the learning is shared: one
-:class:`~cartpole.agents.population.PopulationPPO` steps every seed's envs and updates every seed's
-network per ``learn()``. A seed that stops (verified solve with stop-when-solved, or its budget)
-leaves the batch at once; the population ends when every seed has stopped. The final verdicts (100
-greedy episodes per seed on Gymnasium's own env, seeds from :func:`final_eval_seed`) run as one
-batched evaluation on one Gymnasium vector env.
+:class:`~cartpole.agents.population.Population` steps every seed's envs and updates every seed's
+network (or scores every seed's generation) per ``learn()``, and the periodic evaluations of all the
+seeds due at a step play together (:class:`PopulationEvaluations`). A seed that stops (verified
+solve with stop-when-solved, or its budget) leaves the batch at once; the population ends when
+every seed has stopped. The final verdicts (100 greedy episodes per seed on Gymnasium's own env,
+seeds from :func:`final_eval_seed`) run as one batched evaluation on one Gymnasium vector env.
 
 The config records ``population`` (an id and the seeds): ``--resume`` of any member continues every
 unfinished member of its population.
@@ -21,6 +22,7 @@ import sys
 import time
 import uuid
 from collections import Counter
+from collections.abc import Callable
 from contextlib import ExitStack, suppress
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,17 +31,17 @@ from typing import Any, TextIO
 import numpy as np
 
 from cartpole.agents.learner import LearnResult
-from cartpole.agents.population import POPULATION_AGENTS, PopulationPPO, bytes_per_seed
+from cartpole.agents.population import POPULATION_AGENTS, Population, bytes_per_seed, make_population
 from cartpole.agents.registry import get_agent
 from cartpole.core.errors import InputError
 from cartpole.core.names import CheckpointName, RunState, StopReason
-from cartpole.core.seeding import MAX_TRAIN_SEED, final_eval_seed
-from cartpole.envs import check_simulator, env_info, make_vec_env
-from cartpole.evaluation import MIN_EPISODES_FOR_SOLVED, EvalReport, Policy, start_states
+from cartpole.core.seeding import MAX_TRAIN_SEED, eval_seed, final_eval_seed
+from cartpole.envs import EnvInfo, Simulator, check_simulator, env_info
+from cartpole.evaluation import MIN_EPISODES_FOR_SOLVED, EvalReport, Policy, play_greedy_episodes
 from cartpole.runs import LiveStatus, RunDir, displayed_state, load_checkpoint
 from cartpole.training.budget import Budget, parse_budget
 from cartpole.training.callbacks import status_fields
-from cartpole.training.config import resolve_config
+from cartpole.training.config import TrainSettings, resolve_config
 from cartpole.training.loop import LoopState, TrainingLoop
 from cartpole.training.session import (
     RESUMABLE_STOPS,
@@ -52,6 +54,11 @@ from cartpole.training.session import (
 
 MAX_SEEDS = 4096
 """More seeds than this in one process: split them (each seed holds a run folder and a status thread)."""
+
+FLUSH_SECONDS = 5.0
+"""How often each seed of a population writes its metric rows and status (a single run: every
+second). A hundred seeds writing every second spend more on files than on bookkeeping; the status
+thread's heartbeat still shows each run alive, and ``latest`` still writes the rows first."""
 
 # ----------------------------------------------------------------------------------------------
 # --seeds
@@ -135,11 +142,11 @@ class SeedLearner:
     ``learn`` is the population's business (all seeds at once), so it is not offered here.
     """
 
-    def __init__(self, population: PopulationPPO, seed: int):
+    def __init__(self, population: Population, seed: int):
         self.population, self.seed = population, seed
 
     def learn(self) -> Any:
-        raise RuntimeError("a population seed learns through PopulationPPO.learn")
+        raise RuntimeError("a population seed learns through its population's learn()")
 
     def policy(self) -> Policy:
         return self.population.seed_policy(self.seed)
@@ -168,6 +175,83 @@ class SeedLoop(TrainingLoop):
         self.state.elapsed = now - self.clock_start
         for cb in self.callbacks:
             cb.on_end(self)
+
+
+class PopulationEvaluations:
+    """The periodic evaluations of all seeds due at one step, played together.
+
+    As :func:`~cartpole.training.callbacks.screened_evaluation` plays them for one seed (the same
+    episode seeds, the same screen, the same full evaluation when the screen passes), but every due
+    seed's episodes run in one vector env, with one batched forward pass of all their networks per
+    env step. ``prepare`` runs before the seeds' loops see the step; each seed's evaluation
+    callback then takes its report (``evaluator``) instead of evaluating alone.
+    """
+
+    def __init__(self, population: Population, env: EnvInfo, settings: TrainSettings):
+        self.population, self.env, self.settings = population, env, settings
+        self.waiting: dict[int, EvalReport] = {}
+
+    def evaluator(self, seed: int) -> Callable[[TrainingLoop], EvalReport | None]:
+        """Seed ``seed``'s report of this step, if one was prepared for it."""
+        return lambda loop: self.waiting.pop(seed, None)
+
+    def prepare(self, active: dict[int, Member], results: dict[int, LearnResult]) -> None:
+        """Evaluate every seed whose loop will want an evaluation once it counts ``results``."""
+        due = []
+        for seed, result in results.items():
+            state = active[seed].loop.state
+            if state.env_steps + result.env_steps - state.last_eval_step >= self.settings.eval_every:
+                due.append((seed, state.evaluations))
+        self.waiting = self.screened(due) if due else {}
+
+    def clear(self) -> None:
+        self.waiting = {}
+
+    def screened(self, due: list[tuple[int, int]]) -> dict[int, EvalReport]:
+        """Reports of the ``(seed, evaluation index)`` pairs in ``due``: screens on the fast
+        simulator, then the full evaluation for the seeds whose screen reached the threshold."""
+        settings, threshold = self.settings, self.env.reward_threshold
+        screens = self.play(
+            [seed for seed, _ in due],
+            [eval_seed(seed, 2 * index) for seed, index in due],
+            settings.eval_screen_episodes,
+            "fast",
+        )
+        reports = {seed: report for (seed, _), report in zip(due, screens, strict=True)}
+        passed = [
+            (seed, index) for seed, index in due if threshold is not None and reports[seed].mean >= threshold
+        ]
+        if passed:
+            full = self.play(
+                [seed for seed, _ in passed],
+                [eval_seed(seed, 2 * index + 1) for seed, index in passed],
+                settings.eval_episodes,
+                check_simulator(settings.eval_simulator),
+            )
+            reports.update(zip([seed for seed, _ in passed], full, strict=True))
+        return reports
+
+    def play(
+        self, seeds: list[int], first_seeds: list[int], episodes: int, simulator: Simulator
+    ) -> list[EvalReport]:
+        """Seed i's greedy policy plays episodes from ``first_seeds[i], first_seeds[i] + 1, ...``."""
+        episode_seeds = [[first + i for i in range(episodes)] for first in first_seeds]
+        flat = [s for row in episode_seeds for s in row]
+        returns, lengths = play_greedy_episodes(
+            self.population.greedy_actor(seeds), self.env.env_id, flat, simulator
+        )
+        return [
+            EvalReport(
+                env_id=self.env.env_id,
+                simulator=simulator,
+                returns=returns[i * episodes : (i + 1) * episodes].tolist(),
+                lengths=lengths[i * episodes : (i + 1) * episodes].tolist(),
+                seeds=row,
+                threshold=self.env.reward_threshold,
+                max_episode_steps=self.env.max_episode_steps,
+            )
+            for i, row in enumerate(episode_seeds)
+        ]
 
 
 @dataclass
@@ -231,7 +315,7 @@ def train_population(
     budget = budget or parse_budget(settings.budget)
     device = "cpu" if device == "auto" else resolve_device(device)
     check_memory(bytes_per_seed(config, env) * len(seeds), len(seeds))
-    population = PopulationPPO(config, env, seeds, device)
+    population = make_population(agent, config, env, seeds, device)
     population_record = {"id": uuid.uuid4().hex[:12], "seeds": list(seeds)}
     runs_path = Path(runs_dir)
     with ExitStack() as stack:
@@ -283,7 +367,9 @@ def resume_population(
             stack.enter_context(run.lock())
         setups = [RunSetup.from_record(run, run.config()) for run in runs]
         first = setups[0]
-        population = PopulationPPO(first.config, first.env, [s.seed for s in setups], "cpu")
+        population = make_population(
+            first.spec.name, first.config, first.env, [s.seed for s in setups], "cpu"
+        )
         states: dict[int, LoopState] = {}
         for setup in setups:
             latest = setup.run.checkpoint_path(CheckpointName.LATEST)
@@ -301,7 +387,7 @@ def resume_population(
 
 
 def run_population(
-    population: PopulationPPO,
+    population: Population,
     setups: list[RunSetup],
     states: dict[int, LoopState],
     quiet: bool,
@@ -311,14 +397,14 @@ def run_population(
     started = time.perf_counter()
     received: list[int] = []
     members: list[Member] = []
+    evaluations = PopulationEvaluations(population, setups[0].env, setups[0].settings)
     with ExitStack() as stack:
         for setup in setups:
             status = stack.enter_context(LiveStatus(setup.run))
-            loop = SeedLoop(
-                SeedLearner(population, setup.seed),
-                make_callbacks(setup, status, True),
-                states.get(setup.seed),
+            callbacks = make_callbacks(
+                setup, status, True, evaluator=evaluations.evaluator(setup.seed), flush_seconds=FLUSH_SECONDS
             )
+            loop = SeedLoop(SeedLearner(population, setup.seed), callbacks, states.get(setup.seed))
             members.append(Member(setup, status, loop))
         progress = PopulationProgress(
             len(members), setups[0].budget, None if quiet else (stream or sys.stderr)
@@ -332,9 +418,11 @@ def run_population(
             end_stopped(population, active, time.perf_counter())
             while active and not received:
                 results = population.learn()
+                evaluations.prepare(active, results)
                 now = time.perf_counter()
                 for seed, result in results.items():
                     active[seed].loop.advance(result, now)
+                evaluations.clear()
                 end_stopped(population, active, now)
                 progress.update(members, now - started)
             if received:
@@ -366,7 +454,7 @@ def run_population(
         )
 
 
-def end_stopped(population: PopulationPPO, active: dict[int, Member], now: float) -> None:
+def end_stopped(population: Population, active: dict[int, Member], now: float) -> None:
     """End the loops of members that have stopped (their callbacks save ``latest``, judge the last
     policy), then drop them from the population's batch."""
     stopped = [seed for seed, m in active.items() if m.loop.state.stop_reason is not None]
@@ -377,7 +465,7 @@ def end_stopped(population: PopulationPPO, active: dict[int, Member], now: float
 
 
 def interrupt(
-    population: PopulationPPO, members: list[Member], active: dict[int, Member], signum: int, started: float
+    population: Population, members: list[Member], active: dict[int, Member], signum: int, started: float
 ) -> PopulationOutcome:
     """A stop signal: every member still training saves ``latest`` and is marked interrupted."""
     now = time.perf_counter()
@@ -415,7 +503,16 @@ def final_verdicts(members: list[Member]) -> dict[int, EvalReport]:
         for m in members
     ]
     episode_seeds = [[final_eval_seed(m.seed) + i for i in range(episodes)] for m in members]
-    returns, lengths = play_greedy_episodes(policies, first.env.env_id, episode_seeds, simulator)
+
+    def act(observations: np.ndarray) -> np.ndarray:  # policy i acts on block i of the rows
+        blocks = np.split(observations, len(policies))
+        return np.concatenate([policy.act(block) for policy, block in zip(policies, blocks, strict=True)])
+
+    flat_seeds = [s for row in episode_seeds for s in row]
+    returns, lengths = (
+        x.reshape(len(members), episodes)
+        for x in play_greedy_episodes(act, first.env.env_id, flat_seeds, simulator)
+    )
     reports = {}
     for i, member in enumerate(members):
         report = EvalReport(
@@ -430,41 +527,6 @@ def final_verdicts(members: list[Member]) -> dict[int, EvalReport]:
         member.setup.run.write_eval(report.to_dict())
         reports[member.seed] = report
     return reports
-
-
-def play_greedy_episodes(
-    policies: list[Policy], env_id: str, seeds: list[list[int]], simulator: str
-) -> tuple[np.ndarray, np.ndarray]:
-    """Policy i plays one greedy episode from each of ``seeds[i]`` (the start state Gymnasium's
-    single env gives for that seed), all in one vector env; returns and lengths ``[P, E]``."""
-    count, episodes = len(policies), len(seeds[0])
-    n = count * episodes
-    env = make_vec_env(env_id, n, simulator=simulator)
-    try:
-        env.reset(seed=seeds[0][0])
-        states = start_states(env_id, [s for row in seeds for s in row])
-        base = env.unwrapped
-        if hasattr(base, "set_state"):  # our fast simulator
-            base.set_state(states)
-        else:  # Gymnasium's CartPoleVectorEnv keeps its state as [4, num_envs] float64
-            base.state = states.T.copy()  # type: ignore[attr-defined]
-        observations = states.astype(np.float32)
-        returns = np.zeros(n, dtype=np.float64)
-        lengths = np.zeros(n, dtype=np.int64)
-        running = np.ones(n, dtype=bool)
-        actions = np.zeros(n, dtype=np.int64)
-        while running.any():
-            for i, policy in enumerate(policies):
-                rows = slice(i * episodes, (i + 1) * episodes)
-                if running[rows].any():
-                    actions[rows] = policy.act(observations[rows])
-            observations, rewards, terminated, truncated, _ = env.step(actions)
-            returns += np.where(running, rewards, 0.0)
-            lengths += running
-            running &= ~(terminated | truncated)
-        return returns.reshape(count, episodes), lengths.reshape(count, episodes)
-    finally:
-        env.close()
 
 
 # ----------------------------------------------------------------------------------------------

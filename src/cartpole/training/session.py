@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import signal
 import sys
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from pathlib import Path
@@ -152,21 +152,34 @@ class RunSetup:
 
 
 def make_callbacks(
-    setup: RunSetup, status: LiveStatus, quiet: bool, extra: Sequence[Callback] = ()
+    setup: RunSetup,
+    status: LiveStatus,
+    quiet: bool,
+    extra: Sequence[Callback] = (),
+    *,
+    evaluator: Callable[[TrainingLoop], EvalReport | None] | None = None,
+    flush_seconds: float = MetricsCallback.FLUSH_SECONDS,
 ) -> list[Callback]:
-    """The standard callbacks, in the order they must see events; ``extra`` ones see them last."""
+    """The standard callbacks, in the order they must see events; ``extra`` ones see them last.
+
+    ``evaluator`` may hand the evaluation callback a report computed elsewhere (a population
+    evaluates its seeds together); ``flush_seconds`` is how often metric rows and status are written.
+    """
     run, settings = setup.run, setup.settings
-    callbacks: list[Callback] = [BudgetCallback(setup.budget), EvalCallback(setup.env, setup.seed, settings)]
+    callbacks: list[Callback] = [
+        BudgetCallback(setup.budget),
+        EvalCallback(setup.env, setup.seed, settings, evaluator),
+    ]
     if settings.stop_when_solved:
         callbacks.append(StopWhenSolved())
     # Metrics before checkpoints: a step's rows are pending before ``latest`` is saved, which writes
     # them first, so a resume from ``latest`` continues the rows without a gap even after a kill -9.
-    metrics = MetricsCallback(run)
+    metrics = MetricsCallback(run, flush_seconds)
     schedule = CheckpointSchedule.from_settings(setup.budget, settings)
     callbacks += [
         metrics,
         CheckpointCallback(run, setup.spec, setup.meta, schedule, metrics),
-        StatusCallback(status),
+        StatusCallback(status, flush_seconds),
     ]
     if setup.tensorboard:
         callbacks.append(TensorBoardCallback(run, metrics))

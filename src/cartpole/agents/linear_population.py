@@ -1,0 +1,109 @@
+"""Linear-policy searches for a population of seeds in one process: a batch of populations.
+
+Every seed is its single run's search (:mod:`cartpole.agents.linear`): its own generator, its own
+candidates, its own update, the same start states. What is shared is the simulation: each
+generation, the candidates of every seed play their episodes in one vector env of the fast
+simulator, stepped by one call per step. Because the fast simulator steps every env on its own and
+a candidate's actions depend only on its own parameters and observations, each seed's generations
+are bit-identical to its single run's (tested), whichever seeds share the process.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+from cartpole.agents.learner import LearnResult
+from cartpole.agents.linear import (
+    LinearPolicy,
+    LinearSearch,
+    LinearSearchConfig,
+    batched_actions,
+    play_candidates,
+)
+from cartpole.core.errors import ConfigError
+from cartpole.envs import EnvInfo, make_vec_env
+
+
+class LinearPopulation:
+    """The searches of seeds ``seeds``, all of class ``search`` with ``config``: one ``learn()`` =
+    one generation of every seed."""
+
+    def __init__(
+        self, search: type[LinearSearch], config: LinearSearchConfig, env: EnvInfo, seeds: list[int]
+    ):
+        config.validate()
+        if not env.is_cartpole or config.simulator != "fast":
+            raise ConfigError("population training runs CartPole on the fast simulator only")
+        self.config, self.env_info = config, env
+        self.searches = {seed: search(config, env, seed) for seed in seeds}
+        self.shared_env: gym.vector.VectorEnv | None = None
+
+    @property
+    def active_seeds(self) -> list[int]:
+        return list(self.searches)
+
+    def remove(self, seeds: list[int]) -> None:
+        """Stop searching for ``seeds`` (solved or out of budget)."""
+        for seed in seeds:
+            self.searches.pop(seed).vec_env.close()
+
+    def envs_for(self, count: int) -> gym.vector.VectorEnv:
+        """One fast vector env of ``count`` envs (made again only when the population shrinks)."""
+        if self.shared_env is None or self.shared_env.num_envs != count:
+            if self.shared_env is not None:
+                self.shared_env.close()
+            self.shared_env = make_vec_env(self.env_info.env_id, count, simulator="fast")
+        return self.shared_env
+
+    def learn(self) -> dict[int, LearnResult]:
+        """One generation of every seed: each proposes and resets its own envs as its single run
+        does, then all candidates play together from those start states."""
+        searches = list(self.searches.items())
+        candidates = [search.propose() for _, search in searches]
+        starts = [search.reset_episodes() for _, search in searches]
+        states = np.concatenate([search.vec_env.unwrapped.get_state() for _, search in searches])  # type: ignore[attr-defined]
+        env = self.envs_for(len(states))
+        env.reset(seed=0)  # fresh step counters; the states are overwritten just below
+        env.unwrapped.set_state(states)  # type: ignore[attr-defined]
+        shape = searches[0][1].shape
+        returns, steps = play_candidates(env, np.concatenate(candidates), np.concatenate(starts), shape)
+        results, first = {}, 0
+        for (seed, search), mine in zip(searches, candidates, strict=True):
+            rows = slice(first, first + len(mine))
+            first += len(mine)
+            scores = returns[rows].mean(axis=1)
+            results[seed] = search.finish_generation(mine, scores, int(steps[rows].sum()))
+        return results
+
+    def greedy_actor(self, seeds: list[int]) -> Callable[[np.ndarray], np.ndarray]:
+        """The kept policies of ``seeds`` as one function: observations ``[len(seeds) * E,
+        obs_dim]`` (seed i's E rows in block i) to actions."""
+        params = np.stack([self.searches[seed].best for seed in seeds])
+        shape = self.searches[seeds[0]].shape
+        obs_dim = self.env_info.obs_dim
+
+        def act(observations: np.ndarray) -> np.ndarray:
+            blocks = np.asarray(observations).reshape(len(seeds), -1, obs_dim)
+            return batched_actions(params, blocks, shape).reshape(-1)
+
+        return act
+
+    # -- one seed, as a single run sees it ----------------------------------------------------------
+
+    def seed_policy(self, seed: int) -> LinearPolicy:
+        return self.searches[seed].policy()
+
+    def seed_state_dict(self, seed: int, resume: bool) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+        """Seed ``seed``'s checkpoint, in its single run's format."""
+        return self.searches[seed].state_dict(resume)
+
+    def load_seed_state_dict(self, seed: int, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None:
+        self.searches[seed].load_state_dict(tensors, data)
+
+
+__all__ = ["LinearPopulation"]
