@@ -2,6 +2,7 @@
 
     python benchmarks/population.py                   # 100 population seeds, 20 single runs
     python benchmarks/population.py --seeds 20 --singles 5
+    python benchmarks/population.py --agent a2c       # also cem, random-search, hill-climbing
 
 Each part runs in its own child process (so peak RSS and CPU are that part's alone), with one torch
 thread (as ``cartpole train`` runs). Printed:
@@ -36,12 +37,12 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: KiB
 
 
-def run_population_part(seeds: int, preset: str, runs_dir: Path) -> dict[str, object]:
+def run_population_part(agent: str, seeds: int, preset: str, runs_dir: Path) -> dict[str, object]:
     from cartpole.training.population import train_population
 
     started = time.perf_counter()
     outcome = train_population(
-        "ppo", list(range(seeds)), preset=preset, runs_dir=runs_dir, quiet=False, device="cpu"
+        agent, list(range(seeds)), preset=preset, runs_dir=runs_dir, quiet=False, device="cpu"
     )
     wall = time.perf_counter() - started
     states = outcome.states.values()
@@ -55,7 +56,7 @@ def run_population_part(seeds: int, preset: str, runs_dir: Path) -> dict[str, ob
     }
 
 
-def run_singles_part(seeds: int, preset: str, runs_dir: Path) -> dict[str, object]:
+def run_singles_part(agent: str, seeds: int, preset: str, runs_dir: Path) -> dict[str, object]:
     import time as clock
 
     from cartpole.training import train
@@ -63,7 +64,7 @@ def run_singles_part(seeds: int, preset: str, runs_dir: Path) -> dict[str, objec
     cpu, solved_at, verified = [], [], 0
     for seed in range(seeds):
         before = clock.process_time()
-        outcome = train("ppo", seed=seed, preset=preset, runs_dir=runs_dir, device="cpu")
+        outcome = train(agent, seed=seed, preset=preset, runs_dir=runs_dir, device="cpu")
         cpu.append(clock.process_time() - before)
         solved_at.append(outcome.state.solved_at_step)
         verified += bool(outcome.report and outcome.report.solved)
@@ -73,10 +74,11 @@ def run_singles_part(seeds: int, preset: str, runs_dir: Path) -> dict[str, objec
     return {"cpu_per_run": cpu, "solved_at": solved_at, "verified": verified, "rss_mb": peak_rss_mb()}
 
 
-def child(part: str, seeds: int, preset: str, out: Path) -> dict[str, object]:
+def child(part: str, agent: str, seeds: int, preset: str, out: Path) -> dict[str, object]:
     """Run one part in its own process; its result is also kept as ``out/<part>.json``."""
     with tempfile.TemporaryDirectory() as tmp:
-        command = [sys.executable, __file__, "--part", part, "--n", str(seeds), "--preset", preset]
+        command = [sys.executable, __file__, "--part", part, "--agent", agent, "--n", str(seeds)]
+        command += ["--preset", preset]
         done = subprocess.run([*command, "--dir", tmp], stdout=subprocess.PIPE, text=True, check=True)
     result = json.loads(done.stdout.strip().splitlines()[-1])
     (out / f"{part}.json").write_text(json.dumps(result))
@@ -125,6 +127,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, default=100, help="population size (default 100)")
     parser.add_argument("--singles", type=int, default=20, help="single runs to compare with (default 20)")
+    parser.add_argument("--agent", default="ppo", help="ppo, a2c, cem, random-search or hill-climbing")
     parser.add_argument("--preset", default="default")
     parser.add_argument("--out", default="runs/population-benchmark", help="where each part's JSON is kept")
     parser.add_argument("--report-only", action="store_true", help="print the table from --out's JSON files")
@@ -137,7 +140,7 @@ def main() -> None:
 
         torch.set_num_threads(1)  # as `cartpole train` runs (--threads 1)
         run = run_population_part if args.part == "population" else run_singles_part
-        print(json.dumps(run(args.n, args.preset, Path(args.dir))))
+        print(json.dumps(run(args.agent, args.n, args.preset, Path(args.dir))))
         return
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -146,8 +149,8 @@ def main() -> None:
         singles = json.loads((out / "singles.json").read_text())
         report(population, singles, len(population["solved_at"]), len(singles["solved_at"]))
         return
-    population = child("population", args.seeds, args.preset, out)
-    singles = child("singles", args.singles, args.preset, out)
+    population = child("population", args.agent, args.seeds, args.preset, out)
+    singles = child("singles", args.agent, args.singles, args.preset, out)
     report(population, singles, args.seeds, args.singles)
 
 

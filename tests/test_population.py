@@ -18,9 +18,10 @@ import torch
 
 from cartpole.agents.a2c import A2CConfig
 from cartpole.agents.learner import LearnResult
-from cartpole.agents.population import PopulationA2C, PopulationPPO, make_population
+from cartpole.agents.population import PopulationA2C, PopulationPPO, PopulationReinforce, make_population
 from cartpole.agents.ppo import PPOConfig
 from cartpole.agents.registry import get_agent, load_policy
+from cartpole.agents.reinforce import ReinforceConfig
 from cartpole.cli.main import main
 from cartpole.core.errors import InputError
 from cartpole.core.names import RunState
@@ -58,15 +59,22 @@ def small_population(agent: str, seeds: list[int], **changes: object) -> Any:
     """A small PPO or A2C population (the actor-critic ones share these tests)."""
     if agent == "ppo":
         return PopulationPPO(small_config(**changes), CARTPOLE, seeds)
+    if agent == "reinforce":
+        config = ReinforceConfig(**(REINFORCE_SMALL | changes))  # type: ignore[arg-type]
+        return PopulationReinforce(config, CARTPOLE, seeds)
     return PopulationA2C(A2CConfig(**(A2C_SMALL | changes)), CARTPOLE, seeds)  # type: ignore[arg-type]
 
 
-ACTOR_CRITICS = ["ppo", "a2c"]
+REINFORCE_SMALL = {"num_envs": 3, "hidden_sizes": (16, 16)}
+ACTOR_CRITICS = ["ppo", "a2c", "reinforce"]
 
 
-def weights(population: PopulationPPO, seed: int) -> dict[str, torch.Tensor]:
+def weights(population: Any, seed: int) -> dict[str, torch.Tensor]:
+    """A seed's checkpoint tensors but its generators' states (and, for REINFORCE, which restarts
+    every env each batch, where its envs stood after its episodes ended)."""
     tensors, _ = population.seed_state_dict(seed, resume=True)
-    return {k: v for k, v in tensors.items() if not k.startswith("rng")}
+    skip = ("rng", "collector") if isinstance(population, PopulationReinforce) else ("rng",)
+    return {k: v for k, v in tensors.items() if not k.startswith(skip)}
 
 
 def assert_same(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]) -> None:
@@ -157,6 +165,41 @@ def test_settings_reach_the_batched_update():
         assert not torch.equal(trained(**change), base), change
 
 
+def test_reinforce_settings_reach_the_batched_update():
+    """A setting of the single REINFORCE run changes the population's run too."""
+
+    def trained(**change: object) -> torch.Tensor:
+        population = small_population("reinforce", [1], **change)
+        learn(population, 2)
+        return weights(population, 1)["model.actor_trunk.0.weight"]
+
+    base = trained()
+    changes = ({"baseline": False}, {"normalize_returns": False}, {"gamma": 0.5}, {"lr": 1e-4})
+    for change in (*changes, {"ent_coef": 0.5}, {"max_grad_norm": 0.001}, {"num_envs": 2}):
+        assert not torch.equal(trained(**change), base), change
+
+
+def test_reinforce_batches_start_where_the_single_run_starts_them():
+    from cartpole.agents.reinforce import ReinforceLearner
+
+    config = ReinforceConfig(**REINFORCE_SMALL)  # type: ignore[arg-type]
+    population = small_population("reinforce", [2, 5])
+    single = ReinforceLearner(config, CARTPOLE, 5, "cpu")
+    envs = slice(population.row(5) * config.num_envs, (population.row(5) + 1) * config.num_envs)
+    for _ in range(3):
+        population.restart()
+        single.collector.restart(int(single.rng.integers(2**32)))
+        assert (population.observations[envs] == single.collector.observations).all()
+
+
+def test_reinforce_batches_are_one_whole_episode_per_env():
+    population = small_population("reinforce", [2, 5])
+    for results in learn(population, 3):
+        for result in results.values():
+            assert len(result.episode_lengths) == REINFORCE_SMALL["num_envs"]
+            assert result.env_steps == sum(result.episode_lengths)
+
+
 def test_a2c_settings_reach_the_batched_update():
     """A setting of the single A2C run changes the population's run too."""
 
@@ -179,7 +222,7 @@ def test_a2c_settings_reach_the_batched_update():
 
 @pytest.mark.slow
 @pytest.mark.learning
-@pytest.mark.parametrize(("agent", "needed"), [("ppo", 5), ("a2c", 5), ("cem", 5)])
+@pytest.mark.parametrize(("agent", "needed"), [("ppo", 5), ("a2c", 5), ("reinforce", 4), ("cem", 5)])
 def test_a_population_verifiably_solves_as_its_single_runs_do(agent, needed, tmp_path):
     """Seeds 100-105 of the default preset in one population: as the single runs of these agents
     (10/10 seeds in benchmarks/time_to_solve.py), most verifiably solve within their budgets."""
@@ -194,6 +237,8 @@ def test_a_population_verifiably_solves_as_its_single_runs_do(agent, needed, tmp
         ("ppo", {}),
         ("a2c", {}),
         ("a2c", {"optimizer": "adam"}),
+        ("reinforce", {}),
+        ("reinforce", {"baseline": False}),
     ],
 )
 def test_resume_of_a_seed_continues_exactly(agent, change):
@@ -287,6 +332,17 @@ def test_a_linear_search_seed_is_its_single_run(agent):
     assert_same(population.seed_state_dict(3, resume=True)[0], single.state_dict(resume=True)[0])
 
 
+def test_resume_of_a_linear_search_seed_continues_exactly():
+    config = get_agent("hill-climbing").config_cls(population=6, episodes_per_candidate=2)
+    straight = make_population("hill-climbing", config, CARTPOLE, [2, 6])
+    learn(straight, 2)
+    tensors, data = straight.seed_state_dict(6, resume=True)
+    resumed = make_population("hill-climbing", config, CARTPOLE, [6])
+    resumed.load_seed_state_dict(6, tensors, json.loads(json.dumps(data)))
+    assert same(straight.learn()[6], resumed.learn()[6])
+    assert_same(straight.seed_state_dict(6, resume=True)[0], resumed.seed_state_dict(6, resume=True)[0])
+
+
 def test_a_linear_population_run_is_the_single_runs(tmp_path):
     """Metric rows (evaluations included: cem evaluates every generation) and verdict of a seed
     trained beside another are those of its single run."""
@@ -313,7 +369,7 @@ def run_cli(*args: str, **kwargs: object) -> subprocess.CompletedProcess[str]:
         ["ppo", "--seeds", ""],
         ["ppo", "--seeds", "a-b"],
         ["dqn", "--seeds", "0-3"],
-        ["reinforce", "--seeds", "3,5,8"],
+        ["dqn", "--seeds", "3,5,8"],
         ["ppo", "--seeds", "0-4000", "--set", "hidden_sizes=2048,2048"],
     ],
 )

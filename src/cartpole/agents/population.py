@@ -48,14 +48,13 @@ from cartpole.agents.linear import CrossEntropyMethod, HillClimbing, RandomSearc
 from cartpole.agents.linear_population import LinearPopulation
 from cartpole.agents.policy_gradient import seeded_actor_critic
 from cartpole.agents.ppo import PPOConfig
+from cartpole.agents.registry import POPULATION_AGENTS
+from cartpole.agents.reinforce import LONGEST_EPISODE_WITHOUT_TIME_LIMIT, ReinforceConfig
 from cartpole.agents.rollout import generalized_advantages
 from cartpole.core.errors import ConfigError
 from cartpole.envs import EnvInfo
 from cartpole.envs.fast import DEFAULT_RESET_HIGH, DEFAULT_RESET_LOW, step_cartpole
 from cartpole.evaluation import Policy
-
-POPULATION_AGENTS = ("ppo", "a2c", "random-search", "hill-climbing", "cem")
-"""Agents that can train a population of seeds in one process."""
 
 LINEAR_SEARCHES = {"random-search": RandomSearch, "hill-climbing": HillClimbing, "cem": CrossEntropyMethod}
 
@@ -98,6 +97,8 @@ def make_population(
         return PopulationPPO(config, env, seeds, device)
     if agent == "a2c":
         return PopulationA2C(config, env, seeds, device)
+    if agent == "reinforce":
+        return PopulationReinforce(config, env, seeds, device)
     raise ConfigError(f"{agent} has no population mode; agents with one: {', '.join(POPULATION_AGENTS)}")
 
 
@@ -326,6 +327,16 @@ class PopulationEnvs:
         self.pending = terminated | truncated
         return self.state.copy(), rewards, terminated, truncated
 
+    def restart(self, row: int, seed: int) -> None:
+        """Fresh start states for seed ``row``'s envs from ``seed``, as a vector env's
+        ``reset(seed=seed)`` draws them; its generator continues from there."""
+        envs = slice(row * self.num_envs, (row + 1) * self.num_envs)
+        self.rngs[row] = np_random(seed)[0]
+        draws = self.rngs[row].uniform(DEFAULT_RESET_LOW, DEFAULT_RESET_HIGH, size=(4, self.num_envs))
+        self.state[envs] = draws.T.astype(np.float32)
+        self.steps[envs] = 0
+        self.pending[envs] = False
+
     def keep(self, seed_rows: np.ndarray) -> None:
         envs = (seed_rows[:, None] * self.num_envs + np.arange(self.num_envs)).reshape(-1)
         self.rngs = [self.rngs[i] for i in seed_rows]
@@ -364,6 +375,38 @@ def masked_normalize(x: torch.Tensor, mask: torch.Tensor, count: torch.Tensor) -
 
 
 @dataclass
+class Transitions:
+    """What the envs of every active seed did, time-major ``[T, S * N]`` (observations ``T + 1``)."""
+
+    observations: torch.Tensor
+    actions: torch.Tensor
+    log_probs: torch.Tensor
+    rewards: torch.Tensor
+    terminated: torch.Tensor
+    truncated: torch.Tensor
+    valid: torch.Tensor
+
+    def columns(self, envs: torch.Tensor, steps: int) -> Transitions:
+        """The envs ``envs`` only, over ``steps`` steps (padded with invalid rows past the end)."""
+
+        def cut(x: torch.Tensor, rows: int) -> torch.Tensor:
+            x = x[: min(rows, x.shape[0]), envs]
+            if x.shape[0] < rows:
+                x = torch.cat([x, x.new_zeros(rows - x.shape[0], *x.shape[1:])])
+            return x
+
+        return Transitions(
+            observations=cut(self.observations, steps + 1),
+            actions=cut(self.actions, steps),
+            log_probs=cut(self.log_probs, steps),
+            rewards=cut(self.rewards, steps),
+            terminated=cut(self.terminated, steps),
+            truncated=cut(self.truncated, steps),
+            valid=cut(self.valid, steps),
+        )
+
+
+@dataclass
 class Rollout:
     """One rollout of every active seed: rows ``[S, T * N]`` (time-major within a seed)."""
 
@@ -386,11 +429,11 @@ class PopulationActorCritic:
     generators, the batched rollout with GAE, gradient clipping and the optimizer step, and each
     seed's policy and checkpoint. Subclasses say what one ``learn()`` does with a rollout."""
 
-    config: PPOConfig | A2CConfig
+    config: PPOConfig | A2CConfig | ReinforceConfig
 
     def __init__(
         self,
-        config: PPOConfig | A2CConfig,
+        config: PPOConfig | A2CConfig | ReinforceConfig,
         env: EnvInfo,
         seeds: list[int],
         device: str,
@@ -467,12 +510,12 @@ class PopulationActorCritic:
             for s in self.env_steps
         ]
 
-    def count_rollout(
-        self, rollout: Rollout, finished: list[tuple[list[float], list[int]]]
+    def count_steps(
+        self, counts: list[int], finished: list[tuple[list[float], list[int]]]
     ) -> dict[int, LearnResult]:
-        """Add each seed's rollout to its env steps; its result (steps and finished episodes)."""
+        """Add each seed's new transitions (``counts``) to its env steps; its result (steps and
+        finished episodes)."""
         results = {}
-        counts = rollout.counts.to(torch.int64).tolist()
         for row, seed in enumerate(self.seeds):
             returns, lengths = finished[row]
             self.env_steps[row] += counts[row]
@@ -483,11 +526,11 @@ class PopulationActorCritic:
         return results
 
     def attach_metrics(
-        self, results: dict[int, LearnResult], rollout: Rollout, metrics: list[dict[str, float]]
+        self, results: dict[int, LearnResult], counts: torch.Tensor, metrics: list[dict[str, float]]
     ) -> None:
-        """Give each seed that updated its metrics row."""
+        """Give each seed that updated (``counts`` [S] of new transitions) its metrics row."""
         for row, seed in enumerate(self.seeds):
-            if self.ghosts[row] or rollout.counts[row] == 0:
+            if self.ghosts[row] or counts[row] == 0:
                 continue
             results[seed].scalars = metrics[row]
             results[seed].log_scalars = True
@@ -508,12 +551,21 @@ class PopulationActorCritic:
         residual = masked_variance(rollout.returns - rollout.values, valid, rollout.counts)
         return torch.where(variance > 0, 1.0 - residual / variance, torch.full_like(variance, math.nan))
 
-    @torch.no_grad()
     def collect(self) -> tuple[Rollout, list[tuple[list[float], list[int]]]]:
         """``n_steps`` batched steps of all S x N envs; the rollout with GAE advantages, and each
         seed's finished episodes (returns, lengths)."""
+        transitions, finished = self.play(self.config.n_steps)  # type: ignore[union-attr]  # PPO, A2C
+        return self.advantages(transitions, self.model.params, len(self.seeds)), finished
+
+    @torch.no_grad()
+    def play(
+        self, steps: int, whole_episodes: bool = False
+    ) -> tuple[Transitions, list[tuple[list[float], list[int]]]]:
+        """Up to ``steps`` batched steps of all S x N envs; what they did, and each seed's finished
+        episodes (returns, lengths). With ``whole_episodes`` (REINFORCE) each env plays one
+        episode: its rows after it ended are invalid, and play stops once every env has ended one."""
         config = self.config
-        seeds, envs, steps = len(self.seeds), config.num_envs, config.n_steps
+        seeds, envs = len(self.seeds), config.num_envs
         obs_dim = self.env_info.obs_dim
         observations = torch.zeros(steps + 1, seeds * envs, obs_dim)
         actions = torch.zeros(steps, seeds * envs, dtype=torch.int64)
@@ -522,9 +574,11 @@ class PopulationActorCritic:
         terminated = np.zeros((steps, seeds * envs), dtype=np.float32)
         truncated = np.zeros((steps, seeds * envs), dtype=np.float32)
         valid = np.zeros((steps, seeds * envs), dtype=bool)
+        ended_once = np.zeros(seeds * envs, dtype=bool)
         # Each seed's uniforms for the whole rollout, from its own generator: one call per seed.
         uniforms = torch.stack([torch.rand(steps, envs, generator=g) for g in self.generators], dim=1)
         finished: list[tuple[list[float], list[int]]] = [([], []) for _ in range(seeds)]
+        used = steps
         for t in range(steps):
             observations[t] = torch.from_numpy(self.observations)
             logits = self.model.logits(observations[t].view(seeds, envs, obs_dim))
@@ -534,7 +588,7 @@ class PopulationActorCritic:
             actions[t] = chosen.view(-1)
             log_probs[t] = step_log_probs.gather(-1, chosen.unsqueeze(-1)).view(-1)
             next_obs, step_rewards, step_terminated, step_truncated = self.envs.step(actions[t].numpy())
-            step_valid = ~self.autoreset
+            step_valid = ~(self.autoreset | ended_once)
             ended = (step_terminated | step_truncated) & step_valid
             rewards[t], terminated[t], truncated[t], valid[t] = (
                 step_rewards,
@@ -551,23 +605,39 @@ class PopulationActorCritic:
             self.episode_lengths[ended] = 0
             self.autoreset = step_terminated | step_truncated
             self.observations = next_obs
-        observations[steps] = torch.from_numpy(self.observations)
-        rollout = self.advantages(observations, actions, log_probs, rewards, terminated, truncated, valid)
-        return rollout, finished
+            if whole_episodes:
+                ended_once |= ended
+                if ended_once.all():
+                    used = t + 1
+                    break
+        observations[used] = torch.from_numpy(self.observations)
+        transitions = Transitions(
+            observations=observations[: used + 1],
+            actions=actions[:used],
+            log_probs=log_probs[:used],
+            rewards=torch.from_numpy(rewards[:used]),
+            terminated=torch.from_numpy(terminated[:used]),
+            truncated=torch.from_numpy(truncated[:used]),
+            valid=torch.from_numpy(valid[:used]),
+        )
+        return transitions, finished
 
+    @torch.no_grad()
     def advantages(
         self,
-        observations: torch.Tensor,
-        actions: torch.Tensor,
-        log_probs: torch.Tensor,
-        rewards: np.ndarray,
-        terminated: np.ndarray,
-        truncated: np.ndarray,
-        valid: np.ndarray,
+        t: Transitions,
+        params: dict[str, torch.Tensor],
+        seeds: int,
+        gae_lambda: float | None = None,
+        use_values: bool = True,
     ) -> Rollout:
-        """GAE over every env of every seed at once (envs are columns), reshaped to [S, T * N]."""
+        """GAE over the envs of ``seeds`` seeds at once (envs are columns, the seeds' networks are
+        ``params``), reshaped to [S, T * N]. ``use_values`` False: values are 0, so advantages are
+        the discounted reward-to-go."""
         config = self.config
-        steps, seeds, envs = len(rewards), len(self.seeds), config.num_envs
+        steps, envs = t.rewards.shape[0], config.num_envs
+        if gae_lambda is None:
+            gae_lambda = config.gae_lambda  # type: ignore[union-attr]  # PPO and A2C have one
 
         def per_seed(x: torch.Tensor) -> torch.Tensor:  # [T, S * N, ...] -> [S, T * N, ...]
             return (
@@ -577,27 +647,24 @@ class PopulationActorCritic:
             )
 
         obs_dim = self.env_info.obs_dim
-        by_seed = (
-            observations.view(steps + 1, seeds, envs, obs_dim).transpose(0, 1).reshape(seeds, -1, obs_dim)
-        )
-        values = (
-            self.model.values(by_seed).view(seeds, steps + 1, envs).transpose(0, 1).reshape(steps + 1, -1)
-        )
-        valid_t = torch.from_numpy(valid)
+        if use_values:
+            by_seed = (
+                t.observations.view(steps + 1, seeds, envs, obs_dim)
+                .transpose(0, 1)
+                .reshape(seeds, -1, obs_dim)
+            )
+            critic = StackedActorCritic.run(self.model.critic_plan, params, by_seed).squeeze(-1)
+            values = critic.view(seeds, steps + 1, envs).transpose(0, 1).reshape(steps + 1, -1)
+        else:
+            values = torch.zeros(steps + 1, seeds * envs)
         advantages = generalized_advantages(
-            torch.from_numpy(rewards),
-            values,
-            torch.from_numpy(terminated),
-            torch.from_numpy(truncated),
-            valid_t,
-            config.gamma,
-            config.gae_lambda,
+            t.rewards, values, t.terminated, t.truncated, t.valid, config.gamma, gae_lambda
         )
-        valid_rows = per_seed(valid_t)
+        valid_rows = per_seed(t.valid)
         return Rollout(
-            observations=per_seed(observations[:steps]),
-            actions=per_seed(actions),
-            log_probs=per_seed(log_probs),
+            observations=per_seed(t.observations[:steps]),
+            actions=per_seed(t.actions),
+            log_probs=per_seed(t.log_probs),
             values=per_seed(values[:steps]),
             advantages=per_seed(advantages),
             returns=per_seed(advantages + values[:steps]),
@@ -624,8 +691,7 @@ class PopulationActorCritic:
             params = {name: p.detach()[index] for name, p in self.model.params.items()}
         plan, count = self.model.actor_plan, len(seeds)
 
-        @torch.no_grad()
-        def act(observations: np.ndarray) -> np.ndarray:
+        def act(observations: np.ndarray) -> np.ndarray:  # nothing here needs a gradient
             x = torch.from_numpy(np.asarray(observations, dtype=np.float32)).view(
                 count, -1, self.env_info.obs_dim
             )
@@ -715,10 +781,10 @@ class PopulationPPO(PopulationActorCritic):
             for s in self.env_steps
         ]
         rollout, finished = self.collect()
-        results = self.count_rollout(rollout, finished)
+        results = self.count_steps(rollout.counts.to(torch.int64).tolist(), finished)
         metrics = self.update(rollout, torch.tensor(lr), torch.tensor(clip).unsqueeze(1))
         extra = [{"train/learning_rate": r, "train/clip_range": c} for r, c in zip(lr, clip, strict=True)]
-        self.attach_metrics(results, rollout, [m | e for m, e in zip(metrics, extra, strict=True)])
+        self.attach_metrics(results, rollout.counts, [m | e for m, e in zip(metrics, extra, strict=True)])
         return results
 
     def update(self, rollout: Rollout, lr: torch.Tensor, clip: torch.Tensor) -> list[dict[str, float]]:
@@ -825,7 +891,7 @@ class PopulationA2C(PopulationActorCritic):
         config = self.config
         lr = self.learning_rates()
         rollout, finished = self.collect()
-        results = self.count_rollout(rollout, finished)
+        results = self.count_steps(rollout.counts.to(torch.int64).tolist(), finished)
         valid, count = rollout.valid.float(), rollout.counts
         logits, values = self.model.logits_and_values(rollout.observations)
         log_probs_all = torch.log_softmax(logits, dim=-1)
@@ -858,8 +924,131 @@ class PopulationA2C(PopulationActorCritic):
             }
             for i, row in enumerate(rows)
         ]
-        self.attach_metrics(results, rollout, metrics)
+        self.attach_metrics(results, rollout.counts, metrics)
         return results
+
+
+class PopulationReinforce(PopulationActorCritic):
+    """REINFORCE for seeds ``seeds``, all with ``config``: one ``learn()`` = one whole episode in each
+    of every seed's envs, all started fresh, then one gradient step each, as
+    :class:`~cartpole.agents.reinforce.ReinforceLearner` does.
+
+    Episodes have different lengths, and play lasts until the longest episode of *any* seed ends. So
+    that a seed's arithmetic does not depend on its neighbours, its update runs on its own rows cut
+    to a length that depends only on them: the next power of two at or above its longest episode.
+    Seeds of the same length update together (a lone one beside a ghost twin, see ``__init__`` of
+    the base), one batched forward and backward pass per length.
+    """
+
+    config: ReinforceConfig
+
+    def __init__(self, config: ReinforceConfig, env: EnvInfo, seeds: list[int], device: str = "cpu"):
+        super().__init__(config, env, seeds, device, lambda rows, size: PopulationAdam(rows, size, 1e-8))
+        self.episode_rngs = [np.random.default_rng(derived_seed(s, "episodes")) for s in self.seeds]
+        """Seed each batch's fresh episodes, as the single run's ``rng`` does."""
+        self.longest = env.max_episode_steps or LONGEST_EPISODE_WITHOUT_TIME_LIMIT
+
+    def remove(self, seeds: list[int]) -> None:
+        gone = set(seeds)
+        rows = zip(self.seeds, self.episode_rngs, self.ghosts, strict=True)
+        kept = [rng for seed, rng, ghost in rows if seed not in gone and not ghost]
+        super().remove(seeds)
+        if len(kept) < len(self.seeds):  # a ghost twin joined: its results are dropped
+            kept.append(np.random.default_rng(derived_seed(self.seeds[-1], "episodes")))
+        self.episode_rngs = kept
+
+    def restart(self) -> None:
+        """Fresh episodes in every env, from each seed's own episode generator."""
+        for row, rng in enumerate(self.episode_rngs):
+            self.envs.restart(row, int(rng.integers(2**32)))
+        self.observations = self.envs.observations()
+        self.autoreset[:] = False
+        self.episode_returns[:] = 0.0
+        self.episode_lengths[:] = 0
+
+    def seed_state_dict(self, seed: int, resume: bool) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+        tensors, data = super().seed_state_dict(seed, resume)
+        if resume:
+            data["rng_numpy"] = self.episode_rngs[self.row(seed)].bit_generator.state
+        return tensors, data
+
+    def load_seed_state_dict(self, seed: int, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None:
+        super().load_seed_state_dict(seed, tensors, data)
+        self.episode_rngs[self.row(seed)].bit_generator.state = data["rng_numpy"]
+
+    def update_lengths(self, transitions: Transitions) -> list[int]:
+        """Each seed's update length: a power of two (at least 8) covering its longest episode."""
+        steps, envs = transitions.valid.shape[0], self.config.num_envs
+        played = transitions.valid.view(steps, len(self.seeds), envs).any(dim=2)  # [T, S]
+        longest = [
+            int(played[:, row].nonzero().max()) + 1 if bool(played[:, row].any()) else 1
+            for row in range(len(self.seeds))
+        ]
+        return [min(self.longest, max(8, 1 << (n - 1).bit_length())) for n in longest]
+
+    def learn(self) -> dict[int, LearnResult]:
+        lr = self.learning_rates()
+        self.restart()
+        transitions, finished = self.play(self.longest, whole_episodes=True)
+        counts = transitions.valid.view(transitions.valid.shape[0], len(self.seeds), -1).sum(dim=(0, 2))
+        results = self.count_steps(counts.tolist(), finished)
+        lengths = self.update_lengths(transitions)
+        self.model.grad.zero_()
+        metrics: list[dict[str, float]] = [{} for _ in self.seeds]
+        for length in sorted(set(lengths)):
+            rows = [row for row, n in enumerate(lengths) if n == length]
+            self.backward_group(transitions, rows, length, metrics)
+        active = counts > 0
+        self.step(torch.tensor(lr), active)
+        self.updates += active.numpy()
+        for row, scalars in enumerate(metrics):
+            scalars |= {"train/learning_rate": lr[row], "train/updates": float(self.updates[row])}
+        self.attach_metrics(results, counts, metrics)
+        return results
+
+    def backward_group(
+        self, transitions: Transitions, rows: list[int], length: int, metrics: list[dict[str, float]]
+    ) -> None:
+        """The loss of the seeds at ``rows`` (all with update length ``length``), backpropagated into
+        their rows of the gradients; their metrics into ``metrics``."""
+        config, envs = self.config, self.config.num_envs
+        twin = len(rows) == 1
+        group = rows * 2 if twin else rows
+        index = torch.tensor(group, dtype=torch.int64)
+        columns = (index.unsqueeze(1) * envs + torch.arange(envs)).reshape(-1)
+        params = {name: p[index] for name, p in self.model.params.items()}
+        detached = {name: p.detach() for name, p in params.items()}
+        rollout = self.advantages(
+            transitions.columns(columns, length), detached, len(group), 1.0, config.baseline
+        )
+        valid, count = rollout.valid.float(), rollout.counts
+        logits = StackedActorCritic.run(self.model.actor_plan, params, rollout.observations)
+        values = StackedActorCritic.run(self.model.critic_plan, params, rollout.observations).squeeze(-1)
+        log_probs_all = torch.log_softmax(logits, dim=-1)
+        log_probs = log_probs_all.gather(-1, rollout.actions.unsqueeze(-1)).squeeze(-1)
+        entropy = masked_mean(-(log_probs_all.exp() * log_probs_all).sum(dim=-1), valid, count)
+        weights = (
+            masked_normalize(rollout.advantages, valid, count)
+            if config.normalize_returns
+            else rollout.advantages
+        )
+        policy_loss = masked_mean(-(weights * log_probs), valid, count)
+        value_loss = 0.5 * masked_mean((values - rollout.returns).square(), valid, count)
+        loss = policy_loss - config.ent_coef * entropy
+        if config.baseline:
+            loss = loss + config.vf_coef * value_loss
+        real = torch.tensor([1.0] + [0.0] * (len(group) - 1)) if twin else torch.ones(len(group))
+        with warnings.catch_warnings():
+            # The gradients are views of one [S, P] tensor on purpose (see StackedActorCritic).
+            warnings.filterwarnings("ignore", "grad and param do not obey the gradient layout")
+            (loss * real).sum().backward()
+        explained = self.explained_variances(rollout).tolist()
+        values_of = torch.stack([policy_loss, value_loss, entropy], dim=1).tolist()
+        for i, row in enumerate(rows):
+            policy, value, entropy_value = values_of[i]
+            metrics[row] = {"train/policy_loss": policy, "train/entropy": entropy_value}
+            if config.baseline:
+                metrics[row] |= {"train/value_loss": value, "train/explained_variance": explained[i]}
 
 
 def masked_variance(x: torch.Tensor, mask: torch.Tensor, count: torch.Tensor) -> torch.Tensor:
@@ -874,14 +1063,16 @@ def bytes_per_seed(config: Any, env: EnvInfo) -> int:
     the rollout, a minibatch's activations, and the per-seed bookkeeping (run folder, callbacks);
     for a linear search, its generation's envs and the bookkeeping."""
     bookkeeping = 2 * 1024**2
-    if not isinstance(config, PPOConfig | A2CConfig):
+    if not isinstance(config, PPOConfig | A2CConfig | ReinforceConfig):
         envs = config.population * config.episodes_per_candidate
         return envs * (env.obs_dim + 8) * 8 * 4 + bookkeeping
     sizes = [env.obs_dim, *config.hidden_sizes]
     trunk = sum(n_in * n_out + n_out for n_in, n_out in itertools.pairwise(sizes))
     heads = sizes[-1] * (env.n_actions + 1) + env.n_actions + 1
     parameters = trunk * (1 if config.shared_trunk else 2) + heads
-    rows = config.n_steps * config.num_envs
+    longest = env.max_episode_steps or LONGEST_EPISODE_WITHOUT_TIME_LIMIT
+    steps = longest if isinstance(config, ReinforceConfig) else config.n_steps
+    rows = steps * config.num_envs
     rollout = rows * (env.obs_dim + 8) * 4 * 3
     batch = config.minibatch_size if isinstance(config, PPOConfig) else rows
     activations = batch * sum(config.hidden_sizes) * 4 * 12
@@ -896,6 +1087,7 @@ __all__ = [
     "PopulationEnvs",
     "PopulationPPO",
     "PopulationRMSprop",
+    "PopulationReinforce",
     "StackedActorCritic",
     "bytes_per_seed",
     "make_population",

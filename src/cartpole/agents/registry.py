@@ -47,6 +47,10 @@ AGENT_MODULES = {
 """Agent name -> the module that defines it (imported only when the agent is used: torch is slow)."""
 
 
+POPULATION_AGENTS = ("ppo", "a2c", "reinforce", "random-search", "hill-climbing", "cem")
+"""Agents that can train a population of seeds in one process (``cartpole.agents.population``)."""
+
+
 def agent_names() -> list[str]:
     return list(AGENT_MODULES)
 

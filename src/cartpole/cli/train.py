@@ -24,7 +24,7 @@ def parse_overrides(pairs: list[str]) -> dict[str, Any]:
 
 
 def add_parser(sub: Any) -> None:
-    from cartpole.agents.registry import agent_names
+    from cartpole.agents.registry import POPULATION_AGENTS, agent_names
 
     names = agent_names()
     parser = sub.add_parser(
@@ -106,7 +106,7 @@ def add_parser(sub: Any) -> None:
         "--seeds",
         metavar="SEEDS",
         help="train these seeds in one process, a run folder each: a range (0-99), a list (3,5,8) or "
-        "both; ppo only. --resume of any of them continues them all",
+        f"both; for {', '.join(POPULATION_AGENTS)}. --resume of any of them continues them all",
     )
     parser.set_defaults(run=run)
 
