@@ -151,32 +151,49 @@ def test_seeds_start_as_their_single_runs():
     assert (start == single.collector.observations).all()
 
 
-def test_settings_reach_the_batched_update():
-    """A setting of the single run changes the population's run too (epochs, clip range, entropy)."""
+SETTINGS = {
+    "ppo": [
+        {"n_epochs": 1},
+        {"clip_range": 0.001},
+        {"ent_coef": 0.5},
+        {"target_kl": 1e-6},
+        {"lr": 1e-4},
+        {"max_grad_norm": 0.001},
+        {"normalize_advantages": False},
+        {"vf_coef": 0.0},
+    ],
+    "a2c": [
+        {"optimizer": "adam"},
+        {"rms_alpha": 0.5},
+        {"optimizer_eps": 1.0},
+        {"lr": 1e-4},
+        {"ent_coef": 0.5},
+        {"max_grad_norm": 0.001},
+        {"normalize_advantages": True},
+        {"gae_lambda": 0.5},
+    ],
+    "reinforce": [
+        {"baseline": False},
+        {"normalize_returns": False},
+        {"gamma": 0.5},
+        {"lr": 1e-4},
+        {"ent_coef": 0.5},
+        {"max_grad_norm": 0.001},
+        {"num_envs": 2},
+    ],
+}
+
+
+@pytest.mark.parametrize(("agent", "change"), [(a, c) for a, changes in SETTINGS.items() for c in changes])
+def test_settings_reach_the_batched_update(agent, change):
+    """A setting of the single run changes the population's run too."""
 
     def trained(**change: object) -> torch.Tensor:
-        population = PopulationPPO(small_config(**change), CARTPOLE, [1])
-        learn(population, 3)
-        return weights(population, 1)["model.actor_trunk.0.weight"]
-
-    base = trained()
-    changes = ({"n_epochs": 1}, {"clip_range": 0.001}, {"ent_coef": 0.5}, {"target_kl": 1e-6}, {"lr": 1e-4})
-    for change in (*changes, {"max_grad_norm": 0.001}, {"normalize_advantages": False}, {"vf_coef": 0.0}):
-        assert not torch.equal(trained(**change), base), change
-
-
-def test_reinforce_settings_reach_the_batched_update():
-    """A setting of the single REINFORCE run changes the population's run too."""
-
-    def trained(**change: object) -> torch.Tensor:
-        population = small_population("reinforce", [1], **change)
+        population = small_population(agent, [1], **change)
         learn(population, 2)
         return weights(population, 1)["model.actor_trunk.0.weight"]
 
-    base = trained()
-    changes = ({"baseline": False}, {"normalize_returns": False}, {"gamma": 0.5}, {"lr": 1e-4})
-    for change in (*changes, {"ent_coef": 0.5}, {"max_grad_norm": 0.001}, {"num_envs": 2}):
-        assert not torch.equal(trained(**change), base), change
+    assert not torch.equal(trained(**change), trained())
 
 
 def test_reinforce_batches_start_where_the_single_run_starts_them():
@@ -198,26 +215,6 @@ def test_reinforce_batches_are_one_whole_episode_per_env():
         for result in results.values():
             assert len(result.episode_lengths) == REINFORCE_SMALL["num_envs"]
             assert result.env_steps == sum(result.episode_lengths)
-
-
-def test_a2c_settings_reach_the_batched_update():
-    """A setting of the single A2C run changes the population's run too."""
-
-    def trained(**change: object) -> torch.Tensor:
-        population = small_population("a2c", [1], **change)
-        learn(population, 3)
-        return weights(population, 1)["model.actor_trunk.0.weight"]
-
-    base = trained()
-    changes = (
-        {"optimizer": "adam"},
-        {"rms_alpha": 0.5},
-        {"optimizer_eps": 1.0},
-        {"lr": 1e-4},
-        {"ent_coef": 0.5},
-    )
-    for change in (*changes, {"max_grad_norm": 0.001}, {"normalize_advantages": True}, {"gae_lambda": 0.5}):
-        assert not torch.equal(trained(**change), base), change
 
 
 @pytest.mark.slow
