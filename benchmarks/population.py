@@ -2,10 +2,12 @@
 
     python benchmarks/population.py                   # 100 population seeds, 20 single runs
     python benchmarks/population.py --seeds 20 --singles 5
-    python benchmarks/population.py --agent a2c       # also cem, random-search, hill-climbing
+    python benchmarks/population.py --agent a2c       # also reinforce, cem, random-search, hill-climbing
+    python benchmarks/population.py --population-threads 1
 
-Each part runs in its own child process (so peak RSS and CPU are that part's alone), with one torch
-thread (as ``cartpole train`` runs). Printed:
+Each part runs in its own child process (so peak RSS and CPU are that part's alone), with the torch
+threads ``cartpole train`` uses: one per core for the population (``--seeds``), one for single runs.
+Printed:
 
 - population: verified solves (each seed's kept best on 100 fresh episodes of Gymnasium's env), wall
   time from start to the last verdict, CPU seconds (user + system, the whole child: imports, training,
@@ -38,6 +40,8 @@ def peak_rss_mb() -> float:
 
 
 def run_population_part(agent: str, seeds: int, preset: str, runs_dir: Path) -> dict[str, object]:
+    import torch
+
     from cartpole.training.population import train_population
 
     started = time.perf_counter()
@@ -53,6 +57,7 @@ def run_population_part(agent: str, seeds: int, preset: str, runs_dir: Path) -> 
         "steps": sum(s.env_steps for s in states),
         "solved_at": [s.solved_at_step for s in states],
         "verified": sum(r.solved for r in outcome.reports.values()),
+        "threads": torch.get_num_threads(),
     }
 
 
@@ -74,11 +79,11 @@ def run_singles_part(agent: str, seeds: int, preset: str, runs_dir: Path) -> dic
     return {"cpu_per_run": cpu, "solved_at": solved_at, "verified": verified, "rss_mb": peak_rss_mb()}
 
 
-def child(part: str, agent: str, seeds: int, preset: str, out: Path) -> dict[str, object]:
+def child(part: str, agent: str, seeds: int, preset: str, threads: int, out: Path) -> dict[str, object]:
     """Run one part in its own process; its result is also kept as ``out/<part>.json``."""
     with tempfile.TemporaryDirectory() as tmp:
         command = [sys.executable, __file__, "--part", part, "--agent", agent, "--n", str(seeds)]
-        command += ["--preset", preset]
+        command += ["--preset", preset, "--population-threads", str(threads)]
         done = subprocess.run([*command, "--dir", tmp], stdout=subprocess.PIPE, text=True, check=True)
     result = json.loads(done.stdout.strip().splitlines()[-1])
     (out / f"{part}.json").write_text(json.dumps(result))
@@ -101,7 +106,7 @@ def report(population: dict[str, object], singles: dict[str, object], seeds: int
     single_steps = [s for s in singles["solved_at"] if s is not None]  # type: ignore[attr-defined]
     p_value = mannwhitneyu(pop_steps, single_steps).pvalue if pop_steps and single_steps else float("nan")
     rows = [
-        ("population seeds", f"{seeds}"),
+        ("population seeds", f"{seeds} ({population.get('threads', 1)} torch threads; single runs: 1)"),
         ("verified solves (population)", f"{population['verified']}/{seeds}"),
         ("wall, start to last verdict", f"{wall:.1f} s"),
         ("CPU per seed, population (whole process)", f"{pop_cpu:.2f} s"),
@@ -129,6 +134,13 @@ def main() -> None:
     parser.add_argument("--singles", type=int, default=20, help="single runs to compare with (default 20)")
     parser.add_argument("--agent", default="ppo", help="ppo, a2c, cem, random-search or hill-climbing")
     parser.add_argument("--preset", default="default")
+    parser.add_argument(
+        "--population-threads",
+        type=int,
+        default=0,
+        help="torch threads of the population (default 0: torch's own, one per core, as `cartpole train "
+        "--seeds` runs)",
+    )
     parser.add_argument("--out", default="runs/population-benchmark", help="where each part's JSON is kept")
     parser.add_argument("--report-only", action="store_true", help="print the table from --out's JSON files")
     parser.add_argument("--part", choices=["population", "singles"], help=argparse.SUPPRESS)
@@ -138,7 +150,8 @@ def main() -> None:
     if args.part:
         import torch
 
-        torch.set_num_threads(1)  # as `cartpole train` runs (--threads 1)
+        if args.part == "singles" or args.population_threads:  # as `cartpole train` sets them
+            torch.set_num_threads(1 if args.part == "singles" else args.population_threads)
         run = run_population_part if args.part == "population" else run_singles_part
         print(json.dumps(run(args.agent, args.n, args.preset, Path(args.dir))))
         return
@@ -149,8 +162,8 @@ def main() -> None:
         singles = json.loads((out / "singles.json").read_text())
         report(population, singles, len(population["solved_at"]), len(singles["solved_at"]))
         return
-    population = child("population", args.agent, args.seeds, args.preset, out)
-    singles = child("singles", args.agent, args.singles, args.preset, out)
+    population = child("population", args.agent, args.seeds, args.preset, args.population_threads, out)
+    singles = child("singles", args.agent, args.singles, args.preset, args.population_threads, out)
     report(population, singles, args.seeds, args.singles)
 
 

@@ -126,6 +126,22 @@ def test_a_seed_does_not_depend_on_its_neighbours(agent):
 
 
 @pytest.mark.parametrize("agent", ACTOR_CRITICS)
+def test_with_two_threads_a_seed_still_does_not_depend_on_its_neighbours(agent):
+    """``cartpole train --seeds`` uses every core; torch then splits the batched work between threads,
+    and a seed must still get the same bits among 20 seeds as beside one other."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        many = small_population(agent, list(range(3, 23)))
+        few = small_population(agent, [3, 40])
+        for a, b in zip(learn(many, 3), learn(few, 3), strict=True):
+            assert same(a[3], b[3])
+        assert_same(weights(many, 3), weights(few, 3))
+    finally:
+        torch.set_num_threads(threads)
+
+
+@pytest.mark.parametrize("agent", ACTOR_CRITICS)
 def test_removing_a_stopped_seed_leaves_the_others_unchanged(agent):
     three = small_population(agent, [3, 5, 7])
     two = small_population(agent, [3, 7])

@@ -89,9 +89,11 @@ def add_parser(sub: Any) -> None:
     parser.add_argument(
         "--torch-threads",
         type=int,
-        default=1,
+        default=None,
         metavar="N",
-        help="CPU threads for torch (default: 1, the fastest for small nets; 0: torch's default)",
+        help="CPU threads for torch (default: 1 for one seed, the fastest for small nets; torch's "
+        "default, one per core, for --seeds, whose batched arithmetic is big enough to share; "
+        "0: torch's default)",
     )
     parser.add_argument("--resume", metavar="RUN_DIR", help="continue this run from checkpoints/latest.pt")
     parser.add_argument("--quiet", action="store_true", help="no progress output")
@@ -133,11 +135,13 @@ def run(args: argparse.Namespace) -> int:
     from cartpole.training import AlreadyFinished, parse_budget, resume, train
     from cartpole.training.population import is_population_run
 
-    if args.torch_threads < 0:
+    if args.torch_threads is not None and args.torch_threads < 0:
         raise UsageError(f"--torch-threads must be >= 0, got {args.torch_threads}")
-    configure_process(args.torch_threads, args.seed)
+    population = args.seeds is not None or bool(args.resume and is_population_run(args.resume))
+    threads = args.torch_threads if args.torch_threads is not None else (0 if population else 1)
+    configure_process(threads, args.seed)
     console = Console(soft_wrap=True)
-    if args.seeds is not None or (args.resume and is_population_run(args.resume)):
+    if population:
         return run_population(args)
     if args.resume:
         if args.agent or args.overrides or args.budget is not None:
