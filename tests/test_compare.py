@@ -57,6 +57,18 @@ def test_compare_trains_a_population_agent_in_one_process(tmp_path):
     assert len(list((folder / "logs").iterdir())) == 1  # one worker process
 
 
+def test_compare_on_another_env_trains_a_population_agent_one_seed_at_a_time(tmp_path):
+    """Populations run CartPole only; on Acrobot a population agent's seeds are ordinary runs."""
+    runs_dir = tmp_path / "runs"
+    args = ["compare", "a2c", "--env", "Acrobot-v1", "--seeds", "2", "--budget", "400"]
+    done = run_cli(*args, "--jobs", "2", "--runs-dir", str(runs_dir))
+    assert done.returncode == 0, done.stderr
+    folder = runs_dir / "experiments" / "a2c"
+    runs = run_folders(folder)
+    assert len(runs) == 2 and all((run / "eval.json").is_file() for run in runs)
+    assert not any(json.loads((run / "config.json").read_text()).get("population") for run in runs)
+
+
 @pytest.mark.slow
 def test_compare_reports_resumes_and_adds_seeds(tmp_path):
     runs_dir = tmp_path / "runs"

@@ -1080,7 +1080,6 @@ def bytes_per_seed(config: Any, env: EnvInfo) -> int:
 
 
 __all__ = [
-    "POPULATION_AGENTS",
     "Population",
     "PopulationA2C",
     "PopulationAdam",

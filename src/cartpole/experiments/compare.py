@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from cartpole.agents.population import POPULATION_AGENTS
+from cartpole.agents.registry import POPULATION_AGENTS
 from cartpole.experiments.entries import Entry, ExperimentError
 from cartpole.experiments.processes import Job, python_module, run_jobs
 from cartpole.experiments.worker import FINISHED, Task, read_record
@@ -129,17 +129,24 @@ class Experiment:
         jobs: list[Job] = []
         grouped: dict[Entry, list[int]] = {}
         for entry, seed in self.pending():
-            if entry.agent in POPULATION_AGENTS:
+            if self.trains_populations(entry):
                 grouped.setdefault(entry, []).append(seed)
             else:
                 jobs.append(self.job(entry, [seed]))
         return [self.job(entry, seeds) for entry, seeds in grouped.items()] + jobs
 
+    def trains_populations(self, entry: Entry) -> bool:
+        """Whether ``entry``'s seeds train as one population: its agent has a population mode, which
+        runs CartPole (on the fast simulator); other envs train their seeds one run at a time."""
+        from cartpole.envs import env_info
+
+        return entry.agent in POPULATION_AGENTS and env_info(self.env_id).is_cartpole
+
     def job(self, entry: Entry, seeds: list[int]) -> Job:
         """Train ``seeds`` of ``entry``: one seed, or several as one population."""
         seed = seeds[0]
         population = None
-        if entry.agent in POPULATION_AGENTS:
+        if self.trains_populations(entry):
             population = {s: str(self.record_path(entry, s)) for s in seeds}
         task = Task(
             agent=entry.agent,

@@ -31,8 +31,8 @@ from typing import Any, TextIO
 import numpy as np
 
 from cartpole.agents.learner import LearnResult
-from cartpole.agents.population import POPULATION_AGENTS, Population, bytes_per_seed, make_population
-from cartpole.agents.registry import get_agent
+from cartpole.agents.population import Population, bytes_per_seed, make_population
+from cartpole.agents.registry import POPULATION_AGENTS, get_agent
 from cartpole.core.errors import InputError
 from cartpole.core.names import CheckpointName, RunState, StopReason
 from cartpole.core.seeding import MAX_TRAIN_SEED, eval_seed, final_eval_seed
