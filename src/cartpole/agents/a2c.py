@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import torch
 
 from cartpole.agents.learner import LearnResult
+from cartpole.agents.optimizers import Optimizer, RMSprop
 from cartpole.agents.policy_gradient import (
     PolicyGradientConfig,
     PolicyGradientLearner,
@@ -66,12 +67,10 @@ class A2CLearner(PolicyGradientLearner):
     def __init__(self, config: A2CConfig, env: EnvInfo, seed: int, device: str = "cpu"):
         config.validate()
 
-        def make_optimizer(parameters: list[torch.Tensor]) -> torch.optim.Optimizer:
+        def make_optimizer(parameters: list[torch.Tensor]) -> Optimizer:
             if config.optimizer == "adam":
                 return adam(parameters, lr=config.lr, eps=config.optimizer_eps)
-            return torch.optim.RMSprop(
-                parameters, lr=config.lr, alpha=config.rms_alpha, eps=config.optimizer_eps
-            )
+            return RMSprop(parameters, lr=config.lr, alpha=config.rms_alpha, eps=config.optimizer_eps)
 
         super().__init__(config, env, seed, device, config.n_steps, make_optimizer)
 

@@ -12,7 +12,7 @@ What it does, in order:
 4. Checkpoints: what a resume restores, and the greedy policy rebuilt from a checkpoint.
 
 The parts it uses live apart: the network and its greedy policy in :mod:`cartpole.agents.q_network`,
-Adam in :mod:`cartpole.agents.adam`, the replay buffer in :mod:`cartpole.agents.replay_buffer`, and
+Adam in :mod:`cartpole.agents.optimizers`, the replay buffer in :mod:`cartpole.agents.replay_buffer`, and
 the vector envs a checkpoint can put back mid-episode in :mod:`cartpole.agents.resumable_envs`.
 
 The learner owns every random stream it uses (network initialization, dropout masks, exploration,
@@ -36,9 +36,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from cartpole.agents.adam import FusedAdam
 from cartpole.agents.learner import LearnResult
 from cartpole.agents.memory import dqn_memory_problem
+from cartpole.agents.optimizers import FusedAdam
 from cartpole.agents.q_network import ACTIVATIONS, QNetwork, QNetworkPolicy
 from cartpole.agents.registry import AgentSpec
 from cartpole.agents.replay_buffer import ReplayBuffer
@@ -220,7 +220,7 @@ class DQNLearner:
         self.parameters = list(self.q_net.parameters())
         self.target_parameters = list(self.target_net.parameters()) if self.target_net is not None else []
         # Adam as torch.optim.Adam(fused=True) computes it, without torch.optim's one-off ~1.8 s import
-        # of torch._dynamo and its per-step wrapper (see agents/adam.py).
+        # of torch._dynamo and its per-step wrapper (see agents/optimizers.py).
         self.optimizer = FusedAdam(self.parameters, lr=config.lr)
         self.buffer = ReplayBuffer(config.buffer_size, env.obs_dim, self.device)
 

@@ -22,6 +22,7 @@ import torch
 
 from cartpole.agents.actor_critic import SCHEDULES, schedule_value
 from cartpole.agents.learner import LearnResult
+from cartpole.agents.optimizers import Optimizer
 from cartpole.agents.policy_gradient import (
     Batch,
     PolicyGradientConfig,
@@ -128,7 +129,7 @@ class PPOLearner(PolicyGradientLearner):
     def __init__(self, config: PPOConfig, env: EnvInfo, seed: int, device: str = "cpu"):
         config.validate()
 
-        def make_optimizer(parameters: list[torch.Tensor]) -> torch.optim.Optimizer:
+        def make_optimizer(parameters: list[torch.Tensor]) -> Optimizer:
             return adam(parameters, lr=config.lr, eps=config.adam_eps)
 
         super().__init__(config, env, seed, device, config.n_steps, make_optimizer)

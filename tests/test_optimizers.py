@@ -1,10 +1,10 @@
-"""agents/adam.py: the update and state of torch.optim.Adam(fused=True), bit for bit."""
+"""agents/optimizers.py: the updates and state of torch.optim.Adam(fused=True) and RMSprop, bit for bit."""
 
 from __future__ import annotations
 
 import torch
 
-from cartpole.agents.adam import FusedAdam
+from cartpole.agents.optimizers import FusedAdam, RMSprop
 
 
 def make_parameters(seed: int) -> list[torch.Tensor]:
@@ -65,3 +65,40 @@ def test_zero_grad_clears_the_gradients() -> None:
     assert all(p.grad is None for p in parameters)
     optimizer.step()  # no gradient: nothing moves, no state changes
     assert all(int(step) == 0 for step in optimizer.steps)
+
+
+def test_rmsprop_steps_are_bitwise_those_of_torch_rmsprop() -> None:
+    ours_params, torch_params = make_parameters(2), make_parameters(2)
+    ours = RMSprop(ours_params, lr=7e-4, alpha=0.9, eps=1e-5)
+    reference = torch.optim.RMSprop(torch_params, lr=7e-4, alpha=0.9, eps=1e-5)
+    for step in range(25):
+        skip = 2 if step % 4 == 0 else None  # a parameter without a gradient is left alone, state too
+        set_gradients(ours_params, step, skip)
+        set_gradients(torch_params, step, skip)
+        ours.step()
+        reference.step()
+    assert all(torch.equal(a, b) for a, b in zip(ours_params, torch_params, strict=True))
+    for index, parameter in enumerate(torch_params):
+        state = reference.state[parameter]
+        assert torch.equal(ours.steps[index], state["step"])
+        assert torch.equal(ours.square_avgs[index], state["square_avg"])
+
+
+def test_rmsprop_state_round_trip_continues_exactly() -> None:
+    params_a, params_b = make_parameters(3), make_parameters(3)
+    a = RMSprop(params_a, lr=1e-2)
+    for step in range(5):
+        set_gradients(params_a, step)
+        a.step()
+    tensors, _ = a.state_dict()
+    with torch.no_grad():
+        for pa, pb in zip(params_a, params_b, strict=True):
+            pb.copy_(pa)
+    b = RMSprop(params_b, lr=1e-2)
+    b.load_state_dict({k: v.clone() for k, v in tensors.items()})
+    for step in range(5, 10):
+        set_gradients(params_a, step)
+        set_gradients(params_b, step)
+        a.step()
+        b.step()
+    assert all(torch.equal(x, y) for x, y in zip(params_a, params_b, strict=True))
