@@ -26,8 +26,63 @@ from torch.optim.adam import adam as functional_adam
 from torch.optim.rmsprop import rmsprop as functional_rmsprop
 
 
-class FusedAdam:
+class FunctionalOptimizer:
+    """What FusedAdam and RMSprop share: the parameters, a learning rate, and per-parameter state in
+    ``torch.optim``'s layout (a float32 ``step`` on the parameter's device, as ``torch.optim`` creates
+    it, and the ``slots`` shaped like the parameter)."""
+
+    slots: tuple[str, ...] = ()
+
+    def __init__(self, parameters: Iterable[torch.Tensor], lr: float):
+        self.parameters = list(parameters)
+        self.lr = float(lr)
+        self.steps = [torch.zeros((), dtype=torch.float32, device=p.device) for p in self.parameters]
+        self.state: dict[str, list[torch.Tensor]] = {"step": self.steps}
+        for name in self.slots:
+            self.state[name] = [
+                torch.zeros_like(p, memory_format=torch.preserve_format) for p in self.parameters
+            ]
+
+    def zero_grad(self) -> None:
+        for parameter in self.parameters:  # as Optimizer.zero_grad(set_to_none=True)
+            parameter.grad = None
+
+    def with_gradients(self) -> tuple[list[torch.Tensor], list[torch.Tensor], dict[str, list[torch.Tensor]]]:
+        """The parameters that have a gradient, their gradients and their state (as torch.optim, a
+        step leaves the others and their state alone)."""
+        kept = [i for i, p in enumerate(self.parameters) if p.grad is not None]
+        params = [self.parameters[i] for i in kept]
+        grads = [p.grad for p in params if p.grad is not None]
+        return params, grads, {name: [values[i] for i in kept] for name, values in self.state.items()}
+
+    def hyperparameters(self) -> dict[str, Any]:
+        return {"lr": self.lr}
+
+    def state_dict(self) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+        """Tensors keyed ``"{index}.{name}"`` (``torch.optim``'s state layout) and the hyperparameters."""
+        tensors = {
+            f"{index}.{name}": value
+            for name, values in self.state.items()
+            for index, value in enumerate(values)
+        }
+        return tensors, self.hyperparameters()
+
+    def load_state_dict(self, tensors: dict[str, torch.Tensor]) -> None:
+        """Restore what ``state_dict`` gave, or a ``torch.optim`` state flattened the same way (copies in
+        place)."""
+        for index in range(len(self.parameters)):
+            present = f"{index}.step" in tensors  # torch.optim keeps no state for a never-updated parameter
+            for name, values in self.state.items():
+                if present:
+                    values[index].copy_(tensors[f"{index}.{name}"])
+                else:
+                    values[index].zero_()
+
+
+class FusedAdam(FunctionalOptimizer):
     """Adam over ``parameters`` with the state and update of ``torch.optim.Adam(fused=True)``."""
+
+    slots = ("exp_avg", "exp_avg_sq")
 
     def __init__(
         self,
@@ -36,101 +91,50 @@ class FusedAdam:
         betas: tuple[float, float] = (0.9, 0.999),
         eps: float = 1e-8,
     ):
-        self.parameters = list(parameters)
-        self.lr, self.betas, self.eps = float(lr), (float(betas[0]), float(betas[1])), float(eps)
-        # As torch.optim.Adam creates them lazily for fused=True: a float32 step on the parameter's device.
-        self.steps = [torch.zeros((), dtype=torch.float32, device=p.device) for p in self.parameters]
-        self.exp_avgs = [torch.zeros_like(p, memory_format=torch.preserve_format) for p in self.parameters]
-        self.exp_avg_sqs = [torch.zeros_like(p, memory_format=torch.preserve_format) for p in self.parameters]
-
-    def zero_grad(self) -> None:
-        for parameter in self.parameters:  # as Optimizer.zero_grad(set_to_none=True)
-            parameter.grad = None
+        super().__init__(parameters, lr)
+        self.betas, self.eps = (float(betas[0]), float(betas[1])), float(eps)
+        self.exp_avgs, self.exp_avg_sqs = self.state["exp_avg"], self.state["exp_avg_sq"]
 
     @torch.no_grad()
     def step(self) -> None:
-        """One Adam update of every parameter that has a gradient (as torch.optim, the others and
-        their state are left alone)."""
-        kept = [i for i, p in enumerate(self.parameters) if p.grad is not None]
-        if not kept:
+        """One Adam update of every parameter that has a gradient."""
+        params, grads, state = self.with_gradients()
+        if not params:
             return
-        params = [self.parameters[i] for i in kept]
-        grads = [p.grad for p in params if p.grad is not None]
         functional_adam(
-            params, grads, [self.exp_avgs[i] for i in kept], [self.exp_avg_sqs[i] for i in kept], [],
-            [self.steps[i] for i in kept], fused=True, amsgrad=False, beta1=self.betas[0],
-            beta2=self.betas[1], lr=self.lr, weight_decay=0.0, eps=self.eps, maximize=False,
+            params, grads, state["exp_avg"], state["exp_avg_sq"], [], state["step"], fused=True,
+            amsgrad=False, beta1=self.betas[0], beta2=self.betas[1], lr=self.lr, weight_decay=0.0,
+            eps=self.eps, maximize=False,
         )  # fmt: skip
 
-    def state_dict(self) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
-        """Tensors keyed ``"{index}.step|exp_avg|exp_avg_sq"`` (``torch.optim``'s state layout) and the
-        hyperparameters."""
-        tensors: dict[str, torch.Tensor] = {}
-        for index, (step, exp_avg, exp_avg_sq) in enumerate(
-            zip(self.steps, self.exp_avgs, self.exp_avg_sqs, strict=True)
-        ):
-            tensors |= {f"{index}.step": step, f"{index}.exp_avg": exp_avg, f"{index}.exp_avg_sq": exp_avg_sq}
-        return tensors, {"lr": self.lr, "betas": list(self.betas), "eps": self.eps}
-
-    def load_state_dict(self, tensors: dict[str, torch.Tensor]) -> None:
-        """Restore what ``state_dict`` gave, or a ``torch.optim.Adam`` state flattened the same way
-        (copies in place)."""
-        for index in range(len(self.parameters)):
-            if f"{index}.step" not in tensors:  # torch.optim keeps no state for a never-updated parameter
-                self.steps[index].zero_()
-                self.exp_avgs[index].zero_()
-                self.exp_avg_sqs[index].zero_()
-                continue
-            self.steps[index].copy_(tensors[f"{index}.step"])
-            self.exp_avgs[index].copy_(tensors[f"{index}.exp_avg"])
-            self.exp_avg_sqs[index].copy_(tensors[f"{index}.exp_avg_sq"])
+    def hyperparameters(self) -> dict[str, Any]:
+        return {"lr": self.lr, "betas": list(self.betas), "eps": self.eps}
 
 
-class RMSprop:
+class RMSprop(FunctionalOptimizer):
     """RMSprop over ``parameters`` with the state and update of ``torch.optim.RMSprop`` (no momentum,
     not centred, no weight decay: the single-tensor loop it runs on CPU)."""
 
-    def __init__(self, parameters: Iterable[torch.Tensor], lr: float, alpha: float = 0.99, eps: float = 1e-8):
-        self.parameters = list(parameters)
-        self.lr, self.alpha, self.eps = float(lr), float(alpha), float(eps)
-        self.steps = [torch.zeros((), dtype=torch.float32, device=p.device) for p in self.parameters]
-        self.square_avgs = [torch.zeros_like(p, memory_format=torch.preserve_format) for p in self.parameters]
+    slots = ("square_avg",)
 
-    def zero_grad(self) -> None:
-        for parameter in self.parameters:  # as Optimizer.zero_grad(set_to_none=True)
-            parameter.grad = None
+    def __init__(self, parameters: Iterable[torch.Tensor], lr: float, alpha: float = 0.99, eps: float = 1e-8):
+        super().__init__(parameters, lr)
+        self.alpha, self.eps = float(alpha), float(eps)
+        self.square_avgs = self.state["square_avg"]
 
     @torch.no_grad()
     def step(self) -> None:
-        """One RMSprop update of every parameter that has a gradient (the others are left alone)."""
-        kept = [i for i, p in enumerate(self.parameters) if p.grad is not None]
-        if not kept:
+        """One RMSprop update of every parameter that has a gradient."""
+        params, grads, state = self.with_gradients()
+        if not params:
             return
-        params = [self.parameters[i] for i in kept]
-        grads = [p.grad for p in params if p.grad is not None]
         functional_rmsprop(
-            params, grads, [self.square_avgs[i] for i in kept], [], [], [self.steps[i] for i in kept],
-            foreach=False, lr=self.lr, alpha=self.alpha, eps=self.eps, weight_decay=0.0, momentum=0.0,
-            centered=False,
+            params, grads, state["square_avg"], [], [], state["step"], foreach=False, lr=self.lr,
+            alpha=self.alpha, eps=self.eps, weight_decay=0.0, momentum=0.0, centered=False,
         )  # fmt: skip
 
-    def state_dict(self) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
-        """Tensors keyed ``"{index}.step|square_avg"`` (``torch.optim``'s state layout) and the
-        hyperparameters."""
-        tensors: dict[str, torch.Tensor] = {}
-        for index, (step, square_avg) in enumerate(zip(self.steps, self.square_avgs, strict=True)):
-            tensors |= {f"{index}.step": step, f"{index}.square_avg": square_avg}
-        return tensors, {"lr": self.lr, "alpha": self.alpha, "eps": self.eps}
-
-    def load_state_dict(self, tensors: dict[str, torch.Tensor]) -> None:
-        """Restore what ``state_dict`` gave, or a ``torch.optim.RMSprop`` state flattened the same way."""
-        for index in range(len(self.parameters)):
-            if f"{index}.step" not in tensors:  # torch.optim keeps no state for a never-updated parameter
-                self.steps[index].zero_()
-                self.square_avgs[index].zero_()
-                continue
-            self.steps[index].copy_(tensors[f"{index}.step"])
-            self.square_avgs[index].copy_(tensors[f"{index}.square_avg"])
+    def hyperparameters(self) -> dict[str, Any]:
+        return {"lr": self.lr, "alpha": self.alpha, "eps": self.eps}
 
 
 class Optimizer(Protocol):
