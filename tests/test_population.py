@@ -55,14 +55,14 @@ def small_config(**changes: object) -> PPOConfig:
 A2C_SMALL = {"n_steps": 8, "num_envs": 4, "hidden_sizes": (16, 16)}
 
 
-def small_population(agent: str, seeds: list[int], **changes: object) -> Any:
+def small_population(agent: str, seeds: list[int], device: str = "cpu", **changes: object) -> Any:
     """A small PPO or A2C population (the actor-critic ones share these tests)."""
     if agent == "ppo":
-        return PopulationPPO(small_config(**changes), CARTPOLE, seeds)
+        return PopulationPPO(small_config(**changes), CARTPOLE, seeds, device)
     if agent == "reinforce":
         config = ReinforceConfig(**(REINFORCE_SMALL | changes))  # type: ignore[arg-type]
-        return PopulationReinforce(config, CARTPOLE, seeds)
-    return PopulationA2C(A2CConfig(**(A2C_SMALL | changes)), CARTPOLE, seeds)  # type: ignore[arg-type]
+        return PopulationReinforce(config, CARTPOLE, seeds, device)
+    return PopulationA2C(A2CConfig(**(A2C_SMALL | changes)), CARTPOLE, seeds, device)  # type: ignore[arg-type]
 
 
 REINFORCE_SMALL = {"num_envs": 3, "hidden_sizes": (16, 16)}
@@ -151,6 +151,41 @@ def test_removing_a_stopped_seed_leaves_the_others_unchanged(agent):
     after_three, after_two = three.learn(), two.learn()
     assert same(after_three[3], after_two[3]) and same(after_three[7], after_two[7])
     assert_same(weights(three, 7), weights(two, 7))
+
+
+# -- devices ----------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("agent", ACTOR_CRITICS)
+def test_every_tensor_lives_on_the_population_device(agent):
+    """What ``--device cuda`` needs, checked on a CPU: with torch's default device set to another one
+    (meta), a tensor the population made without naming its device could not meet the others."""
+    torch.set_default_device("meta")
+    try:
+        population = small_population(agent, [3, 5, 7], lr_schedule="linear", schedule_steps=10_000)
+        learn(population, 2)
+        population.remove([5])
+        learn(population, 1)
+        actions = population.greedy_actor([3, 7])(torch.zeros(6, 4, device="cpu").numpy())
+        tensors, data = population.seed_state_dict(7, resume=True)
+        population.load_seed_state_dict(7, tensors, data)
+    finally:
+        torch.set_default_device(None)
+    assert actions.shape == (6,) and all(t.device.type == "cpu" for t in tensors.values())
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+@pytest.mark.parametrize("agent", ACTOR_CRITICS)
+def test_a_population_trains_on_cuda_and_its_checkpoints_load_on_the_cpu(agent, tmp_path):
+    population = small_population(agent, [3, 5], device="cuda")
+    assert population.model.flat.device.type == "cuda"
+    results = learn(population, 3)
+    assert all(r[3].env_steps > 0 for r in results)
+    tensors, data = population.seed_state_dict(3, resume=True)
+    assert all(t.device.type == "cpu" for t in tensors.values())
+    on_cpu = small_population(agent, [3, 5])
+    on_cpu.load_seed_state_dict(3, tensors, data)
+    assert_same(weights(on_cpu, 3), {k: v for k, v in tensors.items() if k in weights(on_cpu, 3)})
 
 
 def test_seeds_start_as_their_single_runs():
@@ -311,6 +346,22 @@ def test_batched_verdict_is_the_single_evaluation(population_runs):
     assert verdict["simulator"] == "gymnasium"
 
 
+def test_tensorboard_gives_each_seed_its_own_events(tmp_path):
+    pytest.importorskip("tensorboard")
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    outcome = train_population(
+        "ppo", [3, 5], overrides=SMALL, budget="100", runs_dir=tmp_path, tensorboard=True
+    )
+    for seed, run in outcome.runs.items():
+        rows = [r for r in metric_rows(run.path) if "train/policy_loss" in r]
+        events = EventAccumulator(str(run.path / "tensorboard"))
+        events.Reload()
+        logged = [(e.step, e.value) for e in events.Scalars("train/policy_loss")]
+        assert logged == [(r["step"], pytest.approx(r["train/policy_loss"])) for r in rows], seed
+        assert rows and json.loads((run.path / "config.json").read_text())["tensorboard"] is True
+
+
 # -- evaluations played together --------------------------------------------------------------------
 
 
@@ -384,6 +435,10 @@ def run_cli(*args: str, **kwargs: object) -> subprocess.CompletedProcess[str]:
         ["dqn", "--seeds", "0-3"],
         ["dqn", "--seeds", "3,5,8"],
         ["ppo", "--seeds", "0-4000", "--set", "hidden_sizes=2048,2048"],
+        pytest.param(
+            ["ppo", "--seeds", "0-3", "--device", "cuda"],
+            marks=pytest.mark.skipif(torch.cuda.is_available(), reason="a GPU is here: it would train"),
+        ),
     ],
 )
 def test_bad_population_input_is_one_line_exit_2_and_no_folder(tmp_path, capsys, args):
@@ -401,7 +456,9 @@ def test_bad_population_input_through_the_command(tmp_path):
 
 def test_sigint_saves_every_seed_and_resume_continues_them_all(tmp_path):
     runs_dir = tmp_path / "runs"
-    args = ["train", "ppo", "--seeds", "0-2", "--budget", "20k", "--runs-dir", str(runs_dir), "--quiet"]
+    # Long enough to be training still when each seed's status first shows steps (every 5 s).
+    args = ["train", "ppo", "--seeds", "0-2", "--budget", "60k", "--no-stop-when-solved", "--quiet"]
+    args += ["--runs-dir", str(runs_dir)]
     process = subprocess.Popen(
         [sys.executable, "-m", "cartpole", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
@@ -427,7 +484,7 @@ def test_sigint_saves_every_seed_and_resume_continues_them_all(tmp_path):
 
 
 def test_kill_9_loses_at_most_one_checkpoint_interval_and_resume_finishes_every_seed(tmp_path):
-    runs_dir, budget = tmp_path / "runs", 20_000
+    runs_dir, budget = tmp_path / "runs", 60_000  # still training when the rows first show (5 s)
     args = ["train", "ppo", "--seeds", "0-2", "--budget", str(budget), "--no-stop-when-solved"]
     process = subprocess.Popen(
         [sys.executable, "-m", "cartpole", *args, "--runs-dir", str(runs_dir), "--quiet"],

@@ -79,7 +79,7 @@ def add_parser(sub: Any) -> None:
         "--device",
         default="auto",
         choices=["auto", "cpu", "cuda"],
-        help="torch device for neural agents (default: auto, CUDA when present)",
+        help="torch device for neural agents (default: auto: CUDA when present; with --seeds, the CPU)",
     )
     parser.add_argument(
         "--no-stop-when-solved",
@@ -214,13 +214,11 @@ def run_population(args: argparse.Namespace) -> int:
             raise UsageError(
                 "--resume continues a population with its recorded config; drop AGENT/--set/--budget/--seeds"
             )
-        outcome = resume_population(args.resume, quiet=args.quiet)
+        outcome = resume_population(args.resume, quiet=args.quiet, device=args.device)
     else:
         agent = args.agent or DEFAULT_AGENT
         check_population_agent(agent)
         seeds = parse_seeds(args.seeds)
-        if args.tensorboard:
-            raise UsageError("--tensorboard is not offered with --seeds yet; train one seed with --seed N")
         try:
             budget = None if args.budget is None else parse_budget(args.budget)
         except ValueError as err:
@@ -237,6 +235,7 @@ def run_population(args: argparse.Namespace) -> int:
             stop_when_solved=False if args.no_stop_when_solved else None,
             quiet=args.quiet,
             command=["cartpole", *sys.argv[1:]],
+            tensorboard=args.tensorboard,
         )
     for line in population_summary(outcome):
         console.print(line, highlight=False)

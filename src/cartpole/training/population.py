@@ -40,7 +40,7 @@ from cartpole.envs import EnvInfo, Simulator, check_simulator, env_info
 from cartpole.evaluation import MIN_EPISODES_FOR_SOLVED, EvalReport, Policy, play_greedy_episodes
 from cartpole.runs import LiveStatus, RunDir, displayed_state, load_checkpoint
 from cartpole.training.budget import Budget, parse_budget
-from cartpole.training.callbacks import status_fields
+from cartpole.training.callbacks import require_tensorboard, status_fields
 from cartpole.training.config import TrainSettings, resolve_config
 from cartpole.training.loop import LoopState, TrainingLoop
 from cartpole.training.session import (
@@ -298,9 +298,15 @@ def train_population(
     quiet: bool = True,
     command: list[str] | None = None,
     stream: TextIO | None = None,
+    tensorboard: bool = False,
 ) -> PopulationOutcome:
-    """Train ``agent`` with every seed of ``seeds`` in one process; a run folder per seed."""
+    """Train ``agent`` with every seed of ``seeds`` in one process; a run folder per seed.
+
+    With ``tensorboard`` each seed's metrics also go to ``<run>/tensorboard/`` (the tensorboard extra).
+    """
     check_population_agent(agent)
+    if tensorboard:
+        require_tensorboard()  # before a run folder is made
     if not seeds:
         raise InputError("no seeds to train")
     if len(set(seeds)) != len(seeds):
@@ -313,7 +319,7 @@ def train_population(
     if isinstance(budget, str):
         budget = parse_budget(budget)
     budget = budget or parse_budget(settings.budget)
-    device = "cpu" if device == "auto" else resolve_device(device)
+    device = population_device(device)
     check_memory(bytes_per_seed(config, env) * len(seeds), len(seeds))
     population = make_population(agent, config, env, seeds, device)
     population_record = {"id": uuid.uuid4().hex[:12], "seeds": list(seeds)}
@@ -325,10 +331,16 @@ def train_population(
             stack.enter_context(run.lock())
             record = run_record(
                 agent, env_id, seed, preset, config, settings, overrides, budget, device, command
-            ) | {"population": population_record}
+            ) | {"population": population_record, "tensorboard": tensorboard}
             run.write_config(record)
             setups.append(RunSetup.from_record(run, record))
         return run_population(population, setups, {}, quiet, stream)
+
+
+def population_device(device: str) -> str:
+    """``cpu`` for ``auto``: a population runs on a GPU only when asked (``--device cuda``); it has
+    not been measured on one yet, and on the CPU it is the figures the README gives."""
+    return "cpu" if device == "auto" else resolve_device(device)
 
 
 def population_members(run_path: Path | str) -> list[RunDir]:
@@ -354,9 +366,11 @@ def is_population_run(run_path: Path | str) -> bool:
 
 
 def resume_population(
-    run_path: Path | str, *, quiet: bool = True, stream: TextIO | None = None
+    run_path: Path | str, *, quiet: bool = True, stream: TextIO | None = None, device: str = "auto"
 ) -> PopulationOutcome:
-    """Continue every unfinished member of ``run_path``'s population from its ``latest.pt``."""
+    """Continue every unfinished member of ``run_path``'s population from its ``latest.pt``, on
+    ``device`` (the population's rule: ``auto`` is the CPU)."""
+    device = population_device(device)
     runs = [
         run for run in population_members(run_path) if displayed_state(run.status()) is not RunState.FINISHED
     ]
@@ -368,7 +382,7 @@ def resume_population(
         setups = [RunSetup.from_record(run, run.config()) for run in runs]
         first = setups[0]
         population = make_population(
-            first.spec.name, first.config, first.env, [s.seed for s in setups], "cpu"
+            first.spec.name, first.config, first.env, [s.seed for s in setups], device
         )
         states: dict[int, LoopState] = {}
         for setup in setups:
