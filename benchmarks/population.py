@@ -13,20 +13,25 @@ Printed:
   time from start to the last verdict, CPU seconds (user + system, the whole child: imports, training,
   verdicts) per seed, peak RSS, env steps/s, seeds/min;
 - single runs: the same verdicts, and the training CPU seconds per run (``cartpole.training.train``,
-  in one process; a separate process per run would add its imports on top);
-- the CPU ratio, and the solve-step distributions of both (first verified solve in training, env
-  steps): medians and a two-sample Mann-Whitney U test's p-value (scipy).
+  one after the other in one process, so imports are paid once and left out);
+- single runs as a person runs them without ``--seeds``: one ``cartpole train AGENT --seed S`` process
+  per seed, CPU seconds of the whole process (imports, training, verdict, files), as the population's;
+- both CPU ratios, and the solve-step distributions (first verified solve in training, env steps) of
+  the population and the in-process single runs: medians and a two-sample Mann-Whitney U test's
+  p-value (scipy).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import resource
 import subprocess
 import sys
 import tempfile
 import time
+from contextlib import suppress
 from pathlib import Path
 
 
@@ -58,6 +63,7 @@ def run_population_part(agent: str, seeds: int, preset: str, runs_dir: Path) -> 
         "solved_at": [s.solved_at_step for s in states],
         "verified": sum(r.solved for r in outcome.reports.values()),
         "threads": torch.get_num_threads(),
+        "machine": machine(),
     }
 
 
@@ -79,6 +85,32 @@ def run_singles_part(agent: str, seeds: int, preset: str, runs_dir: Path) -> dic
     return {"cpu_per_run": cpu, "solved_at": solved_at, "verified": verified, "rss_mb": peak_rss_mb()}
 
 
+def run_processes_part(agent: str, seeds: int, preset: str, runs_dir: Path) -> dict[str, object]:
+    """Each seed as its own ``cartpole train`` process; CPU seconds of each whole child process."""
+    cpu = []
+    for seed in range(seeds):
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        command = [sys.executable, "-m", "cartpole", "train", agent, "--seed", str(seed), "--preset", preset]
+        command += ["--quiet", "--runs-dir", str(runs_dir)]
+        subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        cpu.append(after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime)
+        print(f"process seed {seed}: {cpu[-1]:.1f} CPU s", file=sys.stderr, flush=True)
+    return {"cpu_per_process": cpu}
+
+
+def machine() -> str:
+    """The CPU's model and whether it has AVX-512 (NumPy's and torch's float kernels differ by it)."""
+    model, avx512 = "unknown CPU", False
+    with suppress(OSError), open("/proc/cpuinfo", encoding="utf-8") as handle:
+        for line in handle:
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+            elif line.startswith("flags"):
+                avx512 = "avx512f" in line.split()
+    return f"{model}, {os.cpu_count()} CPUs, AVX-512: {'yes' if avx512 else 'no'}"
+
+
 def child(part: str, agent: str, seeds: int, preset: str, threads: int, out: Path) -> dict[str, object]:
     """Run one part in its own process; its result is also kept as ``out/<part>.json``."""
     with tempfile.TemporaryDirectory() as tmp:
@@ -96,7 +128,13 @@ def median(values: list[int]) -> float:
     return float(np.median(values)) if values else float("nan")
 
 
-def report(population: dict[str, object], singles: dict[str, object], seeds: int, runs: int) -> None:
+def report(
+    population: dict[str, object],
+    singles: dict[str, object],
+    processes: dict[str, object] | None,
+    seeds: int,
+    runs: int,
+) -> None:
     from scipy.stats import mannwhitneyu
 
     pop_cpu = float(population["cpu"]) / seeds  # type: ignore[arg-type]
@@ -105,6 +143,7 @@ def report(population: dict[str, object], singles: dict[str, object], seeds: int
     pop_steps = [s for s in population["solved_at"] if s is not None]  # type: ignore[attr-defined]
     single_steps = [s for s in singles["solved_at"] if s is not None]  # type: ignore[attr-defined]
     p_value = mannwhitneyu(pop_steps, single_steps).pvalue if pop_steps and single_steps else float("nan")
+    print(f"cpu: {population.get('machine', 'not recorded')}")
     rows = [
         ("population seeds", f"{seeds} ({population.get('threads', 1)} torch threads; single runs: 1)"),
         ("verified solves (population)", f"{population['verified']}/{seeds}"),
@@ -112,6 +151,15 @@ def report(population: dict[str, object], singles: dict[str, object], seeds: int
         ("CPU per seed, population (whole process)", f"{pop_cpu:.2f} s"),
         ("CPU per run, single runs (median of training)", f"{single_cpu:.2f} s"),
         ("CPU ratio single / population", f"{single_cpu / pop_cpu:.1f}x"),
+    ]
+    if processes is not None:
+        process_cpu = median(processes["cpu_per_process"])  # type: ignore[arg-type]
+        count = len(processes["cpu_per_process"])  # type: ignore[arg-type]
+        rows += [
+            (f"CPU per run, {count} `cartpole train` processes (median)", f"{process_cpu:.2f} s"),
+            ("CPU ratio process / population", f"{process_cpu / pop_cpu:.1f}x"),
+        ]
+    rows += [
         ("peak RSS, population process", f"{population['rss_mb']:.0f} MB"),
         ("env steps/s (all seeds)", f"{float(population['steps']) / wall:,.0f}"),  # type: ignore[arg-type]
         ("seeds/min", f"{seeds / wall * 60:.1f}"),
@@ -132,6 +180,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, default=100, help="population size (default 100)")
     parser.add_argument("--singles", type=int, default=20, help="single runs to compare with (default 20)")
+    parser.add_argument(
+        "--processes",
+        type=int,
+        default=10,
+        help="single runs as separate `cartpole train` processes, seeds 0..N-1 (default 10; 0: none)",
+    )
     parser.add_argument("--agent", default="ppo", help="ppo, a2c, cem, random-search or hill-climbing")
     parser.add_argument("--preset", default="default")
     parser.add_argument(
@@ -143,7 +197,7 @@ def main() -> None:
     )
     parser.add_argument("--out", default="runs/population-benchmark", help="where each part's JSON is kept")
     parser.add_argument("--report-only", action="store_true", help="print the table from --out's JSON files")
-    parser.add_argument("--part", choices=["population", "singles"], help=argparse.SUPPRESS)
+    parser.add_argument("--part", choices=["population", "singles", "processes"], help=argparse.SUPPRESS)
     parser.add_argument("--n", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--dir", help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -152,7 +206,8 @@ def main() -> None:
 
         if args.part == "singles" or args.population_threads:  # as `cartpole train` sets them
             torch.set_num_threads(1 if args.part == "singles" else args.population_threads)
-        run = run_population_part if args.part == "population" else run_singles_part
+        parts = {"population": run_population_part, "singles": run_singles_part}
+        run = parts.get(args.part, run_processes_part)
         print(json.dumps(run(args.agent, args.n, args.preset, Path(args.dir))))
         return
     out = Path(args.out)
@@ -160,11 +215,16 @@ def main() -> None:
     if args.report_only:
         population = json.loads((out / "population.json").read_text())
         singles = json.loads((out / "singles.json").read_text())
-        report(population, singles, len(population["solved_at"]), len(singles["solved_at"]))
+        kept = out / "processes.json"
+        processes = json.loads(kept.read_text()) if kept.exists() else None
+        report(population, singles, processes, len(population["solved_at"]), len(singles["solved_at"]))
         return
     population = child("population", args.agent, args.seeds, args.preset, args.population_threads, out)
     singles = child("singles", args.agent, args.singles, args.preset, args.population_threads, out)
-    report(population, singles, args.seeds, args.singles)
+    processes = None
+    if args.processes:
+        processes = child("processes", args.agent, args.processes, args.preset, args.population_threads, out)
+    report(population, singles, processes, args.seeds, args.singles)
 
 
 if __name__ == "__main__":

@@ -13,7 +13,12 @@ import pytest
 import torch
 
 from cartpole.agents.a2c import A2CConfig, A2CLearner
-from cartpole.agents.actor_critic import ActorCritic, CategoricalPolicy, schedule_value
+from cartpole.agents.actor_critic import (
+    ActorCritic,
+    CategoricalPolicy,
+    schedule_value,
+    stacked_greedy_actor,
+)
 from cartpole.agents.policy_gradient import PolicyGradientLearner
 from cartpole.agents.ppo import PPOConfig, PPOLearner, clipped_surrogate_loss, value_loss
 from cartpole.agents.presets import preset_names
@@ -131,6 +136,26 @@ def test_actor_critic_shapes_trunks_and_numpy_policy(shared: bool, activation: s
         expected = torch.softmax(model.logits(observations), dim=-1).numpy()
     np.testing.assert_allclose(policy.scores(observations.numpy()), expected, rtol=1e-5, atol=1e-6)
     np.testing.assert_array_equal(policy.act(observations.numpy()), expected.argmax(axis=1))
+
+
+@pytest.mark.parametrize("activation", ["tanh", "relu"])
+def test_stacked_greedy_actor_acts_as_each_policy_alone(activation: str) -> None:
+    """A population's verdicts play every seed's policy in one stacked forward pass: seed i's block
+    of rows gets exactly the actions its own policy gives them."""
+    policies: list[object] = [
+        CategoricalPolicy(
+            ActorCritic(4, 2, (16, 16), activation, generator=torch.Generator().manual_seed(seed))
+        )
+        for seed in range(3)
+    ]
+    observations = np.random.default_rng(0).normal(size=(3 * 7, 4)).astype(np.float32)
+    act = stacked_greedy_actor(policies, obs_dim=4)
+    assert act is not None
+    alone = [p.act(block) for p, block in zip(policies, np.split(observations, 3), strict=True)]  # type: ignore[attr-defined]
+    np.testing.assert_array_equal(act(observations), np.concatenate(alone))
+    other_shape = CategoricalPolicy(ActorCritic(4, 2, (8,), activation))
+    assert stacked_greedy_actor([*policies, other_shape], obs_dim=4) is None
+    assert stacked_greedy_actor([*policies, object()], obs_dim=4) is None
 
 
 def test_orthogonal_init_gains_and_seeded_init() -> None:

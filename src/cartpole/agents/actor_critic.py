@@ -14,12 +14,13 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Callable
 
 import numpy as np
 import torch
 from torch import nn
 
-from cartpole.agents.numpy_mlp import NumpyMLP
+from cartpole.agents.numpy_mlp import NumpyMLP, StackedNumpyMLP
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
 """Hidden-layer activations; each has a numpy twin (:mod:`cartpole.agents.numpy_mlp`)."""
@@ -147,4 +148,33 @@ class CategoricalPolicy:
         return self.logits(observations).argmax(axis=1)
 
 
-__all__ = ["ACTIVATIONS", "SCHEDULES", "ActorCritic", "CategoricalPolicy", "schedule_value"]
+def block_greedy_actor(logits: StackedNumpyMLP, obs_dim: int) -> Callable[[np.ndarray], np.ndarray]:
+    """The greedy actions of S stacked actors (``logits``) as one function: observations ``[S * E,
+    obs_dim]`` with actor i's E rows in block i, to actions ``[S * E]``."""
+    count = logits.plan[0][0].shape[0]  # type: ignore[index]  # the first step is a linear layer
+
+    def act(observations: np.ndarray) -> np.ndarray:
+        x = np.asarray(observations, dtype=np.float32).reshape(count, -1, obs_dim)
+        return logits(x).argmax(axis=-1).reshape(-1)
+
+    return act
+
+
+def stacked_greedy_actor(policies: list[object], obs_dim: int) -> Callable[[np.ndarray], np.ndarray] | None:
+    """:func:`block_greedy_actor` of ``policies`` when they are :class:`CategoricalPolicy` objects of
+    one shape (a population's verdicts), else None. Each policy's actions are those it takes alone."""
+    if not all(isinstance(p, CategoricalPolicy) for p in policies):
+        return None
+    stacked = StackedNumpyMLP.stack([p.logits for p in policies])  # type: ignore[attr-defined]
+    return None if stacked is None else block_greedy_actor(stacked, obs_dim)
+
+
+__all__ = [
+    "ACTIVATIONS",
+    "SCHEDULES",
+    "ActorCritic",
+    "CategoricalPolicy",
+    "block_greedy_actor",
+    "schedule_value",
+    "stacked_greedy_actor",
+]

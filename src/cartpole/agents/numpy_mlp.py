@@ -14,13 +14,15 @@ from collections.abc import Callable, Iterable
 import numpy as np
 from torch import nn
 
+from cartpole.agents.fast_tanh import tanh_array
+
 
 def _relu(x: np.ndarray) -> np.ndarray:
     return np.maximum(x, 0.0, out=x)
 
 
 def _tanh(x: np.ndarray) -> np.ndarray:
-    return np.tanh(x, out=x)
+    return tanh_array(x, out=x)
 
 
 def _elu(x: np.ndarray) -> np.ndarray:
@@ -42,6 +44,21 @@ NUMPY_ACTIVATIONS: dict[type[nn.Module], Callable[[np.ndarray], np.ndarray]] = {
 }
 
 
+Step = tuple[np.ndarray, np.ndarray] | Callable[[np.ndarray], np.ndarray]
+"""A step of a numpy forward pass: (weight ``[..., in, out]``, bias ``[..., out]``) or an activation."""
+
+
+def run_steps(plan: list[Step], features: np.ndarray) -> np.ndarray:
+    """``features`` through ``plan``: ``x W + b`` for a linear step, the function for an activation."""
+    for step in plan:
+        if isinstance(step, tuple):
+            features = np.matmul(features, step[0])
+            features += step[1]
+        else:
+            features = step(features)
+    return features
+
+
 def is_dropout(layer: nn.Module) -> bool:
     """Dropout of any kind (torch's or a hand-written one): the identity when a policy acts."""
     return "dropout" in type(layer).__name__.lower()
@@ -54,7 +71,8 @@ class NumpyMLP:
     """
 
     def __init__(self, layers: Iterable[nn.Module]):
-        self.plan: list[tuple[np.ndarray, np.ndarray] | Callable[[np.ndarray], np.ndarray]] = []
+        self.plan: list[Step] = []
+        """Weights ``[in, out]`` (the transpose of torch's) and biases ``[out]``, and the activations."""
         for layer in layers:
             if isinstance(layer, nn.Linear):
                 weight = layer.weight.detach().cpu().numpy().T.copy()
@@ -65,14 +83,42 @@ class NumpyMLP:
                 raise TypeError(f"no numpy form for {type(layer).__name__}")
 
     def __call__(self, inputs: np.ndarray) -> np.ndarray:
-        features = np.asarray(inputs, dtype=np.float32)
-        for step in self.plan:
-            if isinstance(step, tuple):  # a linear layer: x W^T + b
-                features = features @ step[0]
-                features += step[1]
+        return run_steps(self.plan, np.asarray(inputs, dtype=np.float32))
+
+
+class StackedNumpyMLP:
+    """S networks of one shape run as one: inputs ``[S, B, in]`` to outputs ``[S, B, out]``, one
+    ``np.matmul`` per layer for all of them. ``np.matmul`` multiplies each network's slice on its own,
+    so a network's outputs do not depend on the others beside it (tested)."""
+
+    def __init__(self, plan: list[Step]):
+        self.plan = plan
+        """Weights ``[S, in, out]`` and biases ``[S, 1, out]``, and the activations."""
+
+    @classmethod
+    def stack(cls, mlps: list[NumpyMLP]) -> StackedNumpyMLP | None:
+        """The MLPs as one, or None when their layers differ in shape or activation."""
+        plans = [mlp.plan for mlp in mlps]
+        first = plans[0]
+        if any(len(p) != len(first) for p in plans):
+            return None
+        plan: list[Step] = []
+        for index, step in enumerate(first):
+            steps = [p[index] for p in plans]
+            if isinstance(step, tuple):
+                if not all(isinstance(s, tuple) and s[0].shape == step[0].shape for s in steps):
+                    return None
+                weights = np.stack([s[0] for s in steps])  # type: ignore[index]
+                biases = np.stack([s[1] for s in steps])[:, None, :]  # type: ignore[index]
+                plan.append((weights, biases))
+            elif all(s is step for s in steps):
+                plan.append(step)
             else:
-                features = step(features)
-        return features
+                return None
+        return cls(plan)
+
+    def __call__(self, inputs: np.ndarray) -> np.ndarray:
+        return run_steps(self.plan, np.asarray(inputs, dtype=np.float32))
 
 
-__all__ = ["NUMPY_ACTIVATIONS", "NumpyMLP"]
+__all__ = ["NUMPY_ACTIVATIONS", "NumpyMLP", "StackedNumpyMLP"]

@@ -41,12 +41,13 @@ from gymnasium.utils.seeding import np_random
 from torch import nn
 
 from cartpole.agents.a2c import A2CConfig
-from cartpole.agents.actor_critic import ActorCritic, CategoricalPolicy, schedule_value
+from cartpole.agents.actor_critic import ActorCritic, CategoricalPolicy, block_greedy_actor, schedule_value
 from cartpole.agents.env_state import derived_seed
+from cartpole.agents.fast_tanh import tanh
 from cartpole.agents.learner import LearnResult
 from cartpole.agents.linear import CrossEntropyMethod, HillClimbing, RandomSearch
 from cartpole.agents.linear_population import LinearPopulation
-from cartpole.agents.numpy_mlp import NUMPY_ACTIVATIONS
+from cartpole.agents.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step
 from cartpole.agents.policy_gradient import seeded_actor_critic
 from cartpole.agents.ppo import PPOConfig
 from cartpole.agents.registry import POPULATION_AGENTS
@@ -101,36 +102,6 @@ def make_population(
     if agent == "reinforce":
         return PopulationReinforce(config, env, seeds, device)
     raise ConfigError(f"{agent} has no population mode; agents with one: {', '.join(POPULATION_AGENTS)}")
-
-
-class NumpyTanh(torch.autograd.Function):
-    """``tanh`` computed by NumPy, with its gradient ``(1 - tanh^2) * grad``.
-
-    Measured on this 2-core CPU (``[100, 128, 64]`` float32, one thread): ``torch.tanh`` takes 2.7 ns
-    an element at every ATen CPU capability (AVX-512, AVX2, default), NumPy's vectorized ``np.tanh``
-    0.37 ns; a population's update spent a fifth of its CPU in ``torch.tanh``. Elementwise, so a seed
-    still gets the same bits whichever seeds share the batch (tested).
-    """
-
-    @staticmethod
-    def forward(ctx: Any, x: torch.Tensor) -> torch.Tensor:
-        y = torch.from_numpy(np.tanh(x.detach().contiguous().numpy()))
-        ctx.save_for_backward(y)
-        return y
-
-    @staticmethod
-    def backward(ctx: Any, grad: torch.Tensor) -> torch.Tensor:
-        (y,) = ctx.saved_tensors
-        return y.square().neg_().add_(1.0).mul_(grad)
-
-
-def tanh(x: torch.Tensor) -> torch.Tensor:
-    """:class:`NumpyTanh` for CPU tensors, ``torch.tanh`` on any other device."""
-    if x.device.type != "cpu":
-        return torch.tanh(x)
-    if x.requires_grad and torch.is_grad_enabled():
-        return NumpyTanh.apply(x)
-    return torch.from_numpy(np.tanh(x.contiguous().numpy()))
 
 
 TORCH_ACTIVATIONS: dict[type[nn.Module], Callable[[torch.Tensor], torch.Tensor]] = {
@@ -733,11 +704,9 @@ class PopulationActorCritic:
 
         NumPy, as a single run's greedy policy (:class:`~cartpole.agents.numpy_mlp.NumpyMLP`): an
         evaluation acts on a few rows at a time, where torch's per-op overhead dominates (measured
-        here, 10 seeds x 10 envs: 75 us a step through ``baddbmm``, 25 us through ``np.matmul``).
-        ``np.matmul`` multiplies each seed's slice on its own, so a seed's actions do not depend on
-        the others."""
+        here, 10 seeds x 10 envs: 75 us a step through ``baddbmm``, 25 us through ``np.matmul``)."""
         rows = [self.row(seed) for seed in seeds]
-        plan: list[tuple[np.ndarray, np.ndarray] | Callable[[np.ndarray], np.ndarray]] = []
+        plan: list[Step] = []
         for step in self.model.actor_plan:
             if isinstance(step, tuple):
                 weight = self.model.params[step[0]].detach()[rows].transpose(1, 2).cpu().numpy().copy()
@@ -745,19 +714,7 @@ class PopulationActorCritic:
                 plan.append((weight, bias))
             else:
                 plan.append(NUMPY_ACTIVATIONS[step])
-        count, obs_dim = len(seeds), self.env_info.obs_dim
-
-        def act(observations: np.ndarray) -> np.ndarray:
-            x = np.asarray(observations, dtype=np.float32).reshape(count, -1, obs_dim)
-            for layer in plan:
-                if isinstance(layer, tuple):
-                    x = np.matmul(x, layer[0])
-                    x += layer[1]
-                else:
-                    x = layer(x)
-            return x.argmax(axis=-1).reshape(-1)
-
-        return act
+        return block_greedy_actor(StackedNumpyMLP(plan), self.env_info.obs_dim)
 
     # -- one seed, as a single run sees it ----------------------------------------------------------
 

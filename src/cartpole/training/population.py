@@ -30,6 +30,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
+from cartpole.agents.actor_critic import stacked_greedy_actor
 from cartpole.agents.learner import LearnResult
 from cartpole.agents.population import Population, bytes_per_seed, make_population
 from cartpole.agents.registry import POPULATION_AGENTS, get_agent
@@ -518,9 +519,11 @@ def final_verdicts(members: list[Member]) -> dict[int, EvalReport]:
     ]
     episode_seeds = [[final_eval_seed(m.seed) + i for i in range(episodes)] for m in members]
 
-    def act(observations: np.ndarray) -> np.ndarray:  # policy i acts on block i of the rows
+    def act_one_by_one(observations: np.ndarray) -> np.ndarray:  # policy i acts on block i of the rows
         blocks = np.split(observations, len(policies))
         return np.concatenate([policy.act(block) for policy, block in zip(policies, blocks, strict=True)])
+
+    act = stacked_greedy_actor(list(policies), first.env.obs_dim) or act_one_by_one
 
     flat_seeds = [s for row in episode_seeds for s in row]
     returns, lengths = (
