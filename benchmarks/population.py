@@ -6,7 +6,7 @@
     python benchmarks/population.py --population-threads 1
 
 Each part runs in its own child process (so peak RSS and CPU are that part's alone), with the torch
-threads ``cartpole train`` uses: one per core for the population (``--seeds``), one for single runs.
+threads ``cartpole train`` uses by default: one, for the population (``--seeds``) and single runs alike.
 Printed:
 
 - population: verified solves (each seed's kept best on 100 fresh episodes of Gymnasium's env), wall
@@ -191,9 +191,9 @@ def main() -> None:
     parser.add_argument(
         "--population-threads",
         type=int,
-        default=0,
-        help="torch threads of the population (default 0: torch's own, one per core, as `cartpole train "
-        "--seeds` runs)",
+        default=1,
+        help="torch threads of the population (default 1, as `cartpole train --seeds` runs; 0: torch's "
+        "own, one per core)",
     )
     parser.add_argument("--out", default="runs/population-benchmark", help="where each part's JSON is kept")
     parser.add_argument("--report-only", action="store_true", help="print the table from --out's JSON files")
