@@ -1,0 +1,85 @@
+"""The arithmetic under a population's update, one thread: float32 tanh three ways, and the batched matmul.
+
+    python benchmarks/kernels.py
+    python benchmarks/kernels.py --seeds 100 --rows 128 --width 64
+
+Shapes are a 100-seed PPO population's full-batch step: ``[seeds, rows, width]`` activations, and
+``[seeds, rows, width] x [seeds, width, width]`` for a hidden layer. Printed: nanoseconds an element
+for ``torch.tanh``, ``np.tanh`` and ``cartpole.agents.fast_tanh`` (the one the populations and the
+numpy greedy policies use), the largest relative difference of the last from float64 ``tanh``, and
+GFLOP/s of ``torch.bmm``. Which kernels NumPy and torch pick depends on the CPU (AVX-512 or not),
+so the CPU is printed first.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections.abc import Callable
+
+import numpy as np
+import torch
+
+from cartpole.agents.fast_tanh import tanh_array
+
+
+def seconds_per_call(call: Callable[[], object], repeats: int) -> float:
+    """The best of five timings of ``repeats`` calls, per call."""
+    call()
+    best = float("inf")
+    for _ in range(5):
+        started = time.perf_counter()
+        for _ in range(repeats):
+            call()
+        best = min(best, (time.perf_counter() - started) / repeats)
+    return best
+
+
+def cpu_name() -> str:
+    model, avx512 = "unknown CPU", False
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as handle:
+            for line in handle:
+                if line.startswith("model name"):
+                    model = line.split(":", 1)[1].strip()
+                elif line.startswith("flags"):
+                    avx512 = "avx512f" in line.split()
+    except OSError:
+        pass
+    capability = torch.backends.cpu.get_cpu_capability()
+    return f"{model}, AVX-512: {'yes' if avx512 else 'no'}, torch CPU capability {capability}"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--seeds", type=int, default=100)
+    parser.add_argument("--rows", type=int, default=128)
+    parser.add_argument("--width", type=int, default=64)
+    parser.add_argument("--repeats", type=int, default=50)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    shape = (args.seeds, args.rows, args.width)
+    generator = torch.Generator().manual_seed(0)
+    x = 2 * torch.randn(*shape, generator=generator)
+    weights = torch.randn(args.seeds, args.width, args.width, generator=generator)
+    x_numpy, out = x.numpy(), np.empty(shape, dtype=np.float32)
+    print(f"cpu: {cpu_name()}; one thread; shape {list(shape)}")
+    for name, call in [
+        ("torch.tanh", lambda: torch.tanh(x)),
+        ("np.tanh", lambda: np.tanh(x_numpy, out=out)),
+        ("fast_tanh", lambda: tanh_array(x_numpy, out=out)),
+    ]:
+        per_element = seconds_per_call(call, args.repeats) / x.numel()
+        print(f"{name:<12} {per_element * 1e9:6.2f} ns an element")
+    exact = np.tanh(x_numpy.astype(np.float64))
+    error = np.abs(tanh_array(x_numpy).astype(np.float64) - exact) / np.maximum(np.abs(exact), 1e-30)
+    print(f"fast_tanh largest relative error against float64 tanh: {error.max():.2e}")
+    bmm = seconds_per_call(lambda: torch.bmm(x, weights), args.repeats)
+    flops = 2 * args.seeds * args.rows * args.width * args.width
+    print(
+        f"torch.bmm {list(shape)} x {[args.seeds, args.width, args.width]}: {flops / bmm / 1e9:.1f} GFLOP/s"
+    )
+
+
+if __name__ == "__main__":
+    main()
