@@ -33,22 +33,11 @@ for _var in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MK
 
 import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
+from cpu import describe_cpu  # noqa: E402
 
 TARGET_STEPS_PER_S = 1e8  # at 65,536 envs, float32
 TARGET_SPEEDUP = 3.0  # over Gymnasium's CartPoleVectorEnv at 4,096 envs
 ENV_ID = "CartPole-v1"
-
-
-def cpu_model() -> str:
-    """The CPU's marketing name, from /proc/cpuinfo where there is one."""
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def pin_to_one_cpu(cpu: int | None) -> int | None:
@@ -228,7 +217,7 @@ def main(argv: list[str] | None = None) -> int:
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     clock = "wall-clock time" if args.wall else "CPU time of this thread"
     print(
-        f"CPU: {cpu_model()} ({os.cpu_count()} CPUs, load average {load:.1f}); pinned to CPU "
+        f"CPU: {describe_cpu()}, load average {load:.1f}; pinned to CPU "
         f"{pinned}; NUMBA_NUM_THREADS=1 (one core); timed by {clock}"
     )
     print(

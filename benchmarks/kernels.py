@@ -19,6 +19,7 @@ from collections.abc import Callable
 
 import numpy as np
 import torch
+from cpu import describe_cpu
 
 from cartpole.agents.fast_tanh import tanh_array
 
@@ -35,21 +36,6 @@ def seconds_per_call(call: Callable[[], object], repeats: int) -> float:
     return best
 
 
-def cpu_name() -> str:
-    model, avx512 = "unknown CPU", False
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as handle:
-            for line in handle:
-                if line.startswith("model name"):
-                    model = line.split(":", 1)[1].strip()
-                elif line.startswith("flags"):
-                    avx512 = "avx512f" in line.split()
-    except OSError:
-        pass
-    capability = torch.backends.cpu.get_cpu_capability()
-    return f"{model}, AVX-512: {'yes' if avx512 else 'no'}, torch CPU capability {capability}"
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, default=100)
@@ -63,7 +49,8 @@ def main() -> None:
     x = 2 * torch.randn(*shape, generator=generator)
     weights = torch.randn(args.seeds, args.width, args.width, generator=generator)
     x_numpy, out = x.numpy(), np.empty(shape, dtype=np.float32)
-    print(f"cpu: {cpu_name()}; one thread; shape {list(shape)}")
+    capability = torch.backends.cpu.get_cpu_capability()
+    print(f"cpu: {describe_cpu()}, torch CPU capability {capability}; one thread; shape {list(shape)}")
     for name, call in [
         ("torch.tanh", lambda: torch.tanh(x)),
         ("np.tanh", lambda: np.tanh(x_numpy, out=out)),

@@ -25,14 +25,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import resource
 import subprocess
 import sys
 import tempfile
 import time
-from contextlib import suppress
 from pathlib import Path
+
+from cpu import describe_cpu
 
 
 def cpu_seconds() -> float:
@@ -63,7 +63,7 @@ def run_population_part(agent: str, seeds: int, preset: str, runs_dir: Path) -> 
         "solved_at": [s.solved_at_step for s in states],
         "verified": sum(r.solved for r in outcome.reports.values()),
         "threads": torch.get_num_threads(),
-        "machine": machine(),
+        "machine": describe_cpu(),
     }
 
 
@@ -97,18 +97,6 @@ def run_processes_part(agent: str, seeds: int, preset: str, runs_dir: Path) -> d
         cpu.append(after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime)
         print(f"process seed {seed}: {cpu[-1]:.1f} CPU s", file=sys.stderr, flush=True)
     return {"cpu_per_process": cpu}
-
-
-def machine() -> str:
-    """The CPU's model and whether it has AVX-512 (NumPy's and torch's float kernels differ by it)."""
-    model, avx512 = "unknown CPU", False
-    with suppress(OSError), open("/proc/cpuinfo", encoding="utf-8") as handle:
-        for line in handle:
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-            elif line.startswith("flags"):
-                avx512 = "avx512f" in line.split()
-    return f"{model}, {os.cpu_count()} CPUs, AVX-512: {'yes' if avx512 else 'no'}"
 
 
 def child(part: str, agent: str, seeds: int, preset: str, threads: int, out: Path) -> dict[str, object]:
