@@ -24,7 +24,7 @@ from numba.extending import overload
 from numpy.typing import NDArray
 
 if TYPE_CHECKING:
-    from cartpole.envs.fast import CartPoleParams
+    from cartpole.envs.params import CartPoleParams
 
 # Layout of the parameter vector the kernels read (see pack_params).
 GRAVITY, MASSPOLE, TOTAL_MASS, LENGTH, POLEMASS_LENGTH = 0, 1, 2, 3, 4

@@ -130,10 +130,8 @@ them instead: ~2-4 s per dtype.
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, fields
 from types import ModuleType
-from typing import Any, Literal
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -144,9 +142,8 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 from numpy.typing import ArrayLike, DTypeLike, NDArray
 
+from cartpole.envs.params import CartPoleParams, KinematicsIntegrator
 from cartpole.envs.registration import REFERENCE_IDS, register_fast_envs
-
-KinematicsIntegrator = Literal["euler", "semi-implicit euler"]
 
 #: Gymnasium's bounds for the uniform start state (``reset`` without options).
 DEFAULT_RESET_LOW, DEFAULT_RESET_HIGH = -0.05, 0.05
@@ -154,67 +151,6 @@ DEFAULT_RESET_LOW, DEFAULT_RESET_HIGH = -0.05, 0.05
 #: The Gymnasium ids whose dynamics we reproduce; ours are registered as ``cartpole/<id>``.
 
 _DTYPES = (np.dtype(np.float32), np.dtype(np.float64))
-
-
-@dataclass(frozen=True)
-class CartPoleParams:
-    """Physical constants of the cart-pole; defaults are Gymnasium's CartPole-v1."""
-
-    gravity: float = 9.8
-    """Gravitational acceleration (m/s²), pulling the pole down; >= 0."""
-    masscart: float = 1.0
-    """Mass of the cart (kg); > 0."""
-    masspole: float = 0.1
-    """Mass of the pole (kg); > 0."""
-    length: float = 0.5
-    """Half the pole's length (m), as Gymnasium defines it; > 0."""
-    force_mag: float = 10.0
-    """Magnitude of the push of each action (N); >= 0."""
-    tau: float = 0.02
-    """Seconds between two states; > 0."""
-    theta_threshold_radians: float = 12 * 2 * math.pi / 360
-    """The episode terminates when the pole's angle leaves [-this, this]; > 0."""
-    x_threshold: float = 2.4
-    """The episode terminates when the cart's position leaves [-this, this]; > 0."""
-    kinematics_integrator: KinematicsIntegrator = "euler"
-    """"euler" (Gymnasium's default) or "semi-implicit euler"."""
-
-    def __post_init__(self) -> None:
-        positive = ("masscart", "masspole", "length", "tau", "theta_threshold_radians", "x_threshold")
-        for f in fields(self):
-            if f.name == "kinematics_integrator":
-                continue
-            value = getattr(self, f.name)
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-                raise ValueError(f"CartPoleParams.{f.name} must be a number, got {value!r}")
-            value = float(value)
-            if not math.isfinite(value):
-                raise ValueError(f"CartPoleParams.{f.name} must be finite, got {value}")
-            if f.name in positive and value <= 0:
-                raise ValueError(f"CartPoleParams.{f.name} must be > 0, got {value}")
-            if value < 0:
-                raise ValueError(f"CartPoleParams.{f.name} must be >= 0, got {value}")
-            object.__setattr__(self, f.name, value)  # store plain floats, whatever came in
-        if self.kinematics_integrator not in ("euler", "semi-implicit euler"):
-            raise ValueError(
-                "CartPoleParams.kinematics_integrator must be 'euler' or 'semi-implicit euler', "
-                f"got {self.kinematics_integrator!r}"
-            )
-
-    @property
-    def total_mass(self) -> float:
-        """Cart plus pole (kg), summed as Gymnasium sums it."""
-        return self.masspole + self.masscart
-
-    @property
-    def polemass_length(self) -> float:
-        """Pole mass times half-length (kg·m)."""
-        return self.masspole * self.length
-
-    def observation_high(self) -> NDArray[np.float32]:
-        """Upper bound of the observation space: twice the thresholds, so a failing state fits."""
-        inf = np.inf
-        return np.array([self.x_threshold * 2, inf, self.theta_threshold_radians * 2, inf], dtype=np.float32)
 
 
 def _kernels() -> ModuleType:

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 from cartpole.runs.atomic import write_text_atomic
 
 if TYPE_CHECKING:
-    from cartpole.experiments.sweep import SweepSpec
+    from cartpole.experiments.sweep_spec import SweepSpec
 
 
 def best_value(study: Any) -> Any:

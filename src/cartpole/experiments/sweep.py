@@ -23,7 +23,7 @@ import statistics
 import sys
 import warnings
 from collections.abc import Callable, Iterator
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +34,8 @@ from cartpole.experiments.best import best_value, write_best
 from cartpole.experiments.compare import check_name
 from cartpole.experiments.entries import ExperimentError
 from cartpole.experiments.processes import Job, python_module, run_jobs
-from cartpole.experiments.space import Param, load_space, preset_point, space_description
+from cartpole.experiments.space import load_space, preset_point, space_description
+from cartpole.experiments.sweep_spec import SweepSpec
 from cartpole.runs.atomic import write_json_atomic
 from cartpole.training import Callback, TrainingLoop
 from cartpole.training.budget import parse_budget
@@ -48,50 +49,6 @@ STUDY_ATTR = "cartpole"
 STARTUP_TRIALS = 5
 """Random trials before TPE models the results (Optuna's default is 10: too many for short sweeps)."""
 DONE_STATES = ("COMPLETE", "PRUNED")
-
-
-@dataclass
-class SweepSpec:
-    """What a sweep is: the same on every worker and machine that joins its study."""
-
-    name: str
-    agent: str
-    preset: str
-    env_id: str
-    budget: str | None
-    seeds_per_trial: int
-    trials: int
-    space_text: str
-    storage: str | None
-    """A database URL, or None for the journal file in ``folder``."""
-    folder: str
-    sampler_seed: int = 0
-    space: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def path(self) -> Path:
-        return Path(self.folder)
-
-    @property
-    def identity(self) -> dict[str, Any]:
-        """What a study records about the sweep; a sweep that differs must not join it."""
-        return {
-            "agent": self.agent,
-            "preset": self.preset,
-            "env_id": self.env_id,
-            "budget": self.budget,
-            "seeds_per_trial": self.seeds_per_trial,
-            "space": self.space,
-        }
-
-    def params(self) -> dict[str, Param]:
-        from cartpole.experiments.space import parse_space
-
-        return parse_space(self.agent, self.space_text, "the study's space")
-
-    @property
-    def storage_label(self) -> str:
-        return self.storage or str(self.path / "journal.log")
 
 
 def make_spec(
