@@ -111,3 +111,36 @@ def test_env_info_comes_from_the_registry():
     info = env_info("CartPole-v1")
     assert (info.obs_dim, info.n_actions, info.reward_threshold, info.max_episode_steps) == (4, 2, 475, 500)
     assert env_info("CartPole-v0").reward_threshold == 195
+
+
+@pytest.mark.parametrize("simulator", ["gymnasium", "fast"])
+def test_blocks_of_episodes_are_each_played_as_alone_and_ended_blocks_leave(always_left, balancer, simulator):
+    """Four policies in blocks of 5 episodes: each block gets the returns its policy gets alone, and
+    once the short-lived blocks (always left) have ended, the actor is asked only for the others."""
+    from cartpole.evaluation import play_greedy_blocks, play_greedy_episodes
+
+    policies = [always_left, balancer, always_left, balancer]
+    seeds = list(range(50, 70))
+    asked: list[list[int]] = []
+
+    def act(observations: np.ndarray, blocks: np.ndarray) -> np.ndarray:
+        asked.append(blocks.tolist())
+        rows = np.split(observations, len(blocks))
+        return np.concatenate([policies[b].act(mine) for b, mine in zip(blocks, rows, strict=True)])
+
+    returns, lengths = play_greedy_blocks(act, "CartPole-v1", seeds, simulator, 5)
+    for b, policy in enumerate(policies):
+        alone, alone_lengths = play_greedy_episodes(
+            policy.act, "CartPole-v1", seeds[5 * b : 5 * b + 5], simulator
+        )
+        np.testing.assert_array_equal(returns[5 * b : 5 * b + 5], alone)
+        np.testing.assert_array_equal(lengths[5 * b : 5 * b + 5], alone_lengths)
+    assert asked[0] == [0, 1, 2, 3] and asked[-1] == [1, 3]
+    assert len(asked) == lengths.max()
+
+
+def test_episodes_that_do_not_fill_their_blocks_are_refused(always_left):
+    from cartpole.evaluation import play_greedy_blocks
+
+    with pytest.raises(ValueError, match="blocks of 3"):
+        play_greedy_blocks(lambda o, b: always_left.act(o), "CartPole-v1", list(range(10)), "fast", 3)

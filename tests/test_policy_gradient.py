@@ -152,7 +152,10 @@ def test_stacked_greedy_actor_acts_as_each_policy_alone(activation: str) -> None
     act = stacked_greedy_actor(policies, obs_dim=4)
     assert act is not None
     alone = [p.act(block) for p, block in zip(policies, np.split(observations, 3), strict=True)]  # type: ignore[attr-defined]
-    np.testing.assert_array_equal(act(observations), np.concatenate(alone))
+    np.testing.assert_array_equal(act(observations, np.arange(3)), np.concatenate(alone))
+    some = np.array([0, 2])  # the blocks still playing late in an evaluation: each still its own
+    np.testing.assert_array_equal(act(observations[np.r_[0:7, 14:21]], some), np.concatenate(alone[::2]))
+    np.testing.assert_array_equal(act(observations[7:14], np.array([1])), alone[1])
     other_shape = CategoricalPolicy(ActorCritic(4, 2, (8,), activation))
     assert stacked_greedy_actor([*policies, other_shape], obs_dim=4) is None
     assert stacked_greedy_actor([*policies, object()], obs_dim=4) is None

@@ -13,6 +13,7 @@ from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 import torch
 
@@ -166,7 +167,7 @@ def test_every_tensor_lives_on_the_population_device(agent):
         learn(population, 2)
         population.remove([5])
         learn(population, 1)
-        actions = population.greedy_actor([3, 7])(torch.zeros(6, 4, device="cpu").numpy())
+        actions = population.greedy_actor([3, 7])(torch.zeros(6, 4, device="cpu").numpy(), np.arange(2))
         tensors, data = population.seed_state_dict(7, resume=True)
         population.load_seed_state_dict(7, tensors, data)
     finally:

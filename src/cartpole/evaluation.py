@@ -141,22 +141,54 @@ def _reset_to_seeds(env: gym.vector.VectorEnv, env_id: str, seeds: list[int]) ->
     return states.astype(np.float32)  # CartPole's observation is its state, as float32
 
 
+BlockActor = Callable[[np.ndarray, np.ndarray], np.ndarray]
+"""Many policies' greedy actions at once: ``act(observations, blocks)`` maps the rows of blocks
+``blocks`` (rising block indices ``[k]``; block b's rows are the episodes of policy b) to actions."""
+
+KEEP_ACTING_FRACTION = 0.75
+""":func:`play_greedy_blocks` stops acting for blocks whose episodes have all ended once this
+fraction or fewer of the blocks it acts for are still playing (not at every ended block, so the
+actor re-packs its weights a few times per evaluation, not once per block)."""
+
+
 def play_greedy_episodes(
     act: Callable[[np.ndarray], np.ndarray], env_id: str, seeds: list[int], simulator: Simulator
 ) -> tuple[np.ndarray, np.ndarray]:
     """Play one episode from each of ``seeds`` (the start state Gymnasium's single env gives for
     it), all at once in one vector env, with ``act`` mapping observations ``[n, obs_dim]`` to
-    actions ``[n]``; the returns and lengths ``[n]``. (``act`` may serve many policies at once: the
-    population's evaluations give each policy its own block of rows.)"""
+    actions ``[n]``; the returns and lengths ``[n]``."""
+    return play_greedy_blocks(lambda observations, _: act(observations), env_id, seeds, simulator, len(seeds))
+
+
+def play_greedy_blocks(
+    act: BlockActor, env_id: str, seeds: list[int], simulator: Simulator, block_size: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`play_greedy_episodes` for many policies: the episodes come in blocks of
+    ``block_size`` (block b: ``seeds[b * block_size:(b + 1) * block_size]``, played by policy b), and
+    ``act`` serves every block (see :data:`BlockActor`). Once most blocks have ended all their
+    episodes, ``act`` is asked only for the blocks still playing, so a policy whose episodes end
+    early costs no more forward passes than it would alone. The returns and lengths ``[n]``."""
     n = len(seeds)
+    if n % block_size:
+        raise ValueError(f"{n} episodes do not split into blocks of {block_size}")
     env = make_vec_env(env_id, n, simulator=simulator)
     try:
         observations = _reset_to_seeds(env, env_id, seeds)
         returns = np.zeros(n, dtype=np.float64)
         lengths = np.zeros(n, dtype=np.int64)
         running = np.ones(n, dtype=bool)
+        acting = np.arange(n // block_size)
+        rows = np.arange(n)
         while running.any():
-            actions = np.asarray(act(observations), dtype=np.int64).reshape(n)
+            playing = np.flatnonzero(running.reshape(-1, block_size).any(axis=1))
+            if len(playing) <= KEEP_ACTING_FRACTION * len(acting):
+                acting = playing
+                rows = (acting[:, None] * block_size + np.arange(block_size)).reshape(-1)
+            if len(rows) == n:
+                actions = np.asarray(act(observations, acting), dtype=np.int64).reshape(n)
+            else:
+                actions = np.zeros(n, dtype=np.int64)  # envs of ended blocks: stepped, not counted
+                actions[rows] = np.asarray(act(observations[rows], acting)).reshape(-1)
             observations, rewards, terminated, truncated, _ = env.step(actions)
             returns += np.where(running, rewards, 0.0)
             lengths += running

@@ -14,13 +14,13 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Callable
 
 import numpy as np
 import torch
 from torch import nn
 
 from cartpole.agents.numpy_mlp import NumpyMLP, StackedNumpyMLP
+from cartpole.evaluation import BlockActor
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
 """Hidden-layer activations; each has a numpy twin (:mod:`cartpole.agents.numpy_mlp`)."""
@@ -148,19 +148,29 @@ class CategoricalPolicy:
         return self.logits(observations).argmax(axis=1)
 
 
-def block_greedy_actor(logits: StackedNumpyMLP, obs_dim: int) -> Callable[[np.ndarray], np.ndarray]:
-    """The greedy actions of S stacked actors (``logits``) as one function: observations ``[S * E,
-    obs_dim]`` with actor i's E rows in block i, to actions ``[S * E]``."""
-    count = logits.plan[0][0].shape[0]  # type: ignore[index]  # the first step is a linear layer
+def block_greedy_actor(logits: StackedNumpyMLP, obs_dim: int) -> BlockActor:
+    """The greedy actions of S stacked actors (``logits``) as one :data:`BlockActor`: the rows of
+    blocks ``blocks`` ``[k * E, obs_dim]``, actor b's E rows in block b, to actions ``[k * E]``. A
+    subset of the blocks runs through a stack of those actors only, kept until the subset changes."""
+    kept: dict[bytes, StackedNumpyMLP] = {}
 
-    def act(observations: np.ndarray) -> np.ndarray:
-        x = np.asarray(observations, dtype=np.float32).reshape(count, -1, obs_dim)
-        return logits(x).argmax(axis=-1).reshape(-1)
+    def actors(blocks: np.ndarray) -> StackedNumpyMLP:
+        if len(blocks) == logits.count:
+            return logits
+        key = np.asarray(blocks, dtype=np.int64).tobytes()
+        if key not in kept:
+            kept.clear()
+            kept[key] = logits.subset(blocks)
+        return kept[key]
+
+    def act(observations: np.ndarray, blocks: np.ndarray) -> np.ndarray:
+        x = np.asarray(observations, dtype=np.float32).reshape(len(blocks), -1, obs_dim)
+        return actors(blocks)(x).argmax(axis=-1).reshape(-1)
 
     return act
 
 
-def stacked_greedy_actor(policies: list[object], obs_dim: int) -> Callable[[np.ndarray], np.ndarray] | None:
+def stacked_greedy_actor(policies: list[object], obs_dim: int) -> BlockActor | None:
     """:func:`block_greedy_actor` of ``policies`` when they are :class:`CategoricalPolicy` objects of
     one shape (a population's verdicts), else None. Each policy's actions are those it takes alone."""
     if not all(isinstance(p, CategoricalPolicy) for p in policies):

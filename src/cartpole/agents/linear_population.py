@@ -10,7 +10,6 @@ are bit-identical to its single run's (tested), whichever seeds share the proces
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Any
 
 import gymnasium as gym
@@ -27,6 +26,7 @@ from cartpole.agents.linear import (
 )
 from cartpole.core.errors import ConfigError
 from cartpole.envs import EnvInfo, make_vec_env
+from cartpole.evaluation import BlockActor
 
 
 class LinearPopulation:
@@ -80,16 +80,16 @@ class LinearPopulation:
             results[seed] = search.finish_generation(mine, scores, int(steps[rows].sum()))
         return results
 
-    def greedy_actor(self, seeds: list[int]) -> Callable[[np.ndarray], np.ndarray]:
-        """The kept policies of ``seeds`` as one function: observations ``[len(seeds) * E,
-        obs_dim]`` (seed i's E rows in block i) to actions."""
+    def greedy_actor(self, seeds: list[int]) -> BlockActor:
+        """The kept policies of ``seeds`` as one :data:`~cartpole.evaluation.BlockActor` (block i
+        holds seed i's rows)."""
         params = np.stack([self.searches[seed].best for seed in seeds])
         shape = self.searches[seeds[0]].shape
         obs_dim = self.env_info.obs_dim
 
-        def act(observations: np.ndarray) -> np.ndarray:
-            blocks = np.asarray(observations).reshape(len(seeds), -1, obs_dim)
-            return batched_actions(params, blocks, shape).reshape(-1)
+        def act(observations: np.ndarray, blocks: np.ndarray) -> np.ndarray:
+            rows = np.asarray(observations).reshape(len(blocks), -1, obs_dim)
+            return batched_actions(params[blocks], rows, shape).reshape(-1)
 
         return act
 

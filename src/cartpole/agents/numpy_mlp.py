@@ -117,6 +117,16 @@ class StackedNumpyMLP:
                 return None
         return cls(plan)
 
+    @property
+    def count(self) -> int:
+        """How many networks (S)."""
+        return next(step[0].shape[0] for step in self.plan if isinstance(step, tuple))
+
+    def subset(self, networks: np.ndarray) -> StackedNumpyMLP:
+        """Networks ``networks`` (indices) only, in that order, as a new stack (copies their weights)."""
+        plan = [(s[0][networks], s[1][networks]) if isinstance(s, tuple) else s for s in self.plan]
+        return StackedNumpyMLP(plan)
+
     def __call__(self, inputs: np.ndarray) -> np.ndarray:
         return run_steps(self.plan, np.asarray(inputs, dtype=np.float32))
 

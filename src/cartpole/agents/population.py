@@ -49,14 +49,16 @@ from cartpole.agents.linear import CrossEntropyMethod, HillClimbing, RandomSearc
 from cartpole.agents.linear_population import LinearPopulation
 from cartpole.agents.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step
 from cartpole.agents.policy_gradient import seeded_actor_critic
+from cartpole.agents.population_optimizers import PopulationAdam, PopulationOptimizer, PopulationRMSprop
 from cartpole.agents.ppo import PPOConfig
 from cartpole.agents.registry import POPULATION_AGENTS
 from cartpole.agents.reinforce import LONGEST_EPISODE_WITHOUT_TIME_LIMIT, ReinforceConfig
 from cartpole.agents.rollout import generalized_advantages
+from cartpole.agents.stacked_linear import stacked_linear
 from cartpole.core.errors import ConfigError
 from cartpole.envs import EnvInfo
 from cartpole.envs.fast import DEFAULT_RESET_HIGH, DEFAULT_RESET_LOW, step_cartpole
-from cartpole.evaluation import Policy
+from cartpole.evaluation import BlockActor, Policy
 
 LINEAR_SEARCHES = {"random-search": RandomSearch, "hill-climbing": HillClimbing, "cem": CrossEntropyMethod}
 
@@ -75,9 +77,9 @@ class Population(Protocol):
         """Stop training ``seeds``: they leave every batch."""
         ...
 
-    def greedy_actor(self, seeds: list[int]) -> Callable[[np.ndarray], np.ndarray]:
-        """The greedy policies of ``seeds`` as one function of observations ``[len(seeds) * E,
-        obs_dim]`` (seed i's E rows in block i) to actions."""
+    def greedy_actor(self, seeds: list[int]) -> BlockActor:
+        """The greedy policies of ``seeds`` as one :data:`~cartpole.evaluation.BlockActor`: block i
+        holds seed i's rows."""
         ...
 
     def seed_policy(self, seed: int) -> Policy: ...
@@ -167,7 +169,7 @@ class StackedActorCritic:
         for step in plan:
             if isinstance(step, tuple):
                 weight, bias = params[step[0]], params[step[1]]
-                x = torch.baddbmm(bias.unsqueeze(1), x, weight.transpose(1, 2))
+                x = stacked_linear(x, weight, bias)
             else:
                 x = TORCH_ACTIVATIONS[step](x)
         return x
@@ -200,106 +202,6 @@ class StackedActorCritic:
         """Keep only the seeds at ``rows``."""
         self.flat = self.flat[rows.to(self.flat.device)]
         self.bind()
-
-
-class PopulationAdam:
-    """Adam (torch.optim.Adam's update) over ``[S, P]`` parameters with a learning rate, a step count
-    and a "sit this step out" flag per seed."""
-
-    def __init__(
-        self,
-        rows: int,
-        size: int,
-        eps: float,
-        betas: tuple[float, float] = (0.9, 0.999),
-        device: torch.device | str = "cpu",
-    ):
-        self.eps, self.betas = eps, betas
-        self.exp_avg = torch.zeros(rows, size, device=device)
-        self.exp_avg_sq = torch.zeros(rows, size, device=device)
-        self.steps = torch.zeros(rows, 1, dtype=torch.float64, device=device)
-
-    @torch.no_grad()
-    def step(self, params: torch.Tensor, grads: torch.Tensor, lr: torch.Tensor, active: torch.Tensor) -> None:
-        """One step of the seeds where ``active`` [S] is True; ``lr`` is [S]."""
-        beta1, beta2 = self.betas
-        every = bool(active.all())
-        if not every:
-            old = (params.clone(), self.exp_avg.clone(), self.exp_avg_sq.clone())
-        self.steps += active.unsqueeze(1).to(self.steps.dtype)
-        steps = self.steps.clamp(min=1.0)
-        step_size = (lr.double().unsqueeze(1) / (1.0 - beta1**steps)).float()
-        correction2 = (1.0 - beta2**steps).sqrt().float()
-        self.exp_avg.lerp_(grads, 1.0 - beta1)
-        self.exp_avg_sq.mul_(beta2).addcmul_(grads, grads, value=1.0 - beta2)
-        denom = (self.exp_avg_sq.sqrt() / correction2).add_(self.eps)
-        params.addcdiv_(self.exp_avg * step_size, denom, value=-1.0)
-        if not every:
-            keep = active.unsqueeze(1)
-            params.copy_(torch.where(keep, params, old[0]))
-            self.exp_avg.copy_(torch.where(keep, self.exp_avg, old[1]))
-            self.exp_avg_sq.copy_(torch.where(keep, self.exp_avg_sq, old[2]))
-
-    def keep(self, rows: torch.Tensor) -> None:
-        rows = rows.to(self.exp_avg.device)
-        self.exp_avg, self.exp_avg_sq, self.steps = (
-            self.exp_avg[rows],
-            self.exp_avg_sq[rows],
-            self.steps[rows],
-        )
-
-    def row_state(self, row: int) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
-        tensors = {
-            "optim.exp_avg": self.exp_avg[row].cpu().clone(),
-            "optim.exp_avg_sq": self.exp_avg_sq[row].cpu().clone(),
-        }
-        return tensors, {"optim_steps": float(self.steps[row, 0])}
-
-    def load_row_state(self, row: int, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None:
-        self.exp_avg[row] = tensors["optim.exp_avg"].to(self.exp_avg.device)
-        self.exp_avg_sq[row] = tensors["optim.exp_avg_sq"].to(self.exp_avg.device)
-        self.steps[row, 0] = float(data["optim_steps"])
-
-
-class PopulationRMSprop:
-    """RMSprop (torch.optim.RMSprop's update: no momentum, not centred) over ``[S, P]`` parameters
-    with a learning rate and a "sit this step out" flag per seed."""
-
-    def __init__(self, rows: int, size: int, alpha: float, eps: float, device: torch.device | str = "cpu"):
-        self.alpha, self.eps = alpha, eps
-        self.square_avg = torch.zeros(rows, size, device=device)
-
-    @torch.no_grad()
-    def step(self, params: torch.Tensor, grads: torch.Tensor, lr: torch.Tensor, active: torch.Tensor) -> None:
-        """One step of the seeds where ``active`` [S] is True; ``lr`` is [S]."""
-        keep = active.unsqueeze(1)
-        square_avg = self.square_avg.mul(self.alpha).addcmul_(grads, grads, value=1.0 - self.alpha)
-        update = grads / square_avg.sqrt().add_(self.eps) * lr.unsqueeze(1)
-        params.sub_(torch.where(keep, update, torch.zeros_like(update)))
-        self.square_avg = torch.where(keep, square_avg, self.square_avg)
-
-    def keep(self, rows: torch.Tensor) -> None:
-        self.square_avg = self.square_avg[rows.to(self.square_avg.device)]
-
-    def row_state(self, row: int) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
-        return {"optim.square_avg": self.square_avg[row].cpu().clone()}, {}
-
-    def load_row_state(self, row: int, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None:
-        self.square_avg[row] = tensors["optim.square_avg"].to(self.square_avg.device)
-
-
-class PopulationOptimizer(Protocol):
-    """One optimizer step for every seed of a population (see PopulationAdam, PopulationRMSprop)."""
-
-    def step(
-        self, params: torch.Tensor, grads: torch.Tensor, lr: torch.Tensor, active: torch.Tensor
-    ) -> None: ...
-
-    def keep(self, rows: torch.Tensor) -> None: ...
-
-    def row_state(self, row: int) -> tuple[dict[str, torch.Tensor], dict[str, Any]]: ...
-
-    def load_row_state(self, row: int, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None: ...
 
 
 class PopulationEnvs:
@@ -694,13 +596,13 @@ class PopulationActorCritic:
         """Clip each seed's gradient norm to ``max_grad_norm`` (as clip_grad_norm_ does), then Adam."""
         grads = self.model.grad
         if self.config.max_grad_norm is not None:
-            norms = grads.square().sum(dim=1, keepdim=True).sqrt()
+            norms = torch.linalg.vector_norm(grads, dim=1, keepdim=True)
             grads.mul_((self.config.max_grad_norm / (norms + 1e-6)).clamp(max=1.0))
         self.optimizer.step(self.model.flat, grads, lr, active)
 
-    def greedy_actor(self, seeds: list[int]) -> Callable[[np.ndarray], np.ndarray]:
-        """The greedy policies of ``seeds`` as one function: observations ``[len(seeds) * E,
-        obs_dim]`` (seed i's E rows in block i) to actions, one stacked NumPy forward pass per call.
+    def greedy_actor(self, seeds: list[int]) -> BlockActor:
+        """The greedy policies of ``seeds`` as one :data:`~cartpole.evaluation.BlockActor` (block i
+        holds seed i's rows), one stacked NumPy forward pass per call.
 
         NumPy, as a single run's greedy policy (:class:`~cartpole.agents.numpy_mlp.NumpyMLP`): an
         evaluation acts on a few rows at a time, where torch's per-op overhead dominates (measured

@@ -38,7 +38,7 @@ from cartpole.core.errors import InputError
 from cartpole.core.names import CheckpointName, RunState, StopReason
 from cartpole.core.seeding import MAX_TRAIN_SEED, eval_seed, final_eval_seed
 from cartpole.envs import EnvInfo, Simulator, check_simulator, env_info
-from cartpole.evaluation import MIN_EPISODES_FOR_SOLVED, EvalReport, Policy, play_greedy_episodes
+from cartpole.evaluation import MIN_EPISODES_FOR_SOLVED, EvalReport, Policy, play_greedy_blocks
 from cartpole.runs import LiveStatus, RunDir, displayed_state, load_checkpoint
 from cartpole.training.budget import Budget, parse_budget
 from cartpole.training.callbacks import require_tensorboard, status_fields
@@ -238,8 +238,8 @@ class PopulationEvaluations:
         """Seed i's greedy policy plays episodes from ``first_seeds[i], first_seeds[i] + 1, ...``."""
         episode_seeds = [[first + i for i in range(episodes)] for first in first_seeds]
         flat = [s for row in episode_seeds for s in row]
-        returns, lengths = play_greedy_episodes(
-            self.population.greedy_actor(seeds), self.env.env_id, flat, simulator
+        returns, lengths = play_greedy_blocks(
+            self.population.greedy_actor(seeds), self.env.env_id, flat, simulator, episodes
         )
         return [
             EvalReport(
@@ -519,16 +519,16 @@ def final_verdicts(members: list[Member]) -> dict[int, EvalReport]:
     ]
     episode_seeds = [[final_eval_seed(m.seed) + i for i in range(episodes)] for m in members]
 
-    def act_one_by_one(observations: np.ndarray) -> np.ndarray:  # policy i acts on block i of the rows
-        blocks = np.split(observations, len(policies))
-        return np.concatenate([policy.act(block) for policy, block in zip(policies, blocks, strict=True)])
+    def act_one_by_one(observations: np.ndarray, blocks: np.ndarray) -> np.ndarray:
+        rows = np.split(observations, len(blocks))  # policy b acts on block b's rows
+        return np.concatenate([policies[b].act(mine) for b, mine in zip(blocks, rows, strict=True)])
 
     act = stacked_greedy_actor(list(policies), first.env.obs_dim) or act_one_by_one
 
     flat_seeds = [s for row in episode_seeds for s in row]
     returns, lengths = (
         x.reshape(len(members), episodes)
-        for x in play_greedy_episodes(act, first.env.env_id, flat_seeds, simulator)
+        for x in play_greedy_blocks(act, first.env.env_id, flat_seeds, simulator, episodes)
     )
     reports = {}
     for i, member in enumerate(members):

@@ -1,0 +1,60 @@
+"""One linear layer for S networks at once, ``x [S, B, in] -> x W^T + b [S, B, out]``, whose backward
+multiplies in the orientation that is fast for thin matrices.
+
+Forward is one ``torch.baddbmm``. Autograd's own backward of it computes the weight's gradient as
+``x^T @ grad`` (``[S, in, B] x [S, B, out]``); when ``out`` is 1 or 2 (a value or policy head) that
+product has one or two columns, and a CPU ``bmm`` with so few columns runs at 2-3 GFLOP/s against
+15-60 for the other orientation (``benchmarks/kernels.py``: 1.2 ms against 0.19 ms for 100 seeds'
+heads over a 128-row batch, a tenth of a whole PPO update). Here the weight gradient is whichever
+of ``grad^T @ x`` and ``(x^T @ grad)^T`` has the more columns. Every product is still one seed's
+slice on its own, so a seed's gradient does not depend on the seeds beside it.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+
+
+def weight_gradient(grad: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    """``grad^T @ x`` ``[S, out, in]`` for ``grad`` [S, B, out] and ``x`` [S, B, in], computed with the
+    product's wider side as its columns."""
+    if grad.shape[-1] <= x.shape[-1]:
+        return torch.bmm(grad.transpose(1, 2), x)
+    return torch.bmm(x.transpose(1, 2), grad).transpose(1, 2)
+
+
+def input_gradient(grad: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
+    """``grad @ weight`` ``[S, B, in]``; for one output (a value head) the outer product as a
+    broadcast multiply, which ``bmm`` runs several times slower."""
+    if grad.shape[-1] == 1:
+        return grad * weight
+    return torch.bmm(grad, weight)
+
+
+class _StackedLinear(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx: Any, x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+        ctx.save_for_backward(x, weight)
+        return torch.baddbmm(bias.unsqueeze(1), x, weight.transpose(1, 2))
+
+    @staticmethod
+    def backward(ctx: Any, grad: torch.Tensor) -> tuple[torch.Tensor | None, ...]:
+        x, weight = ctx.saved_tensors
+        needs_x, needs_weight, needs_bias = ctx.needs_input_grad
+        return (
+            input_gradient(grad, weight) if needs_x else None,
+            weight_gradient(grad, x) if needs_weight else None,
+            grad.sum(dim=1) if needs_bias else None,
+        )
+
+
+def stacked_linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+    """``x @ weight^T + bias`` per seed: ``x`` [S, B, in], ``weight`` [S, out, in], ``bias`` [S, out]."""
+    if torch.is_grad_enabled() and (x.requires_grad or weight.requires_grad or bias.requires_grad):
+        return _StackedLinear.apply(x, weight, bias)
+    return torch.baddbmm(bias.unsqueeze(1), x, weight.transpose(1, 2))
+
+
+__all__ = ["input_gradient", "stacked_linear", "weight_gradient"]

@@ -1,0 +1,58 @@
+"""agents/stacked_linear.py: S linear layers at once, with the gradients of ``torch.baddbmm``."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from cartpole.agents.stacked_linear import stacked_linear
+
+
+def reference(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+    return torch.baddbmm(bias.unsqueeze(1), x, weight.transpose(1, 2))
+
+
+@pytest.mark.parametrize(("inputs", "outputs"), [(4, 64), (64, 64), (64, 2), (64, 1), (3, 5)])
+def test_output_and_gradients_are_those_of_baddbmm(inputs: int, outputs: int) -> None:
+    generator = torch.Generator().manual_seed(inputs * 100 + outputs)
+    seeds, batch = 5, 17
+    tensors = [
+        torch.randn(seeds, batch, inputs, generator=generator),
+        torch.randn(seeds, outputs, inputs, generator=generator),
+        torch.randn(seeds, outputs, generator=generator),
+    ]
+    upstream = torch.randn(seeds, batch, outputs, generator=generator)
+    results = []
+    for layer in (stacked_linear, reference):
+        leaves = [t.clone().requires_grad_(True) for t in tensors]
+        out = layer(*leaves)
+        (out * upstream).sum().backward()
+        results.append([out.detach(), *[leaf.grad for leaf in leaves]])
+    for ours, theirs in zip(*results, strict=True):
+        assert ours is not None and theirs is not None
+        assert ours.shape == theirs.shape
+        torch.testing.assert_close(ours, theirs, rtol=1e-5, atol=1e-5)
+
+
+def test_a_seed_s_gradients_do_not_depend_on_the_others() -> None:
+    generator = torch.Generator().manual_seed(0)
+    x, weight, bias = (torch.randn(*s, generator=generator) for s in ((4, 9, 64), (4, 2, 64), (4, 2)))
+    upstream = torch.randn(4, 9, 2, generator=generator)
+
+    def seed_0_gradients(rows: list[int]) -> list[torch.Tensor]:
+        leaves = [t[rows].clone().requires_grad_(True) for t in (x, weight, bias)]
+        (stacked_linear(*leaves) * upstream[rows]).sum().backward()
+        return [leaf.grad[0] for leaf in leaves if leaf.grad is not None]
+
+    for ours, theirs in zip(seed_0_gradients([0, 1]), seed_0_gradients([0, 2, 3]), strict=True):
+        assert torch.equal(ours, theirs)
+
+
+def test_inputs_that_need_no_gradient_get_none() -> None:
+    x = torch.randn(2, 3, 4)  # observations: no gradient wanted
+    weight = torch.randn(2, 5, 4, requires_grad=True)
+    bias = torch.randn(2, 5, requires_grad=True)
+    stacked_linear(x, weight, bias).sum().backward()
+    assert x.grad is None and weight.grad is not None and bias.grad is not None
+    with torch.no_grad():
+        assert not stacked_linear(x, weight, bias).requires_grad
