@@ -1,4 +1,5 @@
-"""The arithmetic under a population's update, one thread: float32 tanh three ways, and the batched matmul.
+"""The arithmetic under a population's update, one thread: float32 tanh three ways, the batched
+matmul, a policy head's weight gradient in both orientations, and the Adam step two ways.
 
     python benchmarks/kernels.py
     python benchmarks/kernels.py --seeds 100 --rows 128 --width 64
@@ -7,8 +8,12 @@ Shapes are a 100-seed PPO population's full-batch step: ``[seeds, rows, width]``
 ``[seeds, rows, width] x [seeds, width, width]`` for a hidden layer. Printed: nanoseconds an element
 for ``torch.tanh``, ``np.tanh`` and ``cartpole.agents.fast_tanh`` (the one the populations and the
 numpy greedy policies use), the largest relative difference of the last from float64 ``tanh``, and
-GFLOP/s of ``torch.bmm``. Which kernels NumPy and torch pick depends on the CPU (AVX-512 or not),
-so the CPU is printed first.
+GFLOP/s of ``torch.bmm``; then the weight gradient of a 2-output head (``[seeds, width, rows] x
+[seeds, rows, 2]``, autograd's orientation for ``baddbmm``, against ``[seeds, 2, rows] x [seeds,
+rows, width]``, the one ``agents/stacked_linear.py`` takes), and one Adam step of ``[seeds, 9218]``
+parameters (a 64x64 actor-critic) in torch's elementwise form and in the numba pass of
+``agents/population_optimizers.py``. Which kernels NumPy and torch pick depends on the CPU (AVX-512
+or not), so the CPU is printed first.
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ import torch
 from cpu import describe_cpu
 
 from cartpole.agents.fast_tanh import tanh_array
+from cartpole.agents.population_optimizers import PopulationAdam
 
 
 def seconds_per_call(call: Callable[[], object], repeats: int) -> float:
@@ -34,6 +40,14 @@ def seconds_per_call(call: Callable[[], object], repeats: int) -> float:
             call()
         best = min(best, (time.perf_counter() - started) / repeats)
     return best
+
+
+def adam_step(seeds: int, size: int, fused: bool | None) -> Callable[[], None]:
+    """One PopulationAdam step of every seed, as a call to time."""
+    adam = PopulationAdam(seeds, size, eps=1e-5, fused=fused)
+    params, grads = torch.randn(seeds, size), 1e-3 * torch.randn(seeds, size)
+    lr, active = torch.full((seeds,), 2e-3), torch.ones(seeds, dtype=torch.bool)
+    return lambda: adam.step(params, grads, lr, active)
 
 
 def main() -> None:
@@ -66,6 +80,16 @@ def main() -> None:
     print(
         f"torch.bmm {list(shape)} x {[args.seeds, args.width, args.width]}: {flops / bmm / 1e9:.1f} GFLOP/s"
     )
+    heads = torch.randn(args.seeds, args.rows, 2, generator=generator)
+    for name, call in [
+        ("x^T @ grad (autograd's)", lambda: torch.bmm(x.transpose(1, 2), heads)),
+        ("grad^T @ x (stacked_linear)", lambda: torch.bmm(heads.transpose(1, 2), x)),
+    ]:
+        print(f"head weight gradient, {name:<28} {seconds_per_call(call, args.repeats) * 1e3:6.3f} ms")
+    for fused in (False, None):
+        seconds = seconds_per_call(adam_step(args.seeds, 9218, fused), args.repeats)
+        name = "torch elementwise" if fused is False else "numba, one pass"
+        print(f"Adam step [{args.seeds}, 9218], {name:<18} {seconds * 1e3:6.3f} ms")
 
 
 if __name__ == "__main__":

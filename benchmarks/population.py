@@ -4,6 +4,7 @@
     python benchmarks/population.py --seeds 20 --singles 5
     python benchmarks/population.py --agent a2c       # also reinforce, cem, random-search, hill-climbing
     python benchmarks/population.py --population-threads 1
+    python benchmarks/population.py --seeds 2048 --device cuda --singles 0 --processes 0   # on a GPU
 
 Each part runs in its own child process (so peak RSS and CPU are that part's alone), with the torch
 threads ``cartpole train`` uses by default: one, for the population (``--seeds``) and single runs alike.
@@ -44,14 +45,16 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: KiB
 
 
-def run_population_part(agent: str, seeds: int, preset: str, runs_dir: Path) -> dict[str, object]:
+def run_population_part(
+    agent: str, seeds: int, preset: str, runs_dir: Path, device: str = "cpu"
+) -> dict[str, object]:
     import torch
 
     from cartpole.training.population import train_population
 
     started = time.perf_counter()
     outcome = train_population(
-        agent, list(range(seeds)), preset=preset, runs_dir=runs_dir, quiet=False, device="cpu"
+        agent, list(range(seeds)), preset=preset, runs_dir=runs_dir, quiet=False, device=device
     )
     wall = time.perf_counter() - started
     states = outcome.states.values()
@@ -64,6 +67,7 @@ def run_population_part(agent: str, seeds: int, preset: str, runs_dir: Path) -> 
         "verified": sum(r.solved for r in outcome.reports.values()),
         "threads": torch.get_num_threads(),
         "machine": describe_cpu(),
+        "device": torch.cuda.get_device_name(0) if device.startswith("cuda") else "cpu",
     }
 
 
@@ -99,11 +103,13 @@ def run_processes_part(agent: str, seeds: int, preset: str, runs_dir: Path) -> d
     return {"cpu_per_process": cpu}
 
 
-def child(part: str, agent: str, seeds: int, preset: str, threads: int, out: Path) -> dict[str, object]:
+def child(
+    part: str, agent: str, seeds: int, preset: str, threads: int, out: Path, device: str = "cpu"
+) -> dict[str, object]:
     """Run one part in its own process; its result is also kept as ``out/<part>.json``."""
     with tempfile.TemporaryDirectory() as tmp:
         command = [sys.executable, __file__, "--part", part, "--agent", agent, "--n", str(seeds)]
-        command += ["--preset", preset, "--population-threads", str(threads)]
+        command += ["--preset", preset, "--population-threads", str(threads), "--device", device]
         done = subprocess.run([*command, "--dir", tmp], stdout=subprocess.PIPE, text=True, check=True)
     result = json.loads(done.stdout.strip().splitlines()[-1])
     (out / f"{part}.json").write_text(json.dumps(result))
@@ -118,7 +124,7 @@ def median(values: list[int]) -> float:
 
 def report(
     population: dict[str, object],
-    singles: dict[str, object],
+    singles: dict[str, object] | None,
     processes: dict[str, object] | None,
     seeds: int,
     runs: int,
@@ -126,20 +132,25 @@ def report(
     from scipy.stats import mannwhitneyu
 
     pop_cpu = float(population["cpu"]) / seeds  # type: ignore[arg-type]
-    single_cpu = median(singles["cpu_per_run"])  # type: ignore[arg-type]
     wall = float(population["wall"])  # type: ignore[arg-type]
     pop_steps = [s for s in population["solved_at"] if s is not None]  # type: ignore[attr-defined]
-    single_steps = [s for s in singles["solved_at"] if s is not None]  # type: ignore[attr-defined]
-    p_value = mannwhitneyu(pop_steps, single_steps).pvalue if pop_steps and single_steps else float("nan")
     print(f"cpu: {population.get('machine', 'not recorded')}")
+    device = population.get("device", "cpu")
     rows = [
         ("population seeds", f"{seeds} ({population.get('threads', 1)} torch threads; single runs: 1)"),
+        ("population device", f"{device}"),
         ("verified solves (population)", f"{population['verified']}/{seeds}"),
         ("wall, start to last verdict", f"{wall:.1f} s"),
         ("CPU per seed, population (whole process)", f"{pop_cpu:.2f} s"),
-        ("CPU per run, single runs (median of training)", f"{single_cpu:.2f} s"),
-        ("CPU ratio single / population", f"{single_cpu / pop_cpu:.1f}x"),
     ]
+    single_steps: list[int] = []
+    if singles is not None:
+        single_cpu = median(singles["cpu_per_run"])  # type: ignore[arg-type]
+        single_steps = [s for s in singles["solved_at"] if s is not None]  # type: ignore[attr-defined]
+        rows += [
+            ("CPU per run, single runs (median of training)", f"{single_cpu:.2f} s"),
+            ("CPU ratio single / population", f"{single_cpu / pop_cpu:.1f}x"),
+        ]
     if processes is not None:
         process_cpu = median(processes["cpu_per_process"])  # type: ignore[arg-type]
         count = len(processes["cpu_per_process"])  # type: ignore[arg-type]
@@ -151,14 +162,18 @@ def report(
         ("peak RSS, population process", f"{population['rss_mb']:.0f} MB"),
         ("env steps/s (all seeds)", f"{float(population['steps']) / wall:,.0f}"),  # type: ignore[arg-type]
         ("seeds/min", f"{seeds / wall * 60:.1f}"),
-        ("verified solves (single runs)", f"{singles['verified']}/{runs}"),
         ("median solve step, population", f"{median(pop_steps):,.0f} ({len(pop_steps)} solved in training)"),
-        (
-            "median solve step, single runs",
-            f"{median(single_steps):,.0f} ({len(single_steps)} solved in training)",
-        ),
-        ("Mann-Whitney U p-value (solve steps)", f"{p_value:.3f}"),
     ]
+    if singles is not None:
+        p_value = mannwhitneyu(pop_steps, single_steps).pvalue if pop_steps and single_steps else float("nan")
+        rows += [
+            ("verified solves (single runs)", f"{singles['verified']}/{runs}"),
+            (
+                "median solve step, single runs",
+                f"{median(single_steps):,.0f} ({len(single_steps)} solved in training)",
+            ),
+            ("Mann-Whitney U p-value (solve steps)", f"{p_value:.3f}"),
+        ]
     width = max(len(name) for name, _ in rows)
     for name, value in rows:
         print(f"{name:<{width}}  {value}")
@@ -183,6 +198,11 @@ def main() -> None:
         help="torch threads of the population (default 1, as `cartpole train --seeds` runs; 0: torch's "
         "own, one per core)",
     )
+    parser.add_argument(
+        "--device",
+        default="cpu",
+        help="where the population trains: cpu (default) or cuda (single runs stay on the CPU)",
+    )
     parser.add_argument("--out", default="runs/population-benchmark", help="where each part's JSON is kept")
     parser.add_argument("--report-only", action="store_true", help="print the table from --out's JSON files")
     parser.add_argument("--part", choices=["population", "singles", "processes"], help=argparse.SUPPRESS)
@@ -194,21 +214,26 @@ def main() -> None:
 
         if args.part == "singles" or args.population_threads:  # as `cartpole train` sets them
             torch.set_num_threads(1 if args.part == "singles" else args.population_threads)
-        parts = {"population": run_population_part, "singles": run_singles_part}
-        run = parts.get(args.part, run_processes_part)
-        print(json.dumps(run(args.agent, args.n, args.preset, Path(args.dir))))
+        if args.part == "population":
+            result = run_population_part(args.agent, args.n, args.preset, Path(args.dir), args.device)
+        else:
+            run = run_singles_part if args.part == "singles" else run_processes_part
+            result = run(args.agent, args.n, args.preset, Path(args.dir))
+        print(json.dumps(result))
         return
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     if args.report_only:
         population = json.loads((out / "population.json").read_text())
-        singles = json.loads((out / "singles.json").read_text())
-        kept = out / "processes.json"
-        processes = json.loads(kept.read_text()) if kept.exists() else None
-        report(population, singles, processes, len(population["solved_at"]), len(singles["solved_at"]))
+        kept_singles, kept_processes = out / "singles.json", out / "processes.json"
+        singles = json.loads(kept_singles.read_text()) if kept_singles.exists() else None
+        processes = json.loads(kept_processes.read_text()) if kept_processes.exists() else None
+        runs = len(singles["solved_at"]) if singles else 0
+        report(population, singles, processes, len(population["solved_at"]), runs)
         return
-    population = child("population", args.agent, args.seeds, args.preset, args.population_threads, out)
-    singles = child("singles", args.agent, args.singles, args.preset, args.population_threads, out)
+    threads = args.population_threads
+    population = child("population", args.agent, args.seeds, args.preset, threads, out, args.device)
+    singles = child("singles", args.agent, args.singles, args.preset, threads, out) if args.singles else None
     processes = None
     if args.processes:
         processes = child("processes", args.agent, args.processes, args.preset, args.population_threads, out)

@@ -6,16 +6,18 @@ single run seeds them, its own action sampling, minibatch shuffling and Adam sta
 only the arithmetic:
 
 - ``StackedActorCritic``: the parameters of all S actor-critics in one flat ``[S, P]`` tensor; each
-  layer is a view ``[S, out, in]`` of it and runs as one ``torch.baddbmm`` over the seed axis.
-  Batched matmuls, not ``torch.func.vmap`` over ``functional_call``: measured on this 2-core CPU,
-  vmap's per-call batching rules cost more than these small layers' arithmetic, while ``baddbmm``
-  is one kernel per layer; and ``baddbmm`` gives every seed the same bits whatever the batch holds
-  (tested), so a seed's run does not depend on which seeds share the process.
+  layer is a view ``[S, out, in]`` of it and runs as one ``torch.baddbmm`` over the seed axis
+  (:func:`~cartpole.agents.stacked_linear.stacked_linear`, whose backward picks the fast
+  orientation of each product). Batched matmuls, not ``torch.func.vmap`` over ``functional_call``:
+  measured on this 2-core CPU, vmap's per-call batching rules cost more than these small layers'
+  arithmetic, while ``baddbmm`` is one kernel per layer; and it gives every seed the same bits
+  whatever the batch holds (tested), so a seed's run does not depend on which seeds share the process.
 - ``PopulationEnvs``: S x N CartPoles stepped by one call of the fast simulator's kernel
   (:func:`~cartpole.envs.fast.step_cartpole`), with Gymnasium's next-step autoreset, and the start
   states of each seed's envs drawn from that seed's own generator in Gymnasium's order (so they are
   the start states of the single run's vector env).
-- ``PopulationAdam``: one Adam step for all seeds over the flat parameters. Adam is per element,
+- ``PopulationAdam`` (:mod:`cartpole.agents.population_optimizers`): one Adam step for all seeds
+  over the flat parameters, one numba pass per seed's row on the CPU. Adam is per element,
   so seeds stay independent; each seed has its own learning rate (schedules follow the seed's own
   env steps), step count, and can sit a step out (its last minibatch is empty, or it stopped on the
   target KL).
