@@ -3,9 +3,10 @@ with a learning rate, a step count and a "sit this step out" flag per seed.
 
 Each seed's row gets the update its single run's optimizer gives (torch.optim.Adam's and RMSprop's
 formulas; the floats may differ in the last bits). On the CPU the update is one numba pass per row
-(:mod:`cartpole.agents._population_optimizer_kernels`, compiled on first use): measured for 100 PPO
-seeds (``[100, 9218]``), torch's elementwise form of Adam took ~9 ms a step and spent more time moving
-memory than the backward pass spent in it. Other devices (and ``fused=False``) use the torch form.
+(:mod:`cartpole.agents._population_optimizer_kernels`, compiled on first use): for 100 PPO seeds
+(``[100, 9218]``) torch's elementwise form of Adam makes about ten passes over tensors that no longer
+fit the core's cache, 3-5 ms a step against 0.5-1.5 ms for the one pass (``benchmarks/kernels.py``).
+Other devices (and ``fused=False``) use the torch form.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ def _kernels() -> ModuleType:
 
 def use_kernels(fused: bool | None, *tensors: torch.Tensor) -> bool:
     """Whether the numba pass can update ``tensors`` in place: ``fused`` is not False and they are
-    C-contiguous float32/float64 CPU tensors."""
+    C-contiguous CPU tensors (the kernels compile for their dtypes)."""
     if fused is False:
         return False
     return all(t.device.type == "cpu" and t.is_contiguous() for t in tensors)

@@ -92,7 +92,7 @@ def add_parser(sub: Any) -> None:
         default=None,
         metavar="N",
         help="CPU threads for torch (default: 1, the least CPU for these small networks, one seed "
-        "or a population: 100 PPO seeds took 42 s on one thread and 40 s on two, for 1.5x the CPU "
+        "or a population: 100 PPO seeds took 56 s on one thread and 60 s on two, for 1.6x the CPU "
         "(benchmarks/population.py); 0: torch's default, one per core)",
     )
     parser.add_argument("--resume", metavar="RUN_DIR", help="continue this run from checkpoints/latest.pt")
