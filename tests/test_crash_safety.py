@@ -99,7 +99,7 @@ def test_kill_9_shows_crashed_and_resume_finishes_with_a_verdict(tmp_path):
     assert summarize_run(run.path).state == RunState.RUNNING
 
     process.send_signal(signal.SIGKILL)
-    process.wait(timeout=60)
+    process.communicate(timeout=60)  # reaps it and closes its pipes
     logged = generations_logged(run)  # what the process had done, as far as the disk knows
     saved = load_checkpoint(run.checkpoint_path("latest")).meta["loop"]["iterations"]
     assert logged - saved <= GENERATIONS // 10 + 1  # at most one checkpoint interval lost

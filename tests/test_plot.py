@@ -65,15 +65,16 @@ def test_load_run_reads_train_and_eval_series(tmp_path):
 
 def test_plot_one_real_run(cem_run, tmp_path):
     out = plot_runs([cem_run], tmp_path / "one.png")
-    image = Image.open(out)
-    assert image.format == "PNG" and image.size[0] >= 1000 and out.stat().st_size > 20_000
+    with Image.open(out) as image:
+        assert image.format == "PNG" and image.size[0] >= 1000 and out.stat().st_size > 20_000
     assert load_run(cem_run).unit == "generation"
 
 
 def test_plot_several_runs_aggregated_and_mixed_agents(tmp_path):
     runs = [fake_run(tmp_path / "runs", "dqn", s, solved=s == 0).path for s in range(3)]
     out = plot_runs(runs, tmp_path / "agg.png", x_axis="episodes")
-    assert Image.open(out).size[0] >= 1000
+    with Image.open(out) as image:
+        assert image.size[0] >= 1000
     fake_run(tmp_path / "runs", "cem", 7, episodes=60)
     svg = plot_runs([tmp_path / "runs"], tmp_path / "all.svg")  # a folder of runs: all of them
     text = svg.read_text()

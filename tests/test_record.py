@@ -39,9 +39,9 @@ def test_same_seed_same_episodes_as_evaluate(always_left, balancer):
 def test_gif_has_the_expected_number_of_frames(always_left, tmp_path):
     recording = render_episodes(always_left, "CartPole-v1", 3, SEED)
     out = write_video(recording.frames, tmp_path / "left.gif", recording.fps)
-    gif = Image.open(out)
-    assert gif.format == "GIF" and gif.n_frames == len(recording.frames)
-    assert gif.info["duration"] == 20 and gif.info["loop"] == 0
+    with Image.open(out) as gif:
+        assert gif.format == "GIF" and gif.n_frames == len(recording.frames)
+        assert gif.info["duration"] == 20 and gif.info["loop"] == 0
     assert sorted(p.name for p in tmp_path.iterdir()) == ["left.gif"]  # no temp file left
 
 
@@ -49,7 +49,8 @@ def test_record_cli_writes_a_gif(cem_run, tmp_path, capsys):
     out = tmp_path / "cem.gif"
     args = ["record", str(cem_run), "--episodes", "2", "--seed", str(SEED), "--max-steps", "30"]
     assert main([*args, "--out", str(out)]) == 0
-    assert Image.open(out).n_frames == 2 * (30 + 1)  # a solved agent lasts the 30 steps
+    with Image.open(out) as gif:
+        assert gif.n_frames == 2 * (30 + 1)  # a solved agent lasts the 30 steps
     assert f"wrote {out}" in capsys.readouterr().out
 
 
@@ -105,7 +106,8 @@ def test_eval_render_writes_the_video_of_its_first_episodes(cem_run, tmp_path, c
     assert main([*args, "--render", str(out)]) == 0
     report = json.loads(capsys.readouterr().out)
     assert report["video"] == str(out)
-    assert Image.open(out).n_frames == sum(report["lengths"][:3]) + 3  # its first 3 episodes
+    with Image.open(out) as gif:
+        assert gif.n_frames == sum(report["lengths"][:3]) + 3  # its first 3 episodes
 
     (tmp_path / "cwd").mkdir()
     monkeypatch.chdir(tmp_path / "cwd")

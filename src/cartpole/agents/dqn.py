@@ -219,8 +219,8 @@ class DQNLearner:
         self.target_net = copy.deepcopy(self.q_net) if config.target_network else None
         self.parameters = list(self.q_net.parameters())
         self.target_parameters = list(self.target_net.parameters()) if self.target_net is not None else []
-        # Adam as torch.optim.Adam(fused=True) computes it, without torch.optim's one-off ~1.8 s import
-        # of torch._dynamo and its per-step wrapper (see agents/optimizers.py).
+        # Adam as torch.optim.Adam(fused=True) computes it, without torch.optim's one-off import of
+        # torch._dynamo and its per-step wrapper (see agents/optimizers.py).
         self.optimizer = FusedAdam(self.parameters, lr=config.lr)
         self.buffer = ReplayBuffer(config.buffer_size, env.obs_dim, self.device)
 

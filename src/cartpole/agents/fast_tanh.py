@@ -1,10 +1,9 @@
 """``tanh`` for float32 arrays and tensors on the CPU, for the networks' hot paths.
 
-On CPUs without AVX-512, NumPy's and torch's float32 ``tanh`` cost about 3 ns an element (measured on
-this project's AMD EPYC VM with AVX2: ``torch.tanh`` 3.2 ns, ``np.tanh`` 2.6 ns for ``[100, 128,
-64]``), more than the matrix products around them: a 64x64 tanh MLP spends most of its forward pass
-in it. The rational approximation of :mod:`cartpole.agents._tanh_kernels` takes ~0.4 ns an element
-there, within 2.7e-7 relative error of the exact value (a few float32 ulps, the size of the
+On CPUs without AVX-512, NumPy's and torch's float32 ``tanh`` cost more than the matrix products
+around them: a 64x64 tanh MLP spends most of its forward pass in it. The rational approximation of
+:mod:`cartpole.agents._tanh_kernels` is several times cheaper there (``benchmarks/kernels.py`` times
+all three), within 2.7e-7 relative error of the exact value (a few float32 ulps, the size of the
 differences between two CPUs' kernels). Used by the numpy greedy policies
 (:class:`~cartpole.agents.numpy_mlp.NumpyMLP`) and the populations' stacked networks; a single run's
 torch network keeps ``torch.tanh``.

@@ -2,18 +2,17 @@
 ``torch.optim.RMSprop``, without the import that constructing them costs.
 
 Constructing *any* ``torch.optim`` optimizer imports ``torch._dynamo`` (its ``add_param_group`` is
-wrapped to disable dynamo): 1.5-2.7 s of CPU once per process, a fifth of a whole CartPole training
-run. Torch's functional optimizers, ``torch.optim.adam.adam`` and ``torch.optim.rmsprop.rmsprop``
-(public: in their modules' ``__all__``), import nothing more and run the same kernels over the same
-state tensors (``step``, ``exp_avg``, ``exp_avg_sq``, or ``step`` and ``square_avg``, per parameter,
-in the same dtypes and devices), so an update is bitwise that of the ``torch.optim`` class (tested),
-and the state loads into either.
+wrapped to disable dynamo): seconds of CPU once per process, a large share of a whole CartPole
+training run. Torch's functional optimizers, ``torch.optim.adam.adam`` and
+``torch.optim.rmsprop.rmsprop`` (public: in their modules' ``__all__``), import nothing more and run
+the same kernels over the same state tensors (``step``, ``exp_avg``, ``exp_avg_sq``, or ``step`` and
+``square_avg``, per parameter, in the same dtypes and devices), so an update is bitwise that of the
+``torch.optim`` class (tested), and the state loads into either.
 
-Calling the private kernel ``torch._fused_adam_`` directly, skipping the functional API's checks and
-per-call grouping of the tensors, was measured and removed: it saved 2.5% of the CPU time to solve,
-far from the 20% that would keep a private call (``benchmarks/time_to_solve.py --agents dqn --seeds
-5``, 2026-11-23: 107.2 s summed over seeds 0-4 with it, 110.0 s without; the same trajectories, so the
-same env steps, on every seed).
+The private kernel ``torch._fused_adam_`` is not called directly: skipping the functional API's checks
+and per-call grouping of the tensors gives the same trajectories but saves far less than the 20% of
+the CPU time to solve that a private call must save to stay (``benchmarks/time_to_solve.py --agents
+dqn`` measures it; benchmarks/README.md has the figures).
 """
 
 from __future__ import annotations

@@ -251,8 +251,9 @@ class PolicyGradientLearner:
 
 
 def adam(parameters: list[torch.Tensor], lr: float, eps: float = 1e-8) -> FusedAdam:
-    """Adam with torch's fused kernel (one kernel per step: ~4x faster than the per-tensor loop for
-    nets this small on CPU), without constructing a ``torch.optim`` optimizer (see agents/optimizers.py)."""
+    """Adam with torch's fused kernel (one kernel per step: several times faster than the per-tensor
+    loop for nets this small on CPU), without constructing a ``torch.optim`` optimizer (see
+    agents/optimizers.py)."""
     return FusedAdam(parameters, lr=lr, eps=eps)
 
 

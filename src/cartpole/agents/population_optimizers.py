@@ -5,7 +5,7 @@ Each seed's row gets the update its single run's optimizer gives (torch.optim.Ad
 formulas; the floats may differ in the last bits). On the CPU the update is one numba pass per row
 (:mod:`cartpole.agents._population_optimizer_kernels`, compiled on first use): for 100 PPO seeds
 (``[100, 9218]``) torch's elementwise form of Adam makes about ten passes over tensors that no longer
-fit the core's cache, 3-5 ms a step against 0.5-1.5 ms for the one pass (``benchmarks/kernels.py``).
+fit the core's cache, several times the one pass's time (``benchmarks/kernels.py`` times both).
 Other devices (and ``fused=False``) use the torch form.
 """
 

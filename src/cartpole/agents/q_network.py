@@ -5,17 +5,17 @@ initialization, dropout masks), never from torch's process-wide generator: build
 network changes nothing global, and two networks built from equal generators are equal whatever else
 the process does.
 
-Public torch only. Three private shortcuts of an earlier version were measured against this code
-with ``benchmarks/time_to_solve.py --agents dqn --seeds 5`` (CPU s to a verified solve, summed over
-seeds 0-4, same trajectories; 110.0 s for the public path) and removed, none saving the 20% that
-would keep it: a numpy forward over the parameters' memory keyed by ``data_ptr`` for small batches
-(113.0 s), calling ``module.forward`` to bypass ``nn.Module.__call__`` (118.5 s), and the target
-update through ``torch._foreach_lerp_``/``_foreach_copy_`` (109.1 s, in ``DQNLearner.update_target``).
-The hand-written dropout stays only because ``nn.Dropout`` cannot draw from an owned generator.
+Public torch only. A private shortcut would stay only where it saves 20% of the CPU time to a
+verified solve on the same trajectories (``benchmarks/time_to_solve.py --agents dqn`` measures that;
+benchmarks/README.md has the figures), and none of these does: a numpy forward over the parameters'
+memory keyed by ``data_ptr`` for small batches, calling ``module.forward`` to bypass
+``nn.Module.__call__``, and the target update through ``torch._foreach_lerp_``/``_foreach_copy_`` (in
+``DQNLearner.update_target``). The hand-written dropout stays only because ``nn.Dropout`` cannot draw
+from an owned generator.
 
 The greedy policy (``QNetworkPolicy``) is a numpy snapshot of the weights, as PPO's is: training acts
-through torch, but evaluations and the web app's episodes act a few rows at a time, where the snapshot
-costs ~21 us per row against ~150 us for a torch forward pass (64x64 network, one row).
+through torch, but evaluations and the web app's episodes act a few rows at a time, where torch's
+per-op overhead makes its forward pass several times dearer than the snapshot's.
 """
 
 from __future__ import annotations
@@ -123,8 +123,8 @@ class QNetworkPolicy:
     """Greedy policy of a Q-network: ``act`` = argmax of ``scores`` (the Q-values).
 
     A frozen snapshot: numpy copies of the network's weights taken when it is built, run without
-    dropout (:class:`~cartpole.agents.numpy_mlp.NumpyMLP`: for one row ~7x faster than a torch forward
-    pass, which the web app's episodes and every evaluation pay per step).
+    dropout (:class:`~cartpole.agents.numpy_mlp.NumpyMLP`: for one row several times faster than a torch
+    forward pass, which the web app's episodes and every evaluation pay per step).
     """
 
     def __init__(self, q_net: QNetwork):

@@ -54,7 +54,7 @@ class ReplayBuffer:
         self.rewards = self.table[:, 2 * d + 1]
         self.terminated = self.table[:, 2 * d + 2]
         # On CPU, rows are written through numpy views of the same memory: a numpy fancy-index write
-        # costs ~1/3 of torch's for the few rows of one env step.
+        # costs a fraction of torch's for the few rows of one env step.
         self._host_views = (
             {name: getattr(self, name).numpy() for name in _FIELDS} if self.device.type == "cpu" else None
         )

@@ -5,9 +5,10 @@
   numpy results are written with numpy (no conversion per step), the update reads tensors.
 - ``RolloutCollector``: owns the vector env and steps it with the current actor. Acting runs the
   actor's frozen numpy copy (:class:`~cartpole.agents.actor_critic.CategoricalPolicy`, taken once per
-  rollout) and samples from a numpy generator: for the few rows of one batched step, numpy's ~1 us per
-  op beats torch's ~5-10, and collection was most of a CartPole run's CPU. The log-probabilities the
-  update needs are computed afterwards by torch, in one batched forward pass over the rollout.
+  rollout) and samples from a numpy generator: for the few rows of one batched step, numpy's per-op
+  overhead is a fraction of torch's, and collection, one actor call per batched step, would otherwise
+  be most of a CartPole run's CPU. The log-probabilities the update needs are computed afterwards
+  by torch, in one batched forward pass over the rollout.
   Gymnasium's next-step autoreset is respected: the step after an episode ends
   only resets that env (its action is ignored, its reward is 0), so that row is *not a transition*
   and is marked invalid (``valid = False``): it gets no advantage and no loss, and is not counted as

@@ -3,9 +3,9 @@ multiplies in the orientation that is fast for thin matrices.
 
 Forward is one ``torch.baddbmm``. Autograd's own backward of it computes the weight's gradient as
 ``x^T @ grad`` (``[S, in, B] x [S, B, out]``); when ``out`` is 1 or 2 (a value or policy head) that
-product has one or two columns, and a CPU ``bmm`` with so few columns runs at 2-3 GFLOP/s against
-15-60 for the other orientation (``benchmarks/kernels.py``: 1.2-2.3 ms against 0.19-0.32 ms for 100
-seeds' 2-action heads over a 128-row batch). Here the weight gradient is whichever
+product has one or two columns, and a CPU ``bmm`` with so few columns runs several times slower
+than the other orientation (``benchmarks/kernels.py`` times both for a population's 2-action
+heads). Here the weight gradient is whichever
 of ``grad^T @ x`` and ``(x^T @ grad)^T`` has the more columns. Every product is still one seed's
 slice on its own, so a seed's gradient does not depend on the seeds beside it.
 """

@@ -92,8 +92,8 @@ def add_parser(sub: Any) -> None:
         default=None,
         metavar="N",
         help="CPU threads for torch (default: 1, the least CPU for these small networks, one seed "
-        "or a population: 100 PPO seeds took 56 s on one thread and 60 s on two, for 1.6x the CPU "
-        "(benchmarks/population.py); 0: torch's default, one per core)",
+        "or a population: a second thread costs more CPU than it saves time, see "
+        "benchmarks/population.py --population-threads 0); 0: torch's default, one per core",
     )
     parser.add_argument("--resume", metavar="RUN_DIR", help="continue this run from checkpoints/latest.pt")
     parser.add_argument("--quiet", action="store_true", help="no progress output")

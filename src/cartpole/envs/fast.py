@@ -103,29 +103,21 @@ exactly.
   implementations of a chaotic system do, but the dynamics, the flags and the seeds mean the same.
 
 The vector env defaults to float32: it exists for training throughput, its observations are float32
-anyway, and float64 runs 3-4x slower at large ``num_envs``. The single env defaults to float64: at
-one env the cost is Python's, not the arithmetic's, so it reproduces Gymnasium exactly for free,
-which is what the web app's "same start state" replays want. ``step_cartpole`` keeps the dtype of
+anyway, and float64 runs several times slower at large ``num_envs``. The single env defaults to
+float64: at one env the cost is Python's, not the arithmetic's, so it reproduces Gymnasium exactly for
+free, which is what the web app's "same start state" replays want. ``step_cartpole`` keeps the dtype of
 the state it is given.
 
-## Throughput
+## Throughput and start-up
 
-``python benchmarks/env_throughput.py`` on one core of a shared 2-CPU AMD EPYC VM (load average 4.6,
-so absolute figures are low; the ratios are what carry over), random actions, autoreset included,
-env steps per CPU-second:
+``python benchmarks/env_throughput.py`` measures env steps per CPU-second on one core (random
+actions, autoreset included): the vector env in both dtypes against Gymnasium's
+``CartPoleVectorEnv``, the single env through ``gymnasium.make`` against Gymnasium's, and the
+start-up costs below.
 
-| num_envs | Gymnasium CartPoleVectorEnv | fast float32 | fast float64 |
-| --- | --- | --- | --- |
-| 1 | 1.4e4 | 2.6e5 (18x) | 2.6e5 (18x) |
-| 256 | 2.9e6 | 3.3e7 (12x) | 2.2e7 (8x) |
-| 4,096 | 1.5e7 | 1.5e8 (10x) | 4.7e7 (3x) |
-| 65,536 | 1.3e7 | 1.8e8 (14x) | 4.8e7 (3.7x) |
-
-The single env through ``gymnasium.make`` (wrappers included, plain Python loop): 3.1e5 steps/s vs
-0.9e5 for Gymnasium's. Importing this module does not import numba. The first env of a process
-imports numba and loads the compiled kernels from its on-disk cache (~1 s for float32, then ~0.02 s
-for float64); with an empty cache (first run after an install or an edit of the kernels) it compiles
-them instead: ~2-4 s per dtype.
+Importing this module does not import numba. The first env of a process imports numba and loads the
+compiled kernels from its on-disk cache, once per dtype; with an empty cache (first run after an
+install or an edit of the kernels) it compiles them instead, which takes longer.
 """
 
 from __future__ import annotations

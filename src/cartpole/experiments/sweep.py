@@ -142,8 +142,8 @@ def open_storage(spec: SweepSpec, attempts: int = 5) -> Any:
         return optuna.storages.JournalStorage(JournalFileBackend(str(spec.path / "journal.log")))
     backend, where = describe_url(spec.storage)
     url = spec.storage
-    if url.startswith("postgresql://"):  # SQLAlchemy 2.1's default driver is psycopg 3; ours is psycopg2
-        url = "postgresql+psycopg2://" + url.removeprefix("postgresql://")
+    if url.startswith("postgresql://"):  # psycopg 3 (the postgres extra), also where SQLAlchemy < 2.1
+        url = "postgresql+psycopg://" + url.removeprefix("postgresql://")
     engine: dict[str, Any] = {"pool_pre_ping": True}
     if backend == "postgresql":
         engine["connect_args"] = {"connect_timeout": 10}

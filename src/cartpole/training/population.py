@@ -339,8 +339,9 @@ def train_population(
 
 
 def population_device(device: str) -> str:
-    """``cpu`` for ``auto``: a population runs on a GPU only when asked (``--device cuda``); it has
-    not been measured on one yet, and on the CPU it is the figures the README gives."""
+    """``cpu`` for ``auto``: a population runs on a GPU only when asked (``--device cuda``). Its envs
+    step on the CPU whatever the device, so ``auto`` does not assume that a GPU pays;
+    ``benchmarks/population.py --device cuda`` measures whether it does."""
     return "cpu" if device == "auto" else resolve_device(device)
 
 

@@ -5,8 +5,8 @@ can run under changed physics, and can be "nudged": a push that adds to the pole
 before a given step, so a viewer can see whether the policy recovers.
 
 Episodes are computed in a worker process (``EpisodeWorkers``), not on the server's event loop nor
-in one of its threads: a 500-step episode holds the GIL for about 15 ms, and play sessions must
-answer each step within a few ms meanwhile.
+in one of its threads: a 500-step episode holds the GIL for longer than the 5 ms (p99) within which
+play sessions must answer each step meanwhile (``benchmarks/web_latency.py --watch-load`` checks it).
 """
 
 from __future__ import annotations
@@ -202,8 +202,9 @@ def episode_body(
     header: dict[str, Any],
 ) -> bytes:
     """In a worker: the greedy episode of the checkpoint at path ``checkpoint`` as the API's JSON body,
-    ``header`` (run, checkpoint, agent) first. Encoded here, not on the server's event loop: a 500-step
-    episode takes ~4 ms to encode. CheckpointError and PhysicsError reach the caller."""
+    ``header`` (run, checkpoint, agent) first. Encoded here, not on the server's event loop: encoding a
+    500-step episode would hold up every play session meanwhile. CheckpointError and PhysicsError
+    reach the caller."""
     global _worker_policies
     if _worker_policies is None:
         _worker_policies = PolicyCache()
