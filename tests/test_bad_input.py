@@ -287,7 +287,7 @@ def test_eval_falls_back_from_a_corrupt_best_to_solved_then_latest(runs, capsys)
     assert main(["eval", str(runs["cem"]), "--episodes", "2", "--json"]) == 0
     out, err = capsys.readouterr()
     assert json.loads(out)["checkpoint"].endswith("solved.pt")
-    assert "best.pt is truncated or corrupt" in err and "using" in err and "solved.pt" in err
+    assert "best.pt is truncated or damaged" in err and "using" in err and "solved.pt" in err
     pickled("checkpoints/solved.pt")(runs)
     assert main(["eval", str(runs["cem"]), "--episodes", "2", "--json"]) == 0
     out, err = capsys.readouterr()
@@ -307,7 +307,7 @@ def test_a_pickled_checkpoint_is_refused_in_a_whole_sentence(runs, capsys):
     pickled(LATEST)(runs)
     assert main(["eval", str(runs["cem"] / LATEST)]) == 2
     err = capsys.readouterr().err.strip()
-    assert "pickled Python objects" in err and err.endswith("(UnpicklingError)")
+    assert "pickled Python objects" in err and err.endswith("use a checkpoint written by `cartpole train`")
 
 
 # --- bad values: refused before a run folder exists ------------------------------------------------
@@ -386,6 +386,7 @@ BAD_COMMANDS: dict[str, Callable[[Path], list[str]]] = {
     "resume with an empty --budget": lambda t: ["train", "--resume", str(t), "--budget", ""],
     "eval a link loop": lambda t: ["eval", str(loop_link(t))],
     "eval a folder that is no run": lambda t: ["eval", str(t)],
+    "eval 10^11 episodes": lambda t: ["eval", str(t), "--episodes", "99999999999"],
     "plot a file": lambda t: ["plot", str(a_file(t)), "--out", str(t / "p.png")],
     "plot a link loop": lambda t: ["plot", str(loop_link(t)), "--out", str(t / "p.png")],
     "plot to .txt": lambda t: ["plot", str(t), "--out", str(t / "p.txt")],

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import pickle
+import re
+import zipfile
 
 import pytest
 import torch
@@ -30,7 +32,7 @@ def test_truncated_file(tmp_path):
     save_checkpoint(path, Checkpoint(meta={"agent": "cem", "env_id": "CartPole-v1"},
                                      tensors={"w": torch.zeros(1000)}))  # fmt: skip
     path.write_bytes(path.read_bytes()[:300])
-    with pytest.raises(CheckpointError, match="truncated or corrupt"):
+    with pytest.raises(CheckpointError, match="truncated or damaged"):
         load_checkpoint(path)
 
 
@@ -72,3 +74,36 @@ def test_interrupted_save_keeps_the_previous_file(tmp_path, monkeypatch):
     monkeypatch.undo()
     assert load_checkpoint(path).meta["v"] == 1
     assert [p.name for p in tmp_path.iterdir()] == ["c.pt"]
+
+
+# What a file that is not a readable checkpoint is: said in its own words, not lumped together.
+NOT_CHECKPOINTS = {
+    "empty": (b"", "is empty (0 bytes)"),
+    "json": (b'{"agent": "cem"}', "is a JSON or text file, not a checkpoint"),
+    "bytes": (bytes(range(7, 250)), "is not a checkpoint: neither a torch zip archive nor a pickle"),
+    "pickle": (b"\x80\x04K\x01.", "holds pickled Python objects"),
+}
+
+
+@pytest.mark.parametrize("kind", list(NOT_CHECKPOINTS))
+def test_a_file_that_is_not_a_checkpoint_is_named_for_what_it_is(kind, tmp_path):
+    content, said = NOT_CHECKPOINTS[kind]
+    path = tmp_path / "c.pt"
+    path.write_bytes(content)
+    with pytest.raises(CheckpointError, match=re.escape(said)):
+        load_checkpoint(path)
+
+
+def test_a_zip_archive_is_not_taken_for_a_damaged_checkpoint(tmp_path):
+    path = tmp_path / "c.pt"
+    with zipfile.ZipFile(path, "w") as archive:
+        archive.writestr("notes.txt", "hello")
+    with pytest.raises(CheckpointError, match="is a zip archive, not a torch checkpoint"):
+        load_checkpoint(path)
+
+
+def test_a_torch_file_of_python_objects_is_refused_as_such(tmp_path):
+    path = tmp_path / "c.pt"
+    torch.save({"model": torch.nn.Linear(4, 2)}, path)
+    with pytest.raises(CheckpointError, match="holds pickled Python objects, which we never load"):
+        load_checkpoint(path)

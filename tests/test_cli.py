@@ -92,3 +92,15 @@ def test_bad_checkpoints(kind, tmp_path, cem_run, capsys):
     err = capsys.readouterr().err
     assert err.startswith("cartpole eval: error: ") and len(err.strip().splitlines()) == 1
     assert (cem_run / "checkpoints" / "best.pt").is_file()
+
+
+@pytest.mark.parametrize(
+    "command", ["train", "eval", "runs", "presets", "plot", "record", "serve", "compare", "sweep"]
+)
+def test_help_prints_its_text_as_written(command, capsys):
+    """argparse leaves a description as it is: a "%%" meant for a help string shows up doubled."""
+    with pytest.raises(SystemExit) as exit_info:
+        main([command, "--help"])
+    assert exit_info.value.code == 0
+    out = capsys.readouterr().out
+    assert f"usage: cartpole {command}" in out and "%%" not in out

@@ -45,6 +45,14 @@ def test_gif_has_the_expected_number_of_frames(always_left, tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["left.gif"]  # no temp file left
 
 
+def test_record_of_more_frames_than_memory_holds_is_one_line_before_playing(cem_run, tmp_path, capsys):
+    out = tmp_path / "huge.gif"
+    assert main(["record", str(cem_run), "--episodes", "10000000", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "10,000,000 episodes of up to 500 steps would hold" in err
+    assert "record at most" in err and not out.exists()
+
+
 def test_record_cli_writes_a_gif(cem_run, tmp_path, capsys):
     out = tmp_path / "cem.gif"
     args = ["record", str(cem_run), "--episodes", "2", "--seed", str(SEED), "--max-steps", "30"]

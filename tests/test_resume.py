@@ -145,11 +145,12 @@ def test_truncated_checkpoint_is_detected_and_latest_still_works(tmp_path, cem_r
     data = best.read_bytes()
     best.write_bytes(data[: len(data) // 2])  # cut mid-file
 
-    with pytest.raises(CheckpointError, match="truncated or corrupt"):
+    with pytest.raises(CheckpointError, match="truncated or damaged"):
         load_checkpoint(best)
     assert main(["eval", str(best), "--episodes", "5"]) == 2
     err = capsys.readouterr().err
-    assert "truncated or corrupt" in err and "latest.pt" in err and "Traceback" not in err
+    assert "truncated or damaged" in err and "another of the run's checkpoints" in err
+    assert "Traceback" not in err
     assert load_checkpoint(run.checkpoint_path("latest")).meta["resumable"]
     assert main(["eval", str(run.checkpoint_path("latest")), "--episodes", "5"]) == 0
 
@@ -164,7 +165,9 @@ def test_resume_from_a_truncated_latest_says_so(tmp_path, cem_run, capsys):
     latest = run.checkpoint_path("latest")
     latest.write_bytes(latest.read_bytes()[:100])
     assert main(["train", "--resume", str(path)]) == 2
-    assert "truncated or corrupt" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "cannot resume" in err and "latest.pt is truncated or damaged" in err
+    assert "resumes only from its latest.pt" in err  # not a hint to resume from best.pt
 
 
 def test_a_crash_while_saving_leaves_the_previous_latest(tmp_path, cem_run, monkeypatch):

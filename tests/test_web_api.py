@@ -286,6 +286,14 @@ def test_unsafe_or_unknown_checkpoints_are_404(client: TestClient, web_runs: Web
     assert client.get(episode_url(web_runs.cem, checkpoint)).status_code == 404
 
 
+def test_an_unknown_checkpoint_names_the_ones_the_run_has(client: TestClient, web_runs: WebRuns):
+    response = client.get(episode_url(web_runs.cem, "newest"))
+    assert response.status_code == 404
+    detail = response.json()["detail"]
+    assert "has no checkpoint 'newest'; it has: " in detail and "latest" in detail and "best" in detail
+    assert "CheckpointName" not in detail
+
+
 def test_checkpoint_symlinked_out_of_the_run_is_404(tmp_path: Path, web_runs: WebRuns):
     root = tmp_path / "runs"
     shutil_copy = __import__("shutil").copytree

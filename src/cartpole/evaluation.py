@@ -21,6 +21,10 @@ from cartpole.envs import Simulator, env_info, make_vec_env, resolve_simulator
 MIN_EPISODES_FOR_SOLVED = 100
 """Gymnasium's rule averages over 100 consecutive episodes; fewer cannot be called solved."""
 
+MAX_EPISODES = 1_000_000
+"""The most episodes one evaluation plays: its report keeps every episode's seed, return and length
+(about 100 MB at this count), and CartPole's 500 steps each make it minutes of play already."""
+
 MAX_ENVS_PER_BATCH = 1000
 
 
@@ -212,8 +216,8 @@ def evaluate(
     ``simulator="gymnasium"`` (default) uses Gymnasium's own env, so the verdict does not rest on our
     physics; ``"fast"`` uses our simulator for CartPole (same start states, same equations).
     """
-    if episodes < 1:
-        raise ValueError(f"episodes must be >= 1, got {episodes}")
+    if not 1 <= episodes <= MAX_EPISODES:
+        raise ValueError(f"episodes must be between 1 and {MAX_EPISODES:,}, got {episodes:,}")
     info = env_info(env_id)
     if seed is None:
         from cartpole.core.seeding import fresh_eval_seed

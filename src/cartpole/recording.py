@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from cartpole.core.errors import InputError
+from cartpole.core.memory import SHARE, fits_in_memory
 from cartpole.evaluation import Policy
 from cartpole.runs.atomic import replace_atomically
 
@@ -80,6 +81,9 @@ def render_episodes(
     fps = int(env.metadata.get("render_fps") or DEFAULT_FPS)
     recording = Recording(env_id=gym_id, fps=fps)
     try:
+        env.reset(seed=seed)
+        limits = [n for n in (max_steps, env.spec.max_episode_steps if env.spec else None) if n is not None]
+        check_frames_fit(episodes, min(limits, default=None), env)
         for i in range(episodes):
             episode_seed = seed + i
             observation, _ = env.reset(seed=episode_seed)
@@ -103,6 +107,23 @@ def render_episodes(
     finally:
         env.close()
     return recording
+
+
+def check_frames_fit(episodes: int, steps: int | None, env: Any) -> None:
+    """RecordingError, before any episode is played, when every frame of ``episodes`` episodes of up to
+    ``steps`` steps (None: no limit known, no check) would not fit in memory."""
+    if steps is None:
+        return
+    frames = episodes * (steps + 1)
+    needed = frames * np.asarray(env.render()).nbytes
+    fits, free = fits_in_memory(needed)
+    if not fits and free is not None:
+        fit = max(1, int(SHARE * free // (needed // episodes)))
+        raise RecordingError(
+            f"{episodes:,} episodes of up to {steps:,} steps would hold {frames:,} frames, about "
+            f"{needed / 2**30:.1f} GiB in memory, but {free / 2**30:.1f} GiB is available: record at most "
+            f"{fit:,} episodes, or cut them shorter with --max-steps"
+        )
 
 
 def _frame(env: Any, caption: str | None) -> np.ndarray:

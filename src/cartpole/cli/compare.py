@@ -15,7 +15,7 @@ def add_parser(sub: Any) -> None:
         description=(
             "Train N seeds of each ENTRY (agent, agent:preset or agent:path/to/preset.toml), J at a time "
             "in worker processes, and write RUNS_DIR/experiments/NAME/: report.json, report.md (medians, "
-            "IQRs and bootstrap 95%% CIs of env steps, CPU and wall seconds to the first verified solve, "
+            "IQRs and bootstrap 95% CIs of env steps, CPU and wall seconds to the first verified solve, "
             "unsolved runs censored at their budget; IQM of the final returns) and PNG curves. Every run "
             "is an ordinary run folder. Re-running the same command resumes; Ctrl-C stops every worker "
             "cleanly."

@@ -52,10 +52,13 @@ def run(args: argparse.Namespace) -> int:
     from cartpole.agents.registry import open_policy
     from cartpole.cli.errors import UsageError
     from cartpole.cli.record import tell_skipped
-    from cartpole.evaluation import evaluate
+    from cartpole.evaluation import MAX_EPISODES, evaluate
 
-    if args.episodes < 1:
-        raise UsageError(f"--episodes must be >= 1, got {args.episodes}")
+    if not 1 <= args.episodes <= MAX_EPISODES:
+        raise UsageError(
+            f"--episodes must be between 1 and {MAX_EPISODES:,} (the report keeps every episode), "
+            f"got {args.episodes:,}"
+        )
     if args.seed is not None and args.seed < 0:
         raise UsageError(f"--seed must be >= 0, got {args.seed}")
     opened = open_policy(args.path, env_id=args.env)

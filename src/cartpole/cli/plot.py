@@ -15,7 +15,7 @@ def add_parser(sub: Any) -> None:
         description=(
             "Draw training returns (raw, light, with a moving average), evaluations with error bars "
             "and the solved threshold. Several runs of the same agent and env are aggregated: mean "
-            "curve, 95%% bootstrap confidence band, and how many runs solved. A folder of runs "
+            "curve, 95% bootstrap confidence band, and how many runs solved. A folder of runs "
             "(e.g. runs/) stands for every run in it."
         ),
     )

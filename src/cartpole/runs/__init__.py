@@ -1,6 +1,12 @@
 """Run folders and checkpoints: the record of every training run."""
 
-from cartpole.runs.checkpoint import Checkpoint, CheckpointError, load_checkpoint, save_checkpoint
+from cartpole.runs.checkpoint import (
+    Checkpoint,
+    CheckpointError,
+    UnreadableCheckpoint,
+    load_checkpoint,
+    save_checkpoint,
+)
 from cartpole.runs.run_dir import (
     LiveStatus,
     RunBusy,
@@ -20,6 +26,7 @@ __all__ = [
     "RunDir",
     "RunError",
     "RunSummary",
+    "UnreadableCheckpoint",
     "displayed_state",
     "list_runs",
     "load_checkpoint",

@@ -8,6 +8,7 @@ atomic, so an interrupted save leaves the previous checkpoint intact.
 from __future__ import annotations
 
 import json
+import pickle
 import warnings
 import zipfile
 from dataclasses import dataclass, field
@@ -28,6 +29,18 @@ SUFFIX = ".pt"
 
 class CheckpointError(InputError, ValueError):
     """A checkpoint file is missing, truncated, corrupt, foreign or from an unknown format version."""
+
+
+class UnreadableCheckpoint(CheckpointError):
+    """A file that torch cannot read as a checkpoint; ``reason`` says what the file is instead."""
+
+    def __init__(self, path: Path, reason: str, hint: str) -> None:
+        super().__init__(f"{path} {reason}; {hint}")
+        self.path, self.reason = path, reason
+
+
+DAMAGED_HINT = "use another of the run's checkpoints (`cartpole eval RUN` tries each) or train again"
+FOREIGN_HINT = "use a checkpoint written by `cartpole train`"
 
 
 @dataclass
@@ -65,6 +78,42 @@ def save_checkpoint(path: Path, checkpoint: Checkpoint) -> None:
     write_atomic(path, lambda handle: torch.save(payload, handle))
 
 
+TORCH_ZIP_RECORD = "data.pkl"
+"""Every checkpoint torch.save writes is a zip archive holding ``<name>/data.pkl``."""
+
+
+def what_the_file_is(path: Path, err: BaseException) -> tuple[str, bool]:
+    """What a file that torch could not load is, in words, and whether it looks like one of ours damaged
+    (True) rather than a file of another kind (False). Reads only the file's first bytes and, for a zip
+    archive, its list of members."""
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(8)
+    except OSError as read_error:
+        return f"cannot be read ({read_error.strerror or read_error})", True
+    if not head:
+        return "is empty (0 bytes): its write was cut off", True
+    if head.startswith(b"PK"):
+        try:
+            with zipfile.ZipFile(path) as archive:
+                members = archive.namelist()
+        except (zipfile.BadZipFile, OSError, ValueError):
+            return "is truncated or damaged (a zip archive cut short)", True
+        if not any(name.endswith(TORCH_ZIP_RECORD) for name in members):
+            return "is a zip archive, not a torch checkpoint", False
+        if not isinstance(err, pickle.UnpicklingError):
+            return f"is a damaged torch checkpoint ({type(err).__name__})", True
+    if head.startswith((b"PK", b"\x80")):  # a torch file, or a pickle, that weights_only refused
+        return (
+            "is not a cartpole checkpoint: it holds pickled Python objects, which we never load "
+            "(they can run code)",
+            False,
+        )
+    if head.lstrip()[:1] in (b"{", b"["):
+        return "is a JSON or text file, not a checkpoint", False
+    return "is not a checkpoint: neither a torch zip archive nor a pickle", False
+
+
 def load_checkpoint(path: Path) -> Checkpoint:
     """Read a checkpoint; raise CheckpointError with a one-line, actionable message if unusable."""
     import torch
@@ -76,16 +125,9 @@ def load_checkpoint(path: Path) -> Checkpoint:
         with warnings.catch_warnings():  # torch warns of a foreign file's pickle protocol; we say more below
             warnings.simplefilter("ignore", UserWarning)
             payload = torch.load(path, map_location="cpu", weights_only=True)
-    except (RuntimeError, EOFError, zipfile.BadZipFile, OSError, ValueError) as err:
-        raise CheckpointError(
-            f"{path} is truncated or corrupt ({type(err).__name__}); use another checkpoint of the "
-            "run (checkpoints/latest.pt, best.pt) or train again"
-        ) from err
     except Exception as err:  # weights_only refuses pickled objects with UnpicklingError
-        raise CheckpointError(
-            f"{path} is not a cartpole checkpoint: it holds pickled Python objects, which we never load "
-            f"(they can run code); use a checkpoint written by `cartpole train` ({type(err).__name__})"
-        ) from err
+        reason, damaged = what_the_file_is(path, err)
+        raise UnreadableCheckpoint(path, reason, DAMAGED_HINT if damaged else FOREIGN_HINT) from err
     if not isinstance(payload, dict) or not isinstance(payload.get("meta"), str):
         raise CheckpointError(f"{path} is not a cartpole checkpoint (no metadata found)")
     try:

@@ -35,6 +35,7 @@ from cartpole.agents.learner import LearnResult
 from cartpole.agents.population import Population, bytes_per_seed, make_population
 from cartpole.agents.registry import POPULATION_AGENTS, get_agent
 from cartpole.core.errors import InputError
+from cartpole.core.memory import SHARE, fits_in_memory
 from cartpole.core.names import CheckpointName, RunState, StopReason
 from cartpole.core.seeding import MAX_TRAIN_SEED, eval_seed, final_eval_seed
 from cartpole.envs import EnvInfo, Simulator, check_simulator, env_info
@@ -48,6 +49,7 @@ from cartpole.training.session import (
     RESUMABLE_STOPS,
     STOP_SIGNALS,
     RunSetup,
+    load_latest,
     make_callbacks,
     resolve_device,
     run_record,
@@ -102,25 +104,13 @@ def parse_seeds(text: str) -> list[int]:
     return seeds
 
 
-def available_memory() -> int | None:
-    """Bytes of memory available to a new allocation (Linux ``MemAvailable``), None if unknown."""
-    try:
-        with open("/proc/meminfo", encoding="ascii") as handle:
-            for line in handle:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return None
-
-
 def check_memory(needed: int, seeds: int) -> None:
     """InputError, before anything is allocated, when ``needed`` bytes will not fit."""
-    free = available_memory()
-    if free is not None and needed > 0.8 * free:
+    fits, free = fits_in_memory(needed)
+    if not fits and free is not None:
         raise InputError(
             f"{seeds} seeds would take about {needed / 2**30:.1f} GiB but {free / 2**30:.1f} GiB is "
-            f"available; use fewer seeds (about {int(seeds * 0.8 * free / needed)} fit)"
+            f"available; use fewer seeds (about {int(seeds * SHARE * free / needed)} fit)"
         )
 
 
@@ -392,7 +382,7 @@ def resume_population(
             if not latest.exists():
                 setup.run.truncate_metrics_after(0)
                 continue  # killed before its first latest: starts over, the same run
-            checkpoint = load_checkpoint(latest)
+            checkpoint = load_latest(latest)
             population.load_seed_state_dict(setup.seed, checkpoint.tensors, checkpoint.meta["learner"])
             state = LoopState.from_dict(checkpoint.meta["loop"])
             if state.stop_reason in RESUMABLE_STOPS:

@@ -23,7 +23,15 @@ from cartpole.core.seeding import MAX_TRAIN_SEED, final_eval_seed
 from cartpole.core.version import __version__
 from cartpole.envs import EnvInfo, check_simulator, env_info
 from cartpole.evaluation import MIN_EPISODES_FOR_SOLVED, EvalReport, evaluate
-from cartpole.runs import CheckpointError, LiveStatus, RunDir, displayed_state, load_checkpoint
+from cartpole.runs import (
+    Checkpoint,
+    CheckpointError,
+    LiveStatus,
+    RunDir,
+    UnreadableCheckpoint,
+    displayed_state,
+    load_checkpoint,
+)
 from cartpole.runs.run_dir import utc_now
 from cartpole.training.budget import Budget, parse_budget
 from cartpole.training.callbacks import (
@@ -345,6 +353,17 @@ def resume(
         return run_loop(setup, learner, state, quiet, callbacks)
 
 
+def load_latest(latest: Path) -> Checkpoint:
+    """A run's ``latest.pt`` for a resume; CheckpointError saying that only it can resume the run."""
+    try:
+        return load_checkpoint(latest)
+    except UnreadableCheckpoint as err:
+        raise CheckpointError(
+            f"cannot resume: {latest} {err.reason}. A run resumes only from its latest.pt (best.pt and "
+            "solved.pt hold policies, which `cartpole eval` still judges): train a new run to go on"
+        ) from err
+
+
 RESUMABLE_STOPS = (StopReason.INTERRUPTED, StopReason.FAILED, StopReason.BUDGET)
 """Stops a resume trains on from (the budget is checked again at start: a spent one stops at once).
 After the others (solved, a callback's stop) a resume only gives the final verdict."""
@@ -357,7 +376,7 @@ def restore(run: RunDir, setup: RunSetup, learner: Any) -> LoopState | None:
     latest = run.checkpoint_path(CheckpointName.LATEST)
     if not latest.exists() and not latest.is_symlink():  # a dangling link is damage, not absence
         return None
-    checkpoint = load_checkpoint(latest)
+    checkpoint = load_latest(latest)
     if not checkpoint.meta.get("resumable"):
         raise CheckpointError(f"{latest} is not a resumable checkpoint")
     if (checkpoint.agent, checkpoint.env_id) != (setup.spec.name, setup.env.env_id):

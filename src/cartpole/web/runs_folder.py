@@ -59,7 +59,8 @@ class RunsFolder:
             raise NotFound(f"no checkpoint named {name!r}")
         path = run.checkpoint_path(name)
         if not _is_checkpoint_file(path, run):
-            raise NotFound(f"run {run.name} has no checkpoint {name!r}; it has: {self.checkpoints(run)}")
+            kept = ", ".join(str(kept) for kept in self.checkpoints(run)) or "none yet"
+            raise NotFound(f"run {run.name} has no checkpoint {name!r}; it has: {kept}")
         return path
 
     @staticmethod

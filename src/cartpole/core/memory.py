@@ -1,0 +1,28 @@
+"""How much memory a new allocation can have: checked before a large one, so that a count given by a
+person (seeds, episodes, video frames) gets one clear line instead of the out-of-memory killer."""
+
+from __future__ import annotations
+
+MEMINFO = "/proc/meminfo"
+
+SHARE = 0.8
+"""The share of the available memory one command may plan to use."""
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to a new allocation (Linux ``MemAvailable``), None if unknown."""
+    try:
+        with open(MEMINFO, encoding="ascii") as handle:
+            for line in handle:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def fits_in_memory(needed: int) -> tuple[bool, int | None]:
+    """(whether ``needed`` bytes fit in :data:`SHARE` of the available memory, the bytes available);
+    (True, None) where the available memory cannot be read."""
+    free = available_memory()
+    return (free is None or needed <= SHARE * free), free
