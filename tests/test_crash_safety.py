@@ -235,3 +235,49 @@ def test_the_web_api_lists_a_crashed_run(tmp_path):
     with client.websocket_connect(f"/ws/runs/{outcome.run.name}/metrics") as socket_:
         messages = [socket_.receive_json() for _ in range(3)]
     assert messages[0]["status"]["state"] == "crashed" and messages[-1] == {"type": "end", "state": "crashed"}
+
+
+# --- a real full disk: a small tmpfs (needs root; skipped elsewhere) -------------------------------
+
+
+@pytest.fixture
+def small_disk(tmp_path: Path):
+    """A 3 MiB tmpfs with about 250 KiB left: room for a run folder's first files, not for its run."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    mount = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=3m", "tmpfs", str(disk)], capture_output=True, text=True
+    )
+    if mount.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here (needs root): {mount.stderr.strip()}")
+    try:
+        (disk / "filler").write_bytes(bytes(3 * 2**20 - 250 * 2**10))
+        yield disk
+    finally:
+        subprocess.run(["umount", "-l", str(disk)], capture_output=True)
+
+
+@pytest.mark.parametrize(
+    "argv", [["dqn", "--seed", "0"], ["ppo", "--seeds", "0-3"]], ids=["single-dqn", "ppo-population"]
+)
+def test_a_full_disk_is_one_line_and_every_status_says_so(argv, small_disk):
+    """torch.save reports a full disk as a RuntimeError; we still give one line naming the file, exit
+    2, and a status.json per seed that says "failed: disk full" (rewritten in place: no room for a
+    temp file), while what was saved before stays loadable."""
+    command = ["train", *argv, "--budget", "100k", "--no-stop-when-solved", "--quiet"]
+    done = subprocess.run(
+        [sys.executable, "-m", "cartpole", *command, "--runs-dir", str(small_disk / "runs")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.count("\n") == 1 and "Traceback" not in done.stderr
+    assert "No space left on device" in done.stderr and ".pt" in done.stderr
+    runs = sorted((small_disk / "runs").iterdir())
+    assert len(runs) == (4 if "--seeds" in argv else 1)
+    for run in runs:
+        status = json.loads((run / "status.json").read_text())
+        assert status["state"] == "failed" and status["stop_detail"].startswith("failed: disk full")
+        for checkpoint in (run / "checkpoints").glob("*.pt"):
+            load_checkpoint(checkpoint)  # atomic writes: nothing half-written

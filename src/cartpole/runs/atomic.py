@@ -5,6 +5,7 @@ A crash or ``kill -9`` at any moment leaves either the old file or the new one, 
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import tempfile
@@ -40,9 +41,24 @@ def replace_atomically(path: Path, write_file: Callable[[Path], None], suffix: s
         write_file(Path(tmp))
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600 files; give the usual mode
         os.replace(tmp, path)
+    except OSError as err:  # named for the file being written, not its temp file: "disk full: latest.pt"
+        Path(tmp).unlink(missing_ok=True)
+        raise OSError(err.errno, err.strerror or str(err), str(path)) from err
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
+"""The errors of a write that found no space: the disk is full, or the user's quota is spent."""
+
+
+def overwrite_in_place(path: Path, text: str) -> None:
+    """Rewrite an existing small file over its own bytes (not atomic): on a full disk, where a temp file
+    cannot be made, a file whose blocks exist can still be rewritten as long as the text fits them."""
+    with open(path, "r+b") as handle:
+        handle.write(text.encode())
+        handle.truncate()
 
 
 def _umask() -> int:
@@ -51,14 +67,18 @@ def _umask() -> int:
     return mask
 
 
-def write_text_atomic(path: Path, text: str, durable: bool = False) -> None:
-    """Write ``text`` as UTF-8, atomically."""
-    data = text.encode()
+def write_bytes_atomic(path: Path, data: bytes | memoryview, durable: bool = False) -> None:
+    """Write ``data``, atomically."""
 
     def write(handle: IO[bytes]) -> None:
         handle.write(data)
 
     write_atomic(path, write, durable)
+
+
+def write_text_atomic(path: Path, text: str, durable: bool = False) -> None:
+    """Write ``text`` as UTF-8, atomically."""
+    write_bytes_atomic(path, text.encode(), durable)
 
 
 def write_json_atomic(path: Path, data: Any, durable: bool = False) -> None:

@@ -7,6 +7,7 @@ atomic, so an interrupted save leaves the previous checkpoint intact.
 
 from __future__ import annotations
 
+import io
 import json
 import pickle
 import warnings
@@ -17,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 from cartpole.core.errors import InputError
 from cartpole.core.version import __version__
-from cartpole.runs.atomic import write_atomic
+from cartpole.runs.atomic import write_bytes_atomic
 
 if TYPE_CHECKING:
     import torch
@@ -75,7 +76,9 @@ def save_checkpoint(path: Path, checkpoint: Checkpoint) -> None:
         "meta": json.dumps(meta, allow_nan=False),
         "tensors": {k: v.detach().cpu().contiguous() for k, v in checkpoint.tensors.items()},
     }
-    write_atomic(path, lambda handle: torch.save(payload, handle))
+    buffer = io.BytesIO()  # serialized in memory first: torch.save reports a full disk as a RuntimeError
+    torch.save(payload, buffer)
+    write_bytes_atomic(path, buffer.getbuffer(), durable=True)
 
 
 TORCH_ZIP_RECORD = "data.pkl"

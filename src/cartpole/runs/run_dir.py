@@ -28,7 +28,7 @@ from typing import Any
 
 from cartpole.core.errors import InputError
 from cartpole.core.names import CheckpointName, RunState
-from cartpole.runs.atomic import write_json_atomic, write_text_atomic
+from cartpole.runs.atomic import DISK_FULL, overwrite_in_place, write_json_atomic, write_text_atomic
 
 CONFIG = "config.json"
 STATUS = "status.json"
@@ -203,7 +203,15 @@ class RunDir:
             raise RunError(f"{self.path / CONFIG} is unreadable: {err}") from err
 
     def write_status(self, status: dict[str, Any]) -> None:
-        write_json_atomic(self.path / STATUS, {**status, "updated": utc_now()})
+        """Write ``status.json`` atomically; on a full disk, over the old file in place (its blocks are
+        already there), so that a run that fails for want of space can still say so."""
+        record = {**status, "updated": utc_now()}
+        try:
+            write_json_atomic(self.path / STATUS, record)
+        except OSError as err:
+            if err.errno not in DISK_FULL or not (self.path / STATUS).is_file():
+                raise
+            overwrite_in_place(self.path / STATUS, json.dumps(record, indent=2, allow_nan=False) + "\n")
 
     def status(self, strict: bool = False) -> dict[str, Any]:
         """The last written status, or ``{"state": "unknown"}`` if there is none yet (or, unless

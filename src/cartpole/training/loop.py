@@ -18,6 +18,15 @@ import numpy as np
 from cartpole.agents.learner import Learner, LearnResult
 from cartpole.core.names import StopReason
 from cartpole.evaluation import EvalReport
+from cartpole.runs.atomic import DISK_FULL
+
+
+def failure_detail(error: BaseException) -> str:
+    """What a run's status says of the error that ended it: "failed: disk full (writing FILE)" for a
+    full disk, else the error's type and message."""
+    if isinstance(error, OSError) and error.errno in DISK_FULL:
+        return f"failed: disk full (writing {error.filename})" if error.filename else "failed: disk full"
+    return f"failed: {type(error).__name__}: {error}"
 
 
 @dataclass
@@ -165,7 +174,7 @@ class TrainingLoop:
                 elif not keep_going:
                     state.stop(StopReason.CALLBACK, "stopped by a callback")
         except BaseException as error:
-            state.stop(StopReason.FAILED, f"failed: {type(error).__name__}: {error}")
+            state.stop(StopReason.FAILED, failure_detail(error))
             raise
         finally:
             state.elapsed = time.perf_counter() - started

@@ -44,7 +44,7 @@ from cartpole.runs import LiveStatus, RunDir, displayed_state, load_checkpoint
 from cartpole.training.budget import Budget, parse_budget
 from cartpole.training.callbacks import require_tensorboard, status_fields
 from cartpole.training.config import TrainSettings, resolve_config
-from cartpole.training.loop import LoopState, TrainingLoop
+from cartpole.training.loop import LoopState, TrainingLoop, failure_detail
 from cartpole.training.session import (
     RESUMABLE_STOPS,
     STOP_SIGNALS,
@@ -434,13 +434,7 @@ def run_population(
             if received:
                 return interrupt(population, members, active, received[0], started)
         except BaseException as error:
-            now = time.perf_counter()
-            for member in active.values():
-                member.loop.state.stop(StopReason.FAILED, f"failed: {type(error).__name__}: {error}")
-                with suppress(Exception):  # as a single run does: save latest if the state allows
-                    member.loop.end(now)
-                with suppress(OSError):
-                    member.status.write(RunState.FAILED, status_fields(member.loop.state))
+            fail_every_member(members, active, error)
             raise
         finally:
             for s, handler in previous.items():
@@ -468,6 +462,24 @@ def end_stopped(population: Population, active: dict[int, Member], now: float) -
         active.pop(seed).loop.end(now)
     if stopped and active:
         population.remove(stopped)
+
+
+def fail_every_member(members: list[Member], active: dict[int, Member], error: BaseException) -> None:
+    """An error ended the population: every seed's status says so (a full disk: "failed: disk full"),
+    those training save ``latest`` where they still can, and none is left showing "running"."""
+    now = time.perf_counter()
+    detail = failure_detail(error)
+    for member in members:
+        if member.loop.state.stop_reason is None or member.seed in active:
+            member.loop.state.stop(StopReason.FAILED, detail)
+        if member.seed in active:
+            with suppress(Exception):  # as a single run does: save latest if the state allows
+                member.loop.end(now)
+        fields = status_fields(member.loop.state)
+        if member.loop.state.stop_reason is not StopReason.FAILED:  # it had stopped; then saving failed
+            fields["stop_detail"] = f"{detail}, after {member.loop.state.stop_detail}"
+        with suppress(OSError):
+            member.status.write(RunState.FAILED, fields)
 
 
 def interrupt(
