@@ -231,7 +231,7 @@ def test_checkpoints_latest_every_k_best_and_solved(run):
     checkpoints = Recorded(run, spec, meta, only_every(env_steps=30), saves=saves)
     loop = TrainingLoop(FakeLearner(), [StopAfter(7), checkpoints])
     loop.run()
-    assert latest_steps(saves) == [30, 60, 70]  # every 30 steps, and at the end
+    assert latest_steps(saves) == [0, 30, 60, 70]  # at start, every 30 steps, and at the end
     latest = load_checkpoint(run.checkpoint_path("latest"))
     assert latest.meta["step"] == 70 and latest.meta["resumable"] is True
     assert latest.meta["loop"]["iterations"] == 7 and latest.meta["learner"]["calls"] == 7
@@ -275,8 +275,8 @@ def latest_steps(saves: list[tuple[str, int]]) -> list[int]:
 @pytest.mark.parametrize(
     ("budget", "steps"),
     [
-        (Budget(env_steps=100), [28, 56, 84, 105]),  # every 25% of 100 steps, 7 steps per call
-        (Budget(iterations=8), [14, 28, 42, 56]),  # every 2 of 8 iterations
+        (Budget(env_steps=100), [0, 28, 56, 84, 105]),  # at start, every 25% of 100 steps (7 a call)
+        (Budget(iterations=8), [0, 14, 28, 42, 56]),  # at start, every 2 of 8 iterations
     ],
 )
 def test_latest_every_share_of_the_budget(run, budget, steps):
@@ -320,9 +320,9 @@ def test_latest_checkpoint_writes_pending_metric_rows_first(run):
 
     class KillAfterLatest(Callback):
         def on_step(self, loop: TrainingLoop, result: LearnResult) -> bool:
-            if not run.checkpoint_path("latest").exists():
+            step = load_checkpoint(run.checkpoint_path("latest")).meta["step"]  # written at start
+            if step == 0:
                 return True
-            step = load_checkpoint(run.checkpoint_path("latest")).meta["step"]
             seen.append((step, [r["step"] for r in run.metrics()]))
             raise KeyboardInterrupt  # as abrupt as it gets in-process: on_end still runs, but too late
 

@@ -73,7 +73,7 @@ def bad_checkpoints(tmp_path: Path, cem_run: Path) -> dict[str, Path]:
         (["train", "cem", "--set", "population=-3"], "population must be >= 1"),
         (["train", "cem", "--set", "speed=3"], "unknown setting 'speed'"),
         (["train", "--resume", "/no/such/run"], "is not a run folder"),
-        (["eval", "x", "--episodes", "0"], "--episodes must be >= 1"),
+        (["eval", "x", "--episodes", "0"], "--episodes must be between 1 and 1,000,000"),
         (["frobnicate"], "invalid choice"),
     ],
 )

@@ -281,3 +281,43 @@ def test_a_full_disk_is_one_line_and_every_status_says_so(argv, small_disk):
         assert status["state"] == "failed" and status["stop_detail"].startswith("failed: disk full")
         for checkpoint in (run / "checkpoints").glob("*.pt"):
             load_checkpoint(checkpoint)  # atomic writes: nothing half-written
+
+
+# --- a resume never starts a run that has trained again from 0 unasked -----------------------------
+
+
+def test_a_kill_before_the_first_interval_still_finds_latest_from_the_start(tmp_path):
+    """latest.pt is written as training starts: a kill -9 at any moment after that leaves one."""
+    process = cartpole(*TRAIN, "--runs-dir", str(tmp_path / "runs"))
+    run = wait_for(lambda: the_run(tmp_path / "runs"), "the run folder")
+    latest = wait_for(lambda: run.checkpoint_path("latest").exists(), "latest.pt at start")
+    process.send_signal(signal.SIGKILL)
+    process.communicate(timeout=60)
+    assert latest and load_checkpoint(run.checkpoint_path("latest")).meta["resumable"]
+
+
+@pytest.mark.parametrize("population", [False, True], ids=["single", "population"])
+def test_a_resume_without_latest_is_refused_unless_from_scratch(population, tmp_path, capsys):
+    runs_dir = tmp_path / "runs"
+    seeds = ["--seeds", "0-1"] if population else ["--seed", "0"]
+    argv = ["train", "cem", *seeds, "--budget", "4gen", "--no-stop-when-solved", "--quiet"]
+    assert main([*argv, "--set", "population=8", "--runs-dir", str(runs_dir)]) == 0
+    capsys.readouterr()
+    run = RunDir(sorted(runs_dir.iterdir())[0])
+    run.checkpoint_path("latest").unlink()
+    (run.path / "eval.json").unlink()
+    run.write_status(run.status() | {"state": "interrupted"})  # it had trained 4 generations
+
+    assert main(["train", "--resume", str(run.path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "has no checkpoints/latest.pt although its status records" in err
+    assert "add --from-scratch" in err and not (run.path / "eval.json").exists()
+
+    assert main(["train", "--resume", str(run.path), "--from-scratch"]) == 0
+    assert "resuming" in (err := capsys.readouterr().err) and "step 0 " in err  # where it resumes from
+    assert run.status()["state"] == RunState.FINISHED and (run.path / "eval.json").exists()
+
+
+def test_from_scratch_goes_with_resume(tmp_path, capsys):
+    assert main(["train", "cem", "--from-scratch", "--runs-dir", str(tmp_path)]) == 2
+    assert "--from-scratch goes with --resume" in capsys.readouterr().err

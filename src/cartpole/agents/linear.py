@@ -194,7 +194,7 @@ class LinearSearch:
             "obs_dim": self.env.obs_dim,
             "n_actions": self.env.n_actions,
             "bias": self.config.bias,
-            "best_score": self.best_score,
+            "best_score": self.best_score if np.isfinite(self.best_score) else None,  # JSON: None = none yet
         }
         if resume:
             data["rng"] = self.rng.bit_generator.state
@@ -207,7 +207,7 @@ class LinearSearch:
 
     def load_state_dict(self, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None:
         self.best = tensors["params"].numpy().astype(np.float64)
-        self.best_score = float(data["best_score"])
+        self.best_score = -np.inf if data["best_score"] is None else float(data["best_score"])
         if "rng" in data:
             self.rng.bit_generator.state = data["rng"]
         self.load_extra_state(tensors, data)

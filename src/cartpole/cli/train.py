@@ -96,6 +96,12 @@ def add_parser(sub: Any) -> None:
         "benchmarks/population.py --population-threads 0); 0: torch's default, one per core",
     )
     parser.add_argument("--resume", metavar="RUN_DIR", help="continue this run from checkpoints/latest.pt")
+    parser.add_argument(
+        "--from-scratch",
+        action="store_true",
+        help="with --resume: train a run whose checkpoints/latest.pt is gone again from step 0 (without "
+        "it, such a resume is refused, so that no training is thrown away unasked)",
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress output")
     # --- issue 5: TensorBoard (also passed to train() below) ---
     parser.add_argument(
@@ -137,6 +143,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.torch_threads is not None and args.torch_threads < 0:
         raise UsageError(f"--torch-threads must be >= 0, got {args.torch_threads}")
+    if args.from_scratch and not args.resume:
+        raise UsageError("--from-scratch goes with --resume RUN_DIR (a new run always starts from scratch)")
     population = args.seeds is not None or bool(args.resume and is_population_run(args.resume))
     configure_process(1 if args.torch_threads is None else args.torch_threads, args.seed)
     console = Console(soft_wrap=True)
@@ -146,7 +154,9 @@ def run(args: argparse.Namespace) -> int:
         if args.agent or args.overrides or args.budget is not None:
             raise UsageError("--resume continues a run with its recorded config; drop AGENT/--set/--budget")
         try:
-            outcome = resume(args.resume, quiet=args.quiet, device=args.device)
+            outcome = resume(
+                args.resume, quiet=args.quiet, device=args.device, from_scratch=args.from_scratch
+            )
         except AlreadyFinished as done:
             console.print(str(done))
             return 0
@@ -213,7 +223,9 @@ def run_population(args: argparse.Namespace) -> int:
             raise UsageError(
                 "--resume continues a population with its recorded config; drop AGENT/--set/--budget/--seeds"
             )
-        outcome = resume_population(args.resume, quiet=args.quiet, device=args.device)
+        outcome = resume_population(
+            args.resume, quiet=args.quiet, device=args.device, from_scratch=args.from_scratch
+        )
     else:
         agent = args.agent or DEFAULT_AGENT
         check_population_agent(agent)

@@ -144,8 +144,8 @@ class CheckpointSchedule:
     loses at most one interval of work."""
 
     budget: Budget
-    fraction: float = 0.1
-    seconds: float = 60.0
+    fraction: float = 0.05
+    seconds: float = 30.0
     env_steps: int = 0
 
     @classmethod
@@ -176,6 +176,8 @@ class CheckpointCallback(Callback):
         """The loop counters in the last ``latest`` written."""
 
     def on_start(self, loop: TrainingLoop) -> None:
+        if not self.run.checkpoint_path(CheckpointName.LATEST).exists():
+            self.save(loop, CheckpointName.LATEST, resume=True)  # a kill -9 from here on loses little
         self.mark_saved(loop)
         previous = self.run.best_eval_report() if loop.state.evaluations else None
         if previous and "returns" in previous:

@@ -31,9 +31,9 @@ class TrainSettings:
     """Episodes of the full evaluation (Gymnasium's rule needs >= 100 to call it solved)."""
     eval_simulator: str = "gymnasium"
     """Simulator of the full evaluation: "gymnasium" (the reference) or "fast"."""
-    checkpoint_fraction: float = 0.1
+    checkpoint_fraction: float = 0.05
     """Share of the budget between writes of checkpoints/latest.pt (also written at start and end)."""
-    checkpoint_seconds: float = 60.0
+    checkpoint_seconds: float = 30.0
     """Wall-clock seconds between writes of checkpoints/latest.pt at the most."""
     checkpoint_every: int = 0
     """Env steps between writes of checkpoints/latest.pt at the most (0: no step-based cadence)."""

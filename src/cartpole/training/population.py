@@ -49,6 +49,7 @@ from cartpole.training.session import (
     RESUMABLE_STOPS,
     STOP_SIGNALS,
     RunSetup,
+    check_latest_exists,
     load_latest,
     make_callbacks,
     resolve_device,
@@ -358,10 +359,16 @@ def is_population_run(run_path: Path | str) -> bool:
 
 
 def resume_population(
-    run_path: Path | str, *, quiet: bool = True, stream: TextIO | None = None, device: str = "auto"
+    run_path: Path | str,
+    *,
+    quiet: bool = True,
+    stream: TextIO | None = None,
+    device: str = "auto",
+    from_scratch: bool = False,
 ) -> PopulationOutcome:
     """Continue every unfinished member of ``run_path``'s population from its ``latest.pt``, on
-    ``device`` (the population's rule: ``auto`` is the CPU)."""
+    ``device`` (the population's rule: ``auto`` is the CPU). LostProgress, before anything changes,
+    if a member that has trained lost its ``latest.pt``, unless ``from_scratch``."""
     device = population_device(device)
     runs = [
         run for run in population_members(run_path) if displayed_state(run.status()) is not RunState.FINISHED
@@ -372,6 +379,8 @@ def resume_population(
         for run in runs:
             stack.enter_context(run.lock())
         setups = [RunSetup.from_record(run, run.config()) for run in runs]
+        for run in runs:
+            check_latest_exists(run, run.status(), from_scratch)
         first = setups[0]
         population = make_population(
             first.spec.name, first.config, first.env, [s.seed for s in setups], device
@@ -389,6 +398,14 @@ def resume_population(
                 state.clear_stop()
             states[setup.seed] = state
             setup.run.truncate_metrics_after(state.env_steps)
+        if not quiet:
+            steps = [states[s.seed].env_steps if s.seed in states else 0 for s in setups]
+            where = f"{min(steps):,}" if min(steps) == max(steps) else f"{min(steps):,} to {max(steps):,}"
+            print(
+                f"resuming {len(setups)} seed(s) of the population from env step {where} "
+                "(each seed's checkpoints/latest.pt)",
+                file=stream or sys.stderr,
+            )
         return run_population(population, setups, states, quiet, stream)
 
 

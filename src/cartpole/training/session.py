@@ -17,7 +17,7 @@ import numpy as np
 
 from cartpole.agents.registry import AgentSpec, agent_names, get_agent
 from cartpole.core.config import build_valid_config, config_to_dict
-from cartpole.core.errors import ConfigError
+from cartpole.core.errors import ConfigError, InputError
 from cartpole.core.names import CheckpointName, RunState, StopReason
 from cartpole.core.seeding import MAX_TRAIN_SEED, final_eval_seed
 from cartpole.core.version import __version__
@@ -329,13 +329,19 @@ class AlreadyFinished(Exception):
 
 
 def resume(
-    run_path: Path | str, *, quiet: bool = True, device: str = "auto", callbacks: Sequence[Callback] = ()
+    run_path: Path | str,
+    *,
+    quiet: bool = True,
+    device: str = "auto",
+    callbacks: Sequence[Callback] = (),
+    from_scratch: bool = False,
 ) -> TrainOutcome:
     """Continue a run from ``checkpoints/latest.pt`` with its recorded config and budget.
 
     Any run that has no final verdict is accepted: interrupted, failed, crashed (its process was
     killed), or killed between the end of training and the verdict (then only the verdict is given).
-    RunBusy if another process is training it.
+    RunBusy if another process is training it. A run whose ``latest.pt`` is gone although its status
+    records training is refused (LostProgress) unless ``from_scratch``: it would start again from 0.
     """
     run = RunDir.open(Path(run_path))
     with run.lock():
@@ -347,10 +353,37 @@ def resume(
                 f"run {run.name} already finished ({status.get('stop_detail') or 'done'}); nothing to resume"
             )
         setup = RunSetup.from_record(run, record)
+        check_latest_exists(run, status, from_scratch)
         learner = setup.spec.make_learner(setup.config, setup.env, setup.seed, resolve_device(device))
         state = restore(run, setup, learner)
         run.truncate_metrics_after(state.env_steps if state else 0)
+        if not quiet:
+            print(resume_line(run, state), file=sys.stderr)
         return run_loop(setup, learner, state, quiet, callbacks)
+
+
+class LostProgress(InputError):
+    """A resume would start a run again from step 0: its ``latest.pt`` is gone."""
+
+
+def check_latest_exists(run: RunDir, status: dict[str, Any], from_scratch: bool) -> None:
+    """LostProgress when ``run`` has trained (its status says so) but has no ``latest.pt`` to go on
+    from, unless ``from_scratch``: a silent restart from 0 would throw that training away."""
+    latest = run.checkpoint_path(CheckpointName.LATEST)
+    trained = status.get("env_steps")
+    if from_scratch or latest.exists() or latest.is_symlink() or not isinstance(trained, int) or trained <= 0:
+        return
+    raise LostProgress(
+        f"run {run.name} has no checkpoints/latest.pt although its status records {trained:,} env steps: "
+        "a resume would train it again from step 0; to do that, add --from-scratch"
+    )
+
+
+def resume_line(run: RunDir, state: LoopState | None) -> str:
+    """Where a resume goes on from, for people."""
+    if state is None:
+        return f"resuming {run.name} from step 0 (no checkpoints/latest.pt yet)"
+    return f"resuming {run.name} from env step {state.env_steps:,} (checkpoints/latest.pt)"
 
 
 def load_latest(latest: Path) -> Checkpoint:
