@@ -2,19 +2,22 @@
 
 Usage (from the repository root)::
 
-    python benchmarks/kill_resume.py                 # 20 trials: `cartpole train` and `cartpole train cem`
+    python benchmarks/kill_resume.py                 # 45 trials over every agent and two populations
+    python benchmarks/kill_resume.py --agents dqn,ppo-population --trials 4
     python benchmarks/kill_resume.py --trials 6 --jobs 3 --device cpu
 
-Each trial starts ``cartpole train [cem] --seed N --quiet`` with default settings (the preset's budget
-and checkpoint cadence) in a fresh runs folder, waits until its ``config.json`` exists, sleeps a random
-time (uniform over the agent's measured training time, so a kill can land anywhere from the first step
-to the final verdict), sends SIGKILL, then runs ``cartpole train --resume RUN`` to the end.
+Each trial starts ``cartpole train AGENT --seed N --quiet`` (an ``AGENT-population`` entry:
+``--seeds N-N+3``, four seeds in one process) with default settings (the preset's budget and checkpoint
+cadence) in a fresh runs folder, waits until its ``config.json`` exists, sleeps a random time (uniform
+over the agent's measured training time, so a kill can land anywhere from the first step to the final
+verdict), sends SIGKILL, then runs ``cartpole train --resume RUN`` to the end (for a population, the
+resume of one member continues them all; its loss is the largest of its seeds').
 
 Work lost = the env steps the killed process had recorded on disk (``status.json``, ``metrics.jsonl``)
 minus the steps in ``checkpoints/latest.pt`` (0 when there was none yet): a lower bound of the true
-loss by at most one second of training (the metrics flush interval). A trial passes when the resume
-exits 0 with status "finished" and a final verdict (``eval.json``) and the loss is at most one
-checkpoint interval (10% of the budget or 60 s of training, whichever is less).
+loss by at most the metrics flush interval (1 s; 5 s in a population). A trial passes when every resumed
+run exits 0 with status "finished" and a final verdict (``eval.json``) and the loss is at most one
+checkpoint interval (5% of the budget or 30 s of training, whichever is less).
 """
 
 from __future__ import annotations
@@ -34,7 +37,13 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-AGENTS = ("dqn", "cem")
+AGENTS = (
+    "dqn", "ppo", "a2c", "reinforce", "cem", "hill-climbing", "random-search", "ppo-population",
+    "cem-population",
+)  # fmt: skip
+POPULATION = "-population"
+"""An entry ``AGENT-population`` trains :data:`POPULATION_SEEDS` seeds of AGENT in one process."""
+POPULATION_SEEDS = 4
 
 
 @dataclass
@@ -48,7 +57,7 @@ class Trial:
     steps_at_kill: int = 0
     steps_in_latest: int = 0
     interval_steps: float = 0.0
-    """One checkpoint interval, in env steps, as the run went (10% of budget or 60 s of training)."""
+    """One checkpoint interval, in env steps, as the run went (5% of budget or 30 s of training)."""
     resume_rc: int | None = None
     finished: bool = False
     verdict: str | None = None
@@ -73,9 +82,10 @@ def cartpole(*args: str) -> list[str]:
     return [sys.executable, "-m", "cartpole", *args]
 
 
-def train_args(agent: str, seed: int, runs_dir: Path, device: str | None) -> list[str]:
-    args = ["train", *(() if agent == "dqn" else (agent,)), "--seed", str(seed), "--quiet"]
-    args += ["--runs-dir", str(runs_dir)]
+def train_args(entry: str, seed: int, runs_dir: Path, device: str | None) -> list[str]:
+    agent = entry.removesuffix(POPULATION)
+    seeds = ["--seeds", f"{seed}-{seed + POPULATION_SEEDS - 1}"] if entry.endswith(POPULATION) else []
+    args = ["train", agent, *(seeds or ["--seed", str(seed)]), "--quiet", "--runs-dir", str(runs_dir)]
     return args + (["--device", device] if device else [])
 
 
@@ -123,14 +133,14 @@ def latest_steps(run: Path) -> tuple[int, dict[str, Any]]:
 
 
 def checkpoint_interval_steps(run: Path) -> float:
-    """One checkpoint interval in env steps: 10% of the budget, or 60 s at the run's speed if sooner."""
+    """One checkpoint interval in env steps: 5% of the budget, or 30 s at the run's speed if sooner."""
     config = read_json(run / "config.json")
     settings, budget = config["settings"], config["budget"]
     status = read_json(run / "status.json")
     steps, elapsed = status.get("env_steps") or 0, status.get("elapsed") or 0.0
     per_second = steps / elapsed if elapsed else float("inf")
-    by_time = settings.get("checkpoint_seconds", 60.0) * per_second
-    fraction = settings.get("checkpoint_fraction", 0.1)
+    by_time = settings.get("checkpoint_seconds", 30.0) * per_second
+    fraction = settings.get("checkpoint_fraction", 0.05)
     if "env_steps" in budget:
         by_budget = fraction * budget["env_steps"]
     else:  # generations: a generation's steps vary; use the run's mean steps per generation
@@ -159,19 +169,22 @@ def run_trial(trial: Trial, base: Path, device: str | None) -> Trial:
     process.wait()
     if run is None:
         raise RuntimeError(f"trial {trial.index}: no run folder")
+    runs = sorted(p.parent for p in runs_dir.glob("*/config.json"))  # a population: every seed's
     trial.status_at_kill = read_json(run / "status.json").get("state", "none")
-    trial.steps_at_kill = steps_on_disk(run)
-    trial.steps_in_latest, _ = latest_steps(run)
-    trial.interval_steps = checkpoint_interval_steps(run)
+    worst = max(runs, key=lambda r: steps_on_disk(r) - latest_steps(r)[0])
+    trial.steps_at_kill = steps_on_disk(worst)
+    trial.steps_in_latest, _ = latest_steps(worst)
+    trial.interval_steps = checkpoint_interval_steps(worst)
     resumed = subprocess.run(
         cartpole("train", "--resume", str(run), "--quiet"), capture_output=True, text=True
     )
     trial.resume_rc = resumed.returncode
-    status = read_json(run / "status.json")
-    trial.finished = status.get("state") == "finished"
-    trial.verdict = read_json(run / "eval.json").get("verdict")
-    trial.final_steps = int(status.get("env_steps") or 0)
-    trial.stop_detail = status.get("stop_detail")
+    statuses = [read_json(r / "status.json") for r in runs]
+    verdicts = [read_json(r / "eval.json").get("verdict") for r in runs]
+    trial.finished = all(s.get("state") == "finished" for s in statuses)
+    trial.verdict = verdicts[0] if all(verdicts) else None
+    trial.final_steps = min(int(s.get("env_steps") or 0) for s in statuses)
+    trial.stop_detail = statuses[0].get("stop_detail")
     if resumed.returncode != 0:
         print(f"trial {trial.index}: resume failed:\n{resumed.stdout}{resumed.stderr}", file=sys.stderr)
     return trial
@@ -179,17 +192,19 @@ def run_trial(trial: Trial, base: Path, device: str | None) -> Trial:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--trials", type=int, default=20)
+    parser.add_argument("--trials", type=int, default=45, help="kills, spread over --agents in turn")
+    parser.add_argument("--agents", default=",".join(AGENTS), help="comma-separated; AGENT-population too")
     parser.add_argument("--jobs", type=int, default=1, help="trials at once (default 1)")
     parser.add_argument("--seed", type=int, default=0, help="seeds the kill times")
     parser.add_argument("--device", default=None, help="passed to `cartpole train` (default: its own)")
     parser.add_argument("--json", metavar="FILE", help="also write every trial as JSON")
     args = parser.parse_args()
 
-    durations = {agent: measure_duration(agent, args.device) for agent in AGENTS}
+    agents = args.agents.split(",")
+    durations = {agent: measure_duration(agent, args.device) for agent in agents}
     rng = random.Random(args.seed)
     trials = [
-        Trial(i, AGENTS[i % len(AGENTS)], i, rng.uniform(0.0, durations[AGENTS[i % len(AGENTS)]]))
+        Trial(i, agents[i % len(agents)], i, rng.uniform(0.0, durations[agents[i % len(agents)]]))
         for i in range(args.trials)
     ]
     with tempfile.TemporaryDirectory() as tmp, ThreadPoolExecutor(args.jobs) as pool:
@@ -200,13 +215,13 @@ def main() -> int:
         "uninterrupted run (config.json to exit): "
         + ", ".join(f"{a} {d:.1f} s" for a, d in durations.items())
     )
-    header = f"{'#':>2} {'agent':5} {'kill at':>8} {'status at kill':>14} {'on disk':>8} {'latest':>8} "
+    header = f"{'#':>2} {'agent':18} {'kill at':>8} {'status at kill':>14} {'on disk':>8} {'latest':>8} "
     header += f"{'lost':>6} {'interval':>8} {'resume':>6} {'final':>8}  end"
     print(header)
     for t in done:
         end = f"{'finished' if t.finished else 'NOT finished'}, {t.stop_detail}; {t.verdict}"
         print(
-            f"{t.index:>2} {t.agent:5} {t.kill_after:7.1f}s {t.status_at_kill:>14} {t.steps_at_kill:>8} "
+            f"{t.index:>2} {t.agent:18} {t.kill_after:7.1f}s {t.status_at_kill:>14} {t.steps_at_kill:>8} "
             f"{t.steps_in_latest:>8} {t.lost:>6} {t.interval_steps:>8.0f} {t.resume_rc!s:>6} "
             f"{t.final_steps:>8}  {end}"
         )

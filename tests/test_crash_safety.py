@@ -321,3 +321,12 @@ def test_a_resume_without_latest_is_refused_unless_from_scratch(population, tmp_
 def test_from_scratch_goes_with_resume(tmp_path, capsys):
     assert main(["train", "cem", "--from-scratch", "--runs-dir", str(tmp_path)]) == 2
     assert "--from-scratch goes with --resume" in capsys.readouterr().err
+
+
+def test_resuming_a_finished_population_is_nothing_to_do_as_for_a_single_run(tmp_path, capsys):
+    argv = ["train", "cem", "--seeds", "0-1", "--budget", "2gen", "--quiet", "--runs-dir", str(tmp_path)]
+    assert main(argv) == 0
+    member = sorted(tmp_path.iterdir())[0]
+    capsys.readouterr()
+    assert main(["train", "--resume", str(member)]) == 0
+    assert "has finished; nothing to resume" in capsys.readouterr().out

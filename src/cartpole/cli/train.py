@@ -208,7 +208,7 @@ def run(args: argparse.Namespace) -> int:
 def run_population(args: argparse.Namespace) -> int:
     """``cartpole train AGENT --seeds 0-99`` (or ``--resume`` of a population's run)."""
     from cartpole.cli.errors import UsageError
-    from cartpole.training import parse_budget
+    from cartpole.training import AlreadyFinished, parse_budget
     from cartpole.training.population import (
         check_population_agent,
         parse_seeds,
@@ -223,9 +223,13 @@ def run_population(args: argparse.Namespace) -> int:
             raise UsageError(
                 "--resume continues a population with its recorded config; drop AGENT/--set/--budget/--seeds"
             )
-        outcome = resume_population(
-            args.resume, quiet=args.quiet, device=args.device, from_scratch=args.from_scratch
-        )
+        try:
+            outcome = resume_population(
+                args.resume, quiet=args.quiet, device=args.device, from_scratch=args.from_scratch
+            )
+        except AlreadyFinished as done:
+            console.print(str(done))
+            return 0
     else:
         agent = args.agent or DEFAULT_AGENT
         check_population_agent(agent)

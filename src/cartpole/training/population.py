@@ -48,6 +48,7 @@ from cartpole.training.loop import LoopState, TrainingLoop, failure_detail
 from cartpole.training.session import (
     RESUMABLE_STOPS,
     STOP_SIGNALS,
+    AlreadyFinished,
     RunSetup,
     check_latest_exists,
     load_latest,
@@ -374,7 +375,8 @@ def resume_population(
         run for run in population_members(run_path) if displayed_state(run.status()) is not RunState.FINISHED
     ]
     if not runs:
-        raise InputError(f"every run of {Path(run_path).name}'s population has finished; nothing to resume")
+        name = Path(run_path).name
+        raise AlreadyFinished(f"every run of {name}'s population has finished; nothing to resume")
     with ExitStack() as stack:
         for run in runs:
             stack.enter_context(run.lock())
