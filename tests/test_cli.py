@@ -23,6 +23,10 @@ def test_train_eval_runs_end_to_end(tmp_path):
     done = run_cli("train", "cem", "--seed", "1", "--runs-dir", str(runs_dir))
     assert done.returncode == 0, done.stderr
     assert "SOLVED" in done.stdout
+    # Two different claims, each named: the in-training solve, and the verdict on the kept best policy.
+    assert "solved in training: first at " in done.stdout
+    assert "verdict on the best checkpoint (kept at env step " in done.stdout
+    assert "judged on 100 fresh episodes:" in done.stdout
     (run,) = runs_dir.iterdir()
     assert run.name.startswith("CartPole-v1__cem__s1__")
     names = {p.name for p in run.iterdir()} | {p.name for p in (run / "checkpoints").iterdir()}

@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rich.console import Console
+
+if TYPE_CHECKING:
+    from cartpole.runs import RunDir
 
 DEFAULT_AGENT = "dqn"
 
@@ -35,7 +38,11 @@ def add_parser(sub: Any) -> None:
             "the verdict: the kept best policy judged on 100 fresh greedy episodes of Gymnasium's own "
             "env. Ctrl-C stops cleanly; --resume RUN_DIR continues."
         ),
-        epilog=f"agents: {', '.join(names)}. Presets: `cartpole presets AGENT`.",
+        epilog=(
+            f"agents: {', '.join(names)}. Presets: `cartpole presets AGENT`. Exit status: 0 when training "
+            "and its verdict are done, whatever the verdict (it is in eval.json and printed last); 2 for "
+            "bad input, a full disk or a damaged run; 130 when interrupted (Ctrl-C; resume it)."
+        ),
     )
     parser.add_argument(
         "agent",
@@ -192,14 +199,28 @@ def run(args: argparse.Namespace) -> int:
         )
         return 128 + outcome.signal
     if state.solved_at_step is not None:
-        console.print(
-            f"first verified solve at {state.solved_at_step:,} env steps, {state.solved_at_seconds:.2f} s"
-        )
+        at = f"{state.solved_at_step:,} env steps, {state.solved_at_seconds:.2f} s"
+        console.print(f"solved in training: first at {at}")
     report = outcome.report
     if report is not None:
+        judged = judged_checkpoint(outcome.run)
+        console.print(f"verdict on {judged}, judged on {report.episodes} fresh episodes:")
         color = "green" if report.solved else "red"
         console.print(f"[bold {color}]{report.verdict}[/]", highlight=False)
     return 0
+
+
+def judged_checkpoint(run: RunDir) -> str:
+    """Which policy the verdict judged, for people: the kept best checkpoint, and when it was kept."""
+    from cartpole.core.names import CheckpointName
+    from cartpole.runs import CheckpointError, load_checkpoint
+
+    try:
+        step = load_checkpoint(run.checkpoint_path(CheckpointName.BEST)).meta.get("step")
+    except CheckpointError:
+        step = None
+    at = f" (kept at env step {step:,})" if isinstance(step, int) else ""
+    return f"the best checkpoint{at}, not the last policy"
 
 
 # --- population training -------------------------------------------------------------
