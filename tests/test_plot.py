@@ -2,19 +2,22 @@
 
 from __future__ import annotations
 
+import matplotlib
 import numpy as np
 import pytest
 from PIL import Image
 
 from cartpole.cli.main import main
-from cartpole.plotting import bootstrap_band, load_run, moving_average, plot_runs
+from cartpole.plotting import PlotError, bootstrap_band, load_run, moving_average, plot_runs
 from cartpole.runs import RunDir
 
 
-def fake_run(runs_dir, agent: str, seed: int, episodes: int = 150, solved: bool = False) -> RunDir:
+def fake_run(
+    runs_dir, agent: str, seed: int, episodes: int = 150, solved: bool = False, env_id: str = "CartPole-v1"
+) -> RunDir:
     """A run folder with per-episode rows that improve, and an evaluation every 50 episodes."""
-    run = RunDir.create(runs_dir, "CartPole-v1", agent, seed)
-    run.write_config({"agent": agent, "env_id": "CartPole-v1", "seed": seed})
+    run = RunDir.create(runs_dir, env_id, agent, seed)
+    run.write_config({"agent": agent, "env_id": env_id, "seed": seed})
     rng = np.random.default_rng(seed)
     rows, step = [], 0
     for episode in range(1, episodes + 1):
@@ -79,6 +82,25 @@ def test_plot_several_runs_aggregated_and_mixed_agents(tmp_path):
     svg = plot_runs([tmp_path / "runs"], tmp_path / "all.svg")  # a folder of runs: all of them
     text = svg.read_text()
     assert "<svg" in text and len(text) > 10_000
+
+
+def test_runs_of_two_envs_get_a_panel_each_with_its_own_legend(tmp_path):
+    for agent in ("dqn", "ppo", "a2c", "cem"):
+        fake_run(tmp_path / "runs", agent, 0)
+    fake_run(tmp_path / "runs", "ppo", 1, env_id="Acrobot-v1")
+    with matplotlib.rc_context({"svg.fonttype": "none"}):  # text as text, to be read back
+        svg = plot_runs([tmp_path / "runs"], tmp_path / "all.svg").read_text()
+    assert "CartPole-v1: a2c (1 run), cem (1 run), dqn (1 run), ppo (1 run)" in svg
+    assert "Acrobot-v1__ppo__s1__" in svg  # a panel of one run is titled by its name
+    assert svg.count("solved threshold 475") == 1 and "solved threshold -100" in svg
+
+
+def test_more_agents_than_colors_in_one_panel_is_a_clear_error(tmp_path):
+    agents = [f"agent{i}" for i in range(10)]
+    for agent in agents:
+        fake_run(tmp_path / "runs", agent, 0)
+    with pytest.raises(PlotError, match="10 agents on CartPole-v1 are more than one figure can tell apart"):
+        plot_runs([tmp_path / "runs"], tmp_path / "all.png")
 
 
 def test_plot_cli(cem_run, tmp_path, capsys, monkeypatch):

@@ -209,51 +209,83 @@ def plot_runs(
         raise PlotError(f"no metrics yet in {', '.join(empty)}: train first (or wait for the first rows)")
     runs = [r for r in runs if r.name not in empty]
 
-    groups: dict[tuple[str, str], list[RunCurves]] = {}
+    panels = panels_by_env(runs)
+    legend_rows = [-(-(len(groups) * 3 + 2) // LEGEND_COLUMNS) for groups in panels.values()]
+    height = sum(PANEL_HEIGHT + LEGEND_ROW_HEIGHT * rows for rows in legend_rows)
+    figure = Figure(figsize=(10, height), layout="constrained")
+    axes = figure.subplots(len(panels), 1, squeeze=False)[:, 0]
+    for ax, groups in zip(axes, panels.values(), strict=True):
+        env_runs = [run for members in groups.values() for run in members]
+        own_title = title if len(panels) == 1 and title else _default_title(env_runs, groups)
+        _draw_panel(ax, env_runs, groups, x_axis, window, own_title)
+    if title and len(panels) > 1:
+        figure.suptitle(title)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(out, dpi=dpi)
+    return out
+
+
+PANEL_HEIGHT = 5.2
+"""Inches of one env's panel, before its legend."""
+LEGEND_COLUMNS = 2
+LEGEND_ROW_HEIGHT = 0.2
+COLORS = ["C0", "C1", "C2", "C3", "C4", "C5", "C6", "C8", "C9"]
+"""One color per agent (or agent and preset) in a panel: more than these cannot be told apart."""
+
+
+def panels_by_env(runs: list[RunCurves]) -> dict[str, dict[str, list[RunCurves]]]:
+    """The runs by env (one panel each), then by agent (one curve or band each); PlotError when a
+    panel would hold more agents than it has colors."""
+    panels: dict[str, dict[str, list[RunCurves]]] = {}
     for run in runs:
-        groups.setdefault((run.env_id, run.agent), []).append(run)
+        panels.setdefault(run.env_id, {}).setdefault(run.agent, []).append(run)
+    for env_id, groups in panels.items():
+        if len(groups) > len(COLORS):
+            raise PlotError(
+                f"{len(groups)} agents on {env_id} are more than one figure can tell apart ({len(COLORS)} "
+                "colors): pass the run folders of fewer agents"
+            )
+    return panels
 
-    figure = Figure(figsize=(10, 6.4), layout="constrained")
-    ax = figure.add_subplot()
-    colors = ["C0", "C1", "C2", "C3", "C4", "C5", "C6", "C8", "C9"]
-    many_envs = len({env_id for env_id, _ in groups}) > 1
-    for index, ((env_id, agent), members) in enumerate(groups.items()):
-        color = colors[index % len(colors)]
-        prefix = f"{agent} on {env_id}" if many_envs else agent
+
+def _draw_panel(
+    ax: Any,
+    runs: list[RunCurves],
+    groups: dict[str, list[RunCurves]],
+    x_axis: XAxis,
+    window: int | None,
+    title: str,
+) -> None:
+    """One env's runs on ``ax``: a curve or band per agent, its threshold, and its own legend below."""
+    for color, (agent, members) in zip(COLORS, groups.items(), strict=False):
         if len(members) == 1:
-            _draw_single(ax, members[0], x_axis, window, color, prefix)
+            _draw_single(ax, members[0], x_axis, window, color, agent)
         else:
-            _draw_group(ax, members, x_axis, window, color, prefix)
-
-    thresholds = sorted({(r.env_id, r.threshold) for r in runs if r.threshold is not None})
-    for env_id, threshold in thresholds:
-        where = f" ({env_id})" if len(thresholds) > 1 else ""
+            _draw_group(ax, members, x_axis, window, color, agent)
+    for threshold in sorted({r.threshold for r in runs if r.threshold is not None}):
         ax.axhline(
-            threshold,
-            color="0.25",
-            linestyle="--",
-            linewidth=1.0,
-            label=f"solved threshold {threshold:g}{where}",
-            zorder=1,
+            threshold, color="0.25", linestyle="--", linewidth=1.0, label=f"solved threshold {threshold:g}"
         )
-
     ax.set_xlabel("env steps" if x_axis == "steps" else "episodes")
     ax.set_ylabel("return")
-    ax.set_title(title or _default_title(runs, groups))
+    ax.set_title(title, fontsize=11)
     ax.grid(True, alpha=0.3)
     ax.set_xlim(left=0)
-    ax.set_ylim(bottom=0, top=_top(runs))
+    ax.set_ylim(*_y_limits(runs))
     ax.ticklabel_format(axis="x", style="plain")
     ax.xaxis.set_major_formatter(_thousands())
     handles, labels = ax.get_legend_handles_labels()
     unique = dict(zip(labels, handles, strict=True))  # one "verified solve" entry, not one per group
     # Below the axes, so it never hides a curve, a point or the threshold line.
-    figure.legend(
-        unique.values(), unique.keys(), loc="outside lower center", ncols=2, fontsize=9, frameon=False
+    ax.legend(
+        unique.values(),
+        unique.keys(),
+        loc="upper center",
+        bbox_to_anchor=(0.5, -0.12),
+        ncols=LEGEND_COLUMNS,
+        fontsize=8,
+        frameon=False,
     )
-    out.parent.mkdir(parents=True, exist_ok=True)
-    figure.savefig(out, dpi=dpi)
-    return out
 
 
 def _thousands() -> Any:
@@ -262,19 +294,24 @@ def _thousands() -> Any:
     return FuncFormatter(lambda value, _: f"{value:,.0f}")
 
 
-def _top(runs: list[RunCurves]) -> float:
-    """Room above the highest return, the threshold and the error bars."""
-    highs = [r.returns.max() for r in runs if r.returns.size]
-    highs += [(r.eval_mean + r.eval_std).max() for r in runs if r.eval_mean.size]
-    highs += [r.threshold for r in runs if r.threshold is not None]
-    return max(highs, default=1.0) * 1.08 or 1.0
+def _y_limits(runs: list[RunCurves]) -> tuple[float, float]:
+    """From 0 (or the lowest return, for envs whose returns are negative, such as Acrobot's) to a
+    little above the highest return, threshold and error bar."""
+    values = [r.returns for r in runs if r.returns.size]
+    values += [r.eval_mean + r.eval_std for r in runs if r.eval_mean.size]
+    values += [r.eval_mean - r.eval_std for r in runs if r.eval_mean.size]
+    values += [np.array([r.threshold]) for r in runs if r.threshold is not None]
+    low = min(0.0, *(float(v.min()) for v in values)) if values else 0.0
+    high = max(0.0, *(float(v.max()) for v in values)) if values else 1.0
+    margin = 0.08 * ((high - low) or 1.0)
+    return (low - margin if low < 0 else 0.0), high + margin
 
 
-def _default_title(runs: list[RunCurves], groups: dict[tuple[str, str], list[RunCurves]]) -> str:
+def _default_title(runs: list[RunCurves], groups: dict[str, list[RunCurves]]) -> str:
     if len(runs) == 1:
         return runs[0].name
     envs = sorted({r.env_id for r in runs})
-    what = ", ".join(f"{agent} ({len(m)} run{'s' * (len(m) > 1)})" for (_, agent), m in groups.items())
+    what = ", ".join(f"{agent} ({len(m)} run{'s' * (len(m) > 1)})" for agent, m in groups.items())
     return f"{' / '.join(envs)}: {what}"
 
 
