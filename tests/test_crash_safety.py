@@ -330,3 +330,35 @@ def test_resuming_a_finished_population_is_nothing_to_do_as_for_a_single_run(tmp
     capsys.readouterr()
     assert main(["train", "--resume", str(member)]) == 0
     assert "has finished; nothing to resume" in capsys.readouterr().out
+
+
+# --- the verdict judges the kept best policy; the last one is scored beside it ---------------------
+
+
+def test_the_last_policy_is_scored_beside_the_verdict_when_training_went_on_past_its_best(tmp_path):
+    scored = 0
+    for seed in range(4):
+        outcome = train(
+            "random-search",
+            seed=seed,
+            budget="6gen",
+            stop_when_solved=False,
+            overrides={"population": 4, "eval_every": 0},
+            runs_dir=tmp_path,
+        )
+        best_step = load_checkpoint(outcome.run.checkpoint_path("best")).meta["step"]
+        last = outcome.run.last_eval_report()
+        if best_step == outcome.state.env_steps:  # the best is the last policy: nothing more to say
+            assert last is None and outcome.last_report is None
+            continue
+        scored += 1
+        assert last is not None and last["step"] == outcome.state.env_steps
+        assert last["seeds"] == outcome.report.seeds  # the verdict's own episodes, side by side
+        assert outcome.last_report is not None and outcome.last_report.mean == last["mean"]
+    assert scored >= 2, "random search with 4 candidates rarely keeps its last generation as the best"
+
+
+def test_a_run_that_stops_at_its_solve_has_no_separate_last_score(tmp_path):
+    outcome = train("cem", seed=0, runs_dir=tmp_path)
+    assert outcome.report is not None and outcome.report.solved
+    assert outcome.run.last_eval_report() is None and outcome.last_report is None

@@ -207,6 +207,13 @@ def run(args: argparse.Namespace) -> int:
         console.print(f"verdict on {judged}, judged on {report.episodes} fresh episodes:")
         color = "green" if report.solved else "red"
         console.print(f"[bold {color}]{report.verdict}[/]", highlight=False)
+        last = outcome.last_report
+        if last is not None and last.solved != report.solved:  # the best and the last policy disagree
+            console.print(
+                f"the last policy (env step {state.env_steps:,}) on the same episodes: {last.verdict} "
+                "(last_eval.json)",
+                highlight=False,
+            )
     return 0
 
 

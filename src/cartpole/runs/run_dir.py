@@ -35,6 +35,7 @@ STATUS = "status.json"
 METRICS = "metrics.jsonl"
 EVAL = "eval.json"
 BEST_EVAL = "best_eval.json"
+LAST_EVAL = "last_eval.json"
 LOCK = ".train.lock"
 CHECKPOINTS = "checkpoints"
 CHECKPOINT_NAMES = tuple(CheckpointName)
@@ -239,6 +240,16 @@ class RunDir:
         except RunError:
             if strict:
                 raise
+            return None
+
+    def write_last_eval(self, report: dict[str, Any]) -> None:
+        """Write the last policy's score on the verdict's own episodes (not a verdict: see eval.json)."""
+        write_json_atomic(self.path / LAST_EVAL, report)
+
+    def last_eval_report(self) -> dict[str, Any] | None:
+        try:
+            return read_json(self.path / LAST_EVAL)
+        except (OSError, json.JSONDecodeError):
             return None
 
     def write_best_eval(self, report: dict[str, Any]) -> None:

@@ -61,6 +61,8 @@ class TrainOutcome:
     """The final verdict: the kept best policy on 100 fresh episodes (None if interrupted)."""
     signal: int | None = None
     """The signal that interrupted training, if any."""
+    last_report: EvalReport | None = None
+    """The last policy on the verdict's own episodes, when training went on past the kept best one."""
 
 
 def resolve_device(device: str) -> str:
@@ -215,6 +217,25 @@ def final_verdict(setup: RunSetup) -> EvalReport:
     return report
 
 
+def last_policy_score(setup: RunSetup, learner: Any, state: LoopState) -> EvalReport | None:
+    """When training went on past the kept best checkpoint (it did not stop at a solve), the last
+    policy played on the verdict's own episodes, written to ``last_eval.json``: a policy that collapsed
+    after an early best shows beside a verdict that judged the best. None when the two are the same."""
+    best = load_checkpoint(setup.run.checkpoint_path(CheckpointName.BEST)).meta.get("step")
+    if state.stop_reason is StopReason.SOLVED or best == state.env_steps:
+        return None
+    settings = setup.settings
+    report = evaluate(
+        learner.policy(),
+        setup.env.env_id,
+        max(settings.eval_episodes, MIN_EPISODES_FOR_SOLVED),
+        seed=final_eval_seed(setup.seed),
+        simulator=check_simulator(settings.eval_simulator),
+    )
+    setup.run.write_last_eval(report.to_dict() | {"step": state.env_steps})
+    return report
+
+
 def run_loop(
     setup: RunSetup, learner: Any, state: LoopState | None, quiet: bool, extra: Sequence[Callback] = ()
 ) -> TrainOutcome:
@@ -234,6 +255,7 @@ def run_loop(
                 return TrainOutcome(setup.run, loop.state, None, signal=received[0])
             with interrupt_on_signals():
                 report = final_verdict(setup)
+                last = last_policy_score(setup, learner, loop.state)
         except Interrupted as stop:
             loop.state.stop_detail = f"{loop.state.stop_detail}; verdict {stop}"
             status.write(RunState.INTERRUPTED, status_fields(loop.state))
@@ -242,7 +264,7 @@ def run_loop(
             write_failed(status, loop.state)
             raise
         status.write(RunState.FINISHED, status_fields(loop.state) | {"solved": report.solved})
-        return TrainOutcome(setup.run, loop.state, report)
+        return TrainOutcome(setup.run, loop.state, report, last_report=last)
 
 
 def write_failed(status: LiveStatus, state: LoopState) -> None:
