@@ -362,3 +362,25 @@ def test_a_run_that_stops_at_its_solve_has_no_separate_last_score(tmp_path):
     outcome = train("cem", seed=0, runs_dir=tmp_path)
     assert outcome.report is not None and outcome.report.solved
     assert outcome.run.last_eval_report() is None and outcome.last_report is None
+
+
+def test_a_population_scores_each_seeds_last_policy_as_its_single_run_does(tmp_path):
+    argv = ["train", "random-search", "--seeds", "0-3", "--budget", "6gen", "--no-stop-when-solved"]
+    settings_ = ["--set", "population=4", "--set", "eval_every=0", "--quiet"]
+    assert main([*argv, *settings_, "--runs-dir", str(tmp_path / "population")]) == 0
+    members = {RunDir(p).config()["seed"]: RunDir(p) for p in (tmp_path / "population").iterdir()}
+    for seed, member in members.items():
+        single = train(
+            "random-search",
+            seed=seed,
+            budget="6gen",
+            stop_when_solved=False,
+            overrides={"population": 4, "eval_every": 0},
+            runs_dir=tmp_path / "single",
+        )
+        last = member.last_eval_report()
+        if single.last_report is None:
+            assert last is None
+        else:  # a linear search's seed is bit-identical to its single run, its last score too
+            assert last is not None and last["returns"] == single.last_report.returns
+    assert sum(m.last_eval_report() is not None for m in members.values()) >= 2

@@ -531,12 +531,38 @@ def interrupt(
 def final_verdicts(members: list[Member]) -> dict[int, EvalReport]:
     """Each member's kept best checkpoint on ``max(eval_episodes, 100)`` greedy episodes from seeds
     ``final_eval_seed(seed) + i``: the verdict :func:`cartpole.training.session.final_verdict` gives
-    a single run, for all members in one vector env. Written to each ``eval.json``."""
+    a single run, for all members in one vector env. Written to each ``eval.json``; and for members
+    that trained on past their best (no stop at a solve), the last policy (``latest.pt``) on the same
+    episodes, written to ``last_eval.json`` as :func:`~cartpole.training.session.last_policy_score`
+    does for a single run."""
+    reports = play_final_episodes(members, CheckpointName.BEST)
+    for member in members:
+        member.setup.run.write_eval(reports[member.seed].to_dict())
+    went_on = [m for m in members if went_past_best(m)]
+    if went_on:
+        lasts = play_final_episodes(went_on, CheckpointName.LATEST)
+        for member in went_on:
+            step = {"step": member.loop.state.env_steps}
+            member.setup.run.write_last_eval(lasts[member.seed].to_dict() | step)
+    return reports
+
+
+def went_past_best(member: Member) -> bool:
+    """Whether a member's training went on after its kept best checkpoint (it did not stop at a solve)."""
+    state = member.loop.state
+    if state.stop_reason is StopReason.SOLVED:
+        return False
+    best = load_checkpoint(member.setup.run.checkpoint_path(CheckpointName.BEST)).meta.get("step")
+    return best != state.env_steps
+
+
+def play_final_episodes(members: list[Member], checkpoint: CheckpointName) -> dict[int, EvalReport]:
+    """Each member's ``checkpoint`` policy on its verdict's episodes, all members in one vector env."""
     first = members[0].setup
     episodes = max(first.settings.eval_episodes, MIN_EPISODES_FOR_SOLVED)
     simulator = check_simulator(first.settings.eval_simulator)
     policies = [
-        m.setup.spec.policy_from_checkpoint(load_checkpoint(m.setup.run.checkpoint_path(CheckpointName.BEST)))
+        m.setup.spec.policy_from_checkpoint(load_checkpoint(m.setup.run.checkpoint_path(checkpoint)))
         for m in members
     ]
     episode_seeds = [[final_eval_seed(m.seed) + i for i in range(episodes)] for m in members]
@@ -563,7 +589,6 @@ def final_verdicts(members: list[Member]) -> dict[int, EvalReport]:
             threshold=first.env.reward_threshold,
             max_episode_steps=first.env.max_episode_steps,
         )
-        member.setup.run.write_eval(report.to_dict())
         reports[member.seed] = report
     return reports
 
@@ -627,8 +652,16 @@ def population_summary(outcome: PopulationOutcome) -> list[str]:
     if outcome.reports:
         verified = sum(r.solved for r in outcome.reports.values())
         lines.append(
-            f"verdicts: {verified}/{len(seeds)} SOLVED on 100 fresh episodes of Gymnasium's env each"
+            f"verdicts: {verified}/{len(seeds)} SOLVED on 100 fresh episodes of Gymnasium's env each "
+            "(each seed's kept best checkpoint)"
         )
+        lasts = {s: outcome.runs[s].last_eval_report() for s in seeds if s in outcome.reports}
+        disagree = [s for s, last in lasts.items() if last and last["solved"] != outcome.reports[s].solved]
+        if disagree:
+            lines.append(
+                f"the last policy disagrees with the verdict for {len(disagree)} seed(s), "
+                f"e.g. seed {disagree[0]} (its last_eval.json)"
+            )
     return lines
 
 
