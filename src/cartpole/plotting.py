@@ -26,6 +26,7 @@ import numpy as np
 
 from cartpole.core.errors import InputError
 from cartpole.runs import RunDir, RunError, summarize_run
+from cartpole.runs.atomic import replace_atomically
 
 XAxis = Literal["steps", "episodes"]
 IMAGE_SUFFIXES = (".png", ".svg", ".pdf")
@@ -220,8 +221,8 @@ def plot_runs(
         _draw_panel(ax, env_runs, groups, x_axis, window, own_title)
     if title and len(panels) > 1:
         figure.suptitle(title)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    figure.savefig(out, dpi=dpi)
+    # Atomically, as every file we write: a full disk leaves no half figure, and its error names the file.
+    replace_atomically(out, lambda tmp: figure.savefig(tmp, dpi=dpi), suffix=out.suffix)
     return out
 
 
