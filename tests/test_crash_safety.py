@@ -335,17 +335,17 @@ def test_resuming_a_finished_population_is_nothing_to_do_as_for_a_single_run(tmp
 # --- the verdict judges the kept best policy; the last one is scored beside it ---------------------
 
 
+def train_past_its_best(seed: int, runs_dir: Path):
+    """Random search that trains on after its solves: 6 generations of 4 candidates, evaluated each."""
+    overrides = {"population": 4, "eval_every": 0}
+    return train("random-search", seed=seed, budget="6gen", stop_when_solved=False, overrides=overrides,
+                 runs_dir=runs_dir)  # fmt: skip
+
+
 def test_the_last_policy_is_scored_beside_the_verdict_when_training_went_on_past_its_best(tmp_path):
     scored = 0
     for seed in range(4):
-        outcome = train(
-            "random-search",
-            seed=seed,
-            budget="6gen",
-            stop_when_solved=False,
-            overrides={"population": 4, "eval_every": 0},
-            runs_dir=tmp_path,
-        )
+        outcome = train_past_its_best(seed, tmp_path)
         best_step = load_checkpoint(outcome.run.checkpoint_path("best")).meta["step"]
         last = outcome.run.last_eval_report()
         if best_step == outcome.state.env_steps:  # the best is the last policy: nothing more to say
@@ -370,14 +370,7 @@ def test_a_population_scores_each_seeds_last_policy_as_its_single_run_does(tmp_p
     assert main([*argv, *settings_, "--runs-dir", str(tmp_path / "population")]) == 0
     members = {RunDir(p).config()["seed"]: RunDir(p) for p in (tmp_path / "population").iterdir()}
     for seed, member in members.items():
-        single = train(
-            "random-search",
-            seed=seed,
-            budget="6gen",
-            stop_when_solved=False,
-            overrides={"population": 4, "eval_every": 0},
-            runs_dir=tmp_path / "single",
-        )
+        single = train_past_its_best(seed, tmp_path / "single")
         last = member.last_eval_report()
         if single.last_report is None:
             assert last is None

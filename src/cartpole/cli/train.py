@@ -145,7 +145,7 @@ def configure_process(torch_threads: int, seed: int) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from cartpole.cli.errors import UsageError
-    from cartpole.training import AlreadyFinished, parse_budget, resume, train
+    from cartpole.training import parse_budget, resume, train
     from cartpole.training.population import is_population_run
 
     if args.torch_threads is not None and args.torch_threads < 0:
@@ -160,12 +160,8 @@ def run(args: argparse.Namespace) -> int:
     if args.resume:
         if args.agent or args.overrides or args.budget is not None:
             raise UsageError("--resume continues a run with its recorded config; drop AGENT/--set/--budget")
-        try:
-            outcome = resume(
-                args.resume, quiet=args.quiet, device=args.device, from_scratch=args.from_scratch
-            )
-        except AlreadyFinished as done:
-            console.print(str(done))
+        outcome = resume_unless_finished(resume, args, console)
+        if outcome is None:
             return 0
     else:
         try:
@@ -217,6 +213,18 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def resume_unless_finished(resume_run: Any, args: argparse.Namespace, console: Console) -> Any:
+    """``resume_run`` (a single run's or a population's resume) with the command's options; None, once
+    it has said so, when there is nothing left to resume."""
+    from cartpole.training import AlreadyFinished
+
+    try:
+        return resume_run(args.resume, quiet=args.quiet, device=args.device, from_scratch=args.from_scratch)
+    except AlreadyFinished as done:
+        console.print(str(done))
+        return None
+
+
 def judged_checkpoint(run: RunDir) -> str:
     """Which policy the verdict judged, for people: the kept best checkpoint, and when it was kept."""
     from cartpole.core.names import CheckpointName
@@ -236,7 +244,7 @@ def judged_checkpoint(run: RunDir) -> str:
 def run_population(args: argparse.Namespace) -> int:
     """``cartpole train AGENT --seeds 0-99`` (or ``--resume`` of a population's run)."""
     from cartpole.cli.errors import UsageError
-    from cartpole.training import AlreadyFinished, parse_budget
+    from cartpole.training import parse_budget
     from cartpole.training.population import (
         check_population_agent,
         parse_seeds,
@@ -251,12 +259,8 @@ def run_population(args: argparse.Namespace) -> int:
             raise UsageError(
                 "--resume continues a population with its recorded config; drop AGENT/--set/--budget/--seeds"
             )
-        try:
-            outcome = resume_population(
-                args.resume, quiet=args.quiet, device=args.device, from_scratch=args.from_scratch
-            )
-        except AlreadyFinished as done:
-            console.print(str(done))
+        outcome = resume_unless_finished(resume_population, args, console)
+        if outcome is None:
             return 0
     else:
         agent = args.agent or DEFAULT_AGENT

@@ -55,6 +55,7 @@ from cartpole.training.session import (
     make_callbacks,
     resolve_device,
     run_record,
+    went_past_best,
 )
 
 MAX_SEEDS = 4096
@@ -538,22 +539,13 @@ def final_verdicts(members: list[Member]) -> dict[int, EvalReport]:
     reports = play_final_episodes(members, CheckpointName.BEST)
     for member in members:
         member.setup.run.write_eval(reports[member.seed].to_dict())
-    went_on = [m for m in members if went_past_best(m)]
+    went_on = [m for m in members if went_past_best(m.setup.run, m.loop.state)]
     if went_on:
         lasts = play_final_episodes(went_on, CheckpointName.LATEST)
         for member in went_on:
             step = {"step": member.loop.state.env_steps}
             member.setup.run.write_last_eval(lasts[member.seed].to_dict() | step)
     return reports
-
-
-def went_past_best(member: Member) -> bool:
-    """Whether a member's training went on after its kept best checkpoint (it did not stop at a solve)."""
-    state = member.loop.state
-    if state.stop_reason is StopReason.SOLVED:
-        return False
-    best = load_checkpoint(member.setup.run.checkpoint_path(CheckpointName.BEST)).meta.get("step")
-    return best != state.env_steps
 
 
 def play_final_episodes(members: list[Member], checkpoint: CheckpointName) -> dict[int, EvalReport]:

@@ -22,7 +22,7 @@ from cartpole.core.names import CheckpointName, RunState, StopReason
 from cartpole.core.seeding import MAX_TRAIN_SEED, final_eval_seed
 from cartpole.core.version import __version__
 from cartpole.envs import EnvInfo, check_simulator, env_info
-from cartpole.evaluation import MIN_EPISODES_FOR_SOLVED, EvalReport, evaluate
+from cartpole.evaluation import MIN_EPISODES_FOR_SOLVED, EvalReport, Policy, evaluate
 from cartpole.runs import (
     Checkpoint,
     CheckpointError,
@@ -204,34 +204,39 @@ def final_verdict(setup: RunSetup) -> EvalReport:
     The seeds follow from the run's seed, so the same run gives the same verdict; ``cartpole eval``
     judges it again on any other seeds.
     """
-    run, settings = setup.run, setup.settings
+    run = setup.run
     policy = setup.spec.policy_from_checkpoint(load_checkpoint(run.checkpoint_path(CheckpointName.BEST)))
-    report = evaluate(
+    report = play_verdict_episodes(setup, policy)
+    run.write_eval(report.to_dict())
+    return report
+
+
+def play_verdict_episodes(setup: RunSetup, policy: Policy) -> EvalReport:
+    """``policy`` on the run's verdict episodes: ``max(eval_episodes, 100)`` from ``final_eval_seed``."""
+    settings = setup.settings
+    return evaluate(
         policy,
         setup.env.env_id,
         max(settings.eval_episodes, MIN_EPISODES_FOR_SOLVED),
         seed=final_eval_seed(setup.seed),
         simulator=check_simulator(settings.eval_simulator),
     )
-    run.write_eval(report.to_dict())
-    return report
+
+
+def went_past_best(run: RunDir, state: LoopState) -> bool:
+    """Whether training went on after the kept best checkpoint (it did not stop at a solve)."""
+    if state.stop_reason is StopReason.SOLVED:
+        return False
+    return load_checkpoint(run.checkpoint_path(CheckpointName.BEST)).meta.get("step") != state.env_steps
 
 
 def last_policy_score(setup: RunSetup, learner: Any, state: LoopState) -> EvalReport | None:
-    """When training went on past the kept best checkpoint (it did not stop at a solve), the last
-    policy played on the verdict's own episodes, written to ``last_eval.json``: a policy that collapsed
-    after an early best shows beside a verdict that judged the best. None when the two are the same."""
-    best = load_checkpoint(setup.run.checkpoint_path(CheckpointName.BEST)).meta.get("step")
-    if state.stop_reason is StopReason.SOLVED or best == state.env_steps:
+    """When training went on past the kept best checkpoint, the last policy played on the verdict's
+    own episodes, written to ``last_eval.json``: a policy that collapsed after an early best shows
+    beside a verdict that judged the best. None when the two are the same."""
+    if not went_past_best(setup.run, state):
         return None
-    settings = setup.settings
-    report = evaluate(
-        learner.policy(),
-        setup.env.env_id,
-        max(settings.eval_episodes, MIN_EPISODES_FOR_SOLVED),
-        seed=final_eval_seed(setup.seed),
-        simulator=check_simulator(settings.eval_simulator),
-    )
+    report = play_verdict_episodes(setup, learner.policy())
     setup.run.write_last_eval(report.to_dict() | {"step": state.env_steps})
     return report
 
