@@ -2,7 +2,7 @@
 
 Usage (from the repository root)::
 
-    python benchmarks/kill_resume.py                 # 45 trials over every agent and two populations
+    python benchmarks/kill_resume.py                 # trials over every agent and three populations
     python benchmarks/kill_resume.py --agents dqn,ppo-population --trials 4
     python benchmarks/kill_resume.py --trials 6 --jobs 3 --device cpu
 
@@ -39,7 +39,7 @@ from typing import Any
 
 AGENTS = (
     "dqn", "ppo", "a2c", "reinforce", "cem", "hill-climbing", "random-search", "ppo-population",
-    "cem-population",
+    "cem-population", "dqn-population",
 )  # fmt: skip
 POPULATION = "-population"
 """An entry ``AGENT-population`` trains :data:`POPULATION_SEEDS` seeds of AGENT in one process."""

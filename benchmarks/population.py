@@ -50,7 +50,7 @@ def run_population_part(
 ) -> dict[str, object]:
     import torch
 
-    from cartpole.training.population import train_population
+    from cartpole.training.session import train_population
 
     started = time.perf_counter()
     outcome = train_population(

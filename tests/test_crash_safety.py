@@ -127,17 +127,17 @@ def test_ctrl_c_leaves_no_verdict_and_runs_does_not_say_solved(tmp_path):
 
 def stop_in_the_final_verdict(monkeypatch: pytest.MonkeyPatch, fault: BaseException | int) -> None:
     """Make the final verdict fail: a signal arrives while judging, or writing eval.json raises."""
-    import cartpole.training.session as session
+    import cartpole.training.engine as engine
 
     if isinstance(fault, int):
-        judge = session.evaluate
+        judge = engine.play_final_episodes
 
         def signalled(*args, **kwargs):
             os.kill(os.getpid(), fault)
             time.sleep(1)  # the handler interrupts this
             return judge(*args, **kwargs)
 
-        monkeypatch.setattr(session, "evaluate", signalled)
+        monkeypatch.setattr(engine, "play_final_episodes", signalled)
     else:
 
         def fails(self, report):

@@ -18,8 +18,9 @@ import pytest
 import torch
 
 from cartpole.agents.a2c import A2CConfig
+from cartpole.agents.actor_critic_population import PopulationA2C, PopulationPPO, PopulationReinforce
 from cartpole.agents.learner import LearnResult
-from cartpole.agents.population import PopulationA2C, PopulationPPO, PopulationReinforce, make_population
+from cartpole.agents.population import build_population
 from cartpole.agents.ppo import PPOConfig
 from cartpole.agents.registry import get_agent, load_policy
 from cartpole.agents.reinforce import ReinforceConfig
@@ -33,7 +34,8 @@ from cartpole.runs import RunDir, load_checkpoint, summarize_run
 from cartpole.training import train
 from cartpole.training.callbacks import screened_evaluation
 from cartpole.training.config import TrainSettings
-from cartpole.training.population import PopulationEvaluations, parse_seeds, train_population
+from cartpole.training.engine import PopulationEvaluations
+from cartpole.training.session import parse_seeds, train_population
 
 CARTPOLE = env_info("CartPole-v1")
 SMALL = {"n_steps": 8, "num_envs": 4, "n_epochs": 2, "minibatch_size": 16, "hidden_sizes": (16, 16)}
@@ -390,7 +392,7 @@ def test_evaluations_played_together_are_each_seeds_own():
 def test_a_linear_search_seed_is_its_single_run(agent):
     spec = get_agent(agent)
     config = spec.config_cls(population=6, episodes_per_candidate=2)
-    population = make_population(agent, config, CARTPOLE, [3, 5])
+    population = build_population(get_agent(agent), config, CARTPOLE, [3, 5])
     single = spec.make_learner(config, CARTPOLE, 3, "cpu")
     for _ in range(4):
         assert same(population.learn()[3], single.learn())
@@ -399,10 +401,10 @@ def test_a_linear_search_seed_is_its_single_run(agent):
 
 def test_resume_of_a_linear_search_seed_continues_exactly():
     config = get_agent("hill-climbing").config_cls(population=6, episodes_per_candidate=2)
-    straight = make_population("hill-climbing", config, CARTPOLE, [2, 6])
+    straight = build_population(get_agent("hill-climbing"), config, CARTPOLE, [2, 6])
     learn(straight, 2)
     tensors, data = straight.seed_state_dict(6, resume=True)
-    resumed = make_population("hill-climbing", config, CARTPOLE, [6])
+    resumed = build_population(get_agent("hill-climbing"), config, CARTPOLE, [6])
     resumed.load_seed_state_dict(6, tensors, json.loads(json.dumps(data)))
     assert same(straight.learn()[6], resumed.learn()[6])
     assert_same(straight.seed_state_dict(6, resume=True)[0], resumed.seed_state_dict(6, resume=True)[0])
@@ -433,8 +435,6 @@ def run_cli(*args: str, **kwargs: object) -> subprocess.CompletedProcess[str]:
         ["ppo", "--seeds", "1,1"],
         ["ppo", "--seeds", ""],
         ["ppo", "--seeds", "a-b"],
-        ["dqn", "--seeds", "0-3"],
-        ["dqn", "--seeds", "3,5,8"],
         ["ppo", "--seeds", "0-4000", "--set", "hidden_sizes=2048,2048"],
         pytest.param(
             ["ppo", "--seeds", "0-3", "--device", "cuda"],

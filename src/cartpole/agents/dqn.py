@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import itertools
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -463,12 +464,23 @@ def make_learner(config: DQNConfig, env: EnvInfo, seed: int, device: str) -> DQN
     return DQNLearner(config, env, seed, device)
 
 
+def bytes_per_seed(config: DQNConfig, env: EnvInfo) -> int:
+    """About what one seed holds: replay rows, the networks with their gradient and Adam state, a
+    batch's activations, and the run's bookkeeping."""
+    replay = config.buffer_size * (2 * env.obs_dim + 3) * 4
+    sizes = [env.obs_dim, *config.hidden_sizes, env.n_actions + int(config.dueling)]
+    parameters = sum(n_in * n_out + n_out for n_in, n_out in itertools.pairwise(sizes))
+    activations = config.batch_size * sum(config.hidden_sizes) * 4 * 6
+    return replay + parameters * 4 * 5 + activations + 2 * 1024**2
+
+
 AGENT = AgentSpec(
     name="dqn",
     summary="Deep Q-Network (PyTorch): double DQN, replay, target network, vectorized collection",
     config_cls=DQNConfig,
     make_learner=make_learner,
     policy_from_checkpoint=policy_from_checkpoint,
+    bytes_per_seed=bytes_per_seed,
     iteration="step",
     score_label="Q-values",
 )

@@ -16,23 +16,36 @@ from cartpole.runs import Checkpoint, CheckpointError, RunDir, load_checkpoint
 
 if TYPE_CHECKING:
     from cartpole.agents.learner import Learner
+    from cartpole.agents.population import Population
 
 
 @dataclass(frozen=True)
 class AgentSpec:
-    """One agent: its config type, a learner factory and a policy loader."""
+    """Everything the rest of the package knows of one agent; found by name with :func:`get_agent`.
+    Its presets are ``presets/<name>.toml`` and its sweep space ``search_spaces/<name>.toml``."""
 
     name: str
     summary: str
     config_cls: type
+    """Its settings (a dataclass with ``validate()``), built from presets and ``--set``."""
     make_learner: Callable[[Any, EnvInfo, int, str], Learner]
-    """(config, env info, seed, device) -> a fresh learner."""
+    """(config, env info, seed, device) -> one seed's learner, for the seeds it cannot batch."""
     policy_from_checkpoint: Callable[[Checkpoint], Policy]
     """Rebuild the greedy policy from a checkpoint's tensors and metadata."""
+    bytes_per_seed: Callable[[Any, EnvInfo], int]
+    """(config, env info) -> about how much memory one seed takes, checked before training starts."""
+    make_population: Callable[[Any, EnvInfo, list[int], str], Population] | None = None
+    """(config, env info, seeds, device) -> every seed batched in one learner, where the agent
+    batches (see :meth:`batches`)."""
     iteration: str = "step"
     """What one ``learn()`` call is, in words: "generation" or "step"."""
     score_label: str = "score"
     """What its policy's ``scores()`` are, for people ("Q-values", "action probabilities", ...)."""
+
+    def batches(self, config: Any, env: EnvInfo) -> bool:
+        """Whether seeds of ``config`` on ``env`` train batched (one update for all): CartPole on
+        the fast simulator; elsewhere they train side by side, a learner each."""
+        return self.make_population is not None and env.is_cartpole and config.simulator == "fast"
 
 
 AGENT_MODULES = {
@@ -45,10 +58,6 @@ AGENT_MODULES = {
     "ppo": "cartpole.agents.ppo",
 }
 """Agent name -> the module that defines it (imported only when the agent is used: torch is slow)."""
-
-
-POPULATION_AGENTS = ("ppo", "a2c", "reinforce", "random-search", "hill-climbing", "cem")
-"""Agents that can train a population of seeds in one process (``cartpole.agents.population``)."""
 
 
 def agent_names() -> list[str]:

@@ -27,7 +27,7 @@ def parse_overrides(pairs: list[str]) -> dict[str, Any]:
 
 
 def add_parser(sub: Any) -> None:
-    from cartpole.agents.registry import POPULATION_AGENTS, agent_names
+    from cartpole.agents.registry import agent_names
 
     names = agent_names()
     parser = sub.add_parser(
@@ -121,7 +121,8 @@ def add_parser(sub: Any) -> None:
         "--seeds",
         metavar="SEEDS",
         help="train these seeds in one process, a run folder each: a range (0-99), a list (3,5,8) or "
-        f"both; for {', '.join(POPULATION_AGENTS)}. --resume of any of them continues them all",
+        "both; for every agent (batched where it can be: CartPole on the fast simulator). --resume of "
+        "any of them continues them all",
     )
     parser.set_defaults(run=run)
 
@@ -146,7 +147,7 @@ def configure_process(torch_threads: int, seed: int) -> None:
 def run(args: argparse.Namespace) -> int:
     from cartpole.cli.errors import UsageError
     from cartpole.training import parse_budget, resume, train
-    from cartpole.training.population import is_population_run
+    from cartpole.training.session import is_population_run
 
     if args.torch_threads is not None and args.torch_threads < 0:
         raise UsageError(f"--torch-threads must be >= 0, got {args.torch_threads}")
@@ -245,13 +246,8 @@ def run_population(args: argparse.Namespace) -> int:
     """``cartpole train AGENT --seeds 0-99`` (or ``--resume`` of a population's run)."""
     from cartpole.cli.errors import UsageError
     from cartpole.training import parse_budget
-    from cartpole.training.population import (
-        check_population_agent,
-        parse_seeds,
-        population_summary,
-        resume_population,
-        train_population,
-    )
+    from cartpole.training.engine import population_summary
+    from cartpole.training.session import parse_seeds, resume_population, train_population
 
     console = Console(soft_wrap=True)
     if args.resume:
@@ -264,7 +260,6 @@ def run_population(args: argparse.Namespace) -> int:
             return 0
     else:
         agent = args.agent or DEFAULT_AGENT
-        check_population_agent(agent)
         seeds = parse_seeds(args.seeds)
         try:
             budget = None if args.budget is None else parse_budget(args.budget)

@@ -9,8 +9,9 @@ Layout of ``D/experiments/NAME/``::
     report.json, report.md, curves.png, solve_steps.png
 
 Re-running the same command resumes: finished runs are kept, interrupted ones resume from their
-``latest.pt``, and new seeds are added when ``--seeds`` grows. An entry whose agent trains populations
-(``POPULATION_AGENTS``) runs its pending seeds as one job: one process, ordinary run folders, a record each.
+``latest.pt``, and new seeds are added when ``--seeds`` grows. An entry whose agent batches its seeds
+(:meth:`~cartpole.agents.registry.AgentSpec.batches`) runs its pending seeds as one job: one process,
+ordinary run folders, a record each.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from cartpole.agents.registry import POPULATION_AGENTS
+from cartpole.agents.registry import get_agent
 from cartpole.experiments.entries import Entry, ExperimentError
 from cartpole.experiments.processes import Job, python_module, run_jobs
 from cartpole.experiments.worker import FINISHED, Task, read_record
@@ -136,11 +137,14 @@ class Experiment:
         return [self.job(entry, seeds) for entry, seeds in grouped.items()] + jobs
 
     def trains_populations(self, entry: Entry) -> bool:
-        """Whether ``entry``'s seeds train as one population: its agent has a population mode, which
-        runs CartPole (on the fast simulator); other envs train their seeds one run at a time."""
+        """Whether ``entry``'s seeds train as one population: where its agent batches them (CartPole
+        on the fast simulator); elsewhere a seed per process, so that they run in parallel."""
         from cartpole.envs import env_info
+        from cartpole.training.config import resolve_config
 
-        return entry.agent in POPULATION_AGENTS and env_info(self.env_id).is_cartpole
+        spec = get_agent(entry.agent)
+        config, _ = resolve_config(entry.agent, spec.config_cls, entry.preset)
+        return spec.batches(config, env_info(self.env_id))
 
     def job(self, entry: Entry, seeds: list[int]) -> Job:
         """Train ``seeds`` of ``entry``: one seed, or several as one population."""

@@ -1,5 +1,5 @@
 """One job of an experiment, in its own process: train (or resume) one seed of one entry, or every
-pending seed of an entry whose agent trains populations (:data:`POPULATION_AGENTS`) in one process.
+pending seed of an entry whose agent batches its seeds, as one population in one process.
 
 ``python -m cartpole.experiments.worker TASK.json`` trains the seeds the task names and writes what it
 measured to each seed's ``record`` file (atomically). A record whose run is ``finished`` means the work is
@@ -19,8 +19,8 @@ from typing import Any
 from cartpole.evaluation import EvalReport
 from cartpole.runs.atomic import write_json_atomic
 from cartpole.training import Callback, TrainingLoop, TrainOutcome
+from cartpole.training.engine import PopulationOutcome
 from cartpole.training.loop import LoopState
-from cartpole.training.population import PopulationOutcome
 
 FINISHED = "finished"
 INTERRUPTED = "interrupted"
@@ -166,7 +166,7 @@ def run_fields(state: LoopState, report: EvalReport | None, clock: SolveClock) -
 def run_population_task(task: Task, records: dict[int, str]) -> dict[str, Any]:
     """Resume the interrupted members, then train the new seeds, each as one population; write every
     seed's record. A seed's CPU seconds are its population's CPU time divided by its seed count."""
-    from cartpole.training.population import resume_population, train_population
+    from cartpole.training.session import resume_population, train_population
 
     paths = {seed: Path(record) for seed, record in records.items()}
     found = {seed: read_record(path) for seed, path in paths.items()}

@@ -1,133 +1,82 @@
-"""Train a population of seeds in one process: ``cartpole train ppo --seeds 0-99``.
+"""The engine: every run trains as a population, a single run being a population of one.
 
 Each seed is an ordinary run: its own run folder (config, status, metrics, checkpoints, verdict),
-written by the same callbacks a single run uses (:func:`cartpole.training.session.make_callbacks`),
-so ``cartpole runs``, ``eval`` and ``plot`` read it unchanged. Only the learning is shared: one
-:class:`~cartpole.agents.population.Population` steps every seed's envs and updates every seed's
-network (or scores every seed's generation) per ``learn()``, and the periodic evaluations of all the
-seeds due at a step play together (:class:`PopulationEvaluations`). A seed that stops (verified
-solve with stop-when-solved, or its budget) leaves the batch at once; the population ends when
-every seed has stopped. The final verdicts (100 greedy episodes per seed on Gymnasium's own env,
-seeds from :func:`final_eval_seed`) run as one batched evaluation on one Gymnasium vector env.
-
-The config records ``population`` (an id and the seeds): ``--resume`` of any member continues every
-unfinished member of its population.
+written by the standard callbacks (:func:`cartpole.training.setup.make_callbacks`), so ``cartpole
+runs``, ``eval``, ``plot`` and ``serve`` read it whatever the population. Only the learning is
+shared: one :class:`~cartpole.agents.population.Population` steps every seed per ``learn()``, and the
+periodic evaluations of all the seeds due at a step play together (:class:`PopulationEvaluations`).
+A seed that stops (verified solve with stop-when-solved, or its budget) leaves the batch at once;
+training ends when every seed has stopped. The final verdicts (100 greedy episodes per seed on
+Gymnasium's own env, seeds from :func:`final_eval_seed`) run as one batched evaluation.
 """
 
 from __future__ import annotations
 
-import re
 import signal
 import sys
 import time
-import uuid
-from collections import Counter
-from collections.abc import Callable
-from contextlib import ExitStack, suppress
-from dataclasses import dataclass
-from pathlib import Path
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import ExitStack, contextmanager, suppress
+from dataclasses import dataclass, field
 from typing import Any, TextIO
 
 import numpy as np
 
-from cartpole.agents.actor_critic import stacked_greedy_actor
 from cartpole.agents.learner import LearnResult
-from cartpole.agents.population import Population, bytes_per_seed, make_population
-from cartpole.agents.registry import POPULATION_AGENTS, get_agent
-from cartpole.core.errors import InputError
-from cartpole.core.memory import SHARE, fits_in_memory
+from cartpole.agents.population import Population, policies_actor
 from cartpole.core.names import CheckpointName, RunState, StopReason
-from cartpole.core.seeding import MAX_TRAIN_SEED, eval_seed, final_eval_seed
-from cartpole.envs import EnvInfo, Simulator, check_simulator, env_info
+from cartpole.core.seeding import eval_seed, final_eval_seed
+from cartpole.envs import EnvInfo, Simulator, check_simulator
 from cartpole.evaluation import MIN_EPISODES_FOR_SOLVED, EvalReport, Policy, play_greedy_blocks
-from cartpole.runs import LiveStatus, RunDir, displayed_state, load_checkpoint
-from cartpole.training.budget import Budget, parse_budget
-from cartpole.training.callbacks import require_tensorboard, status_fields
-from cartpole.training.config import TrainSettings, resolve_config
-from cartpole.training.loop import LoopState, TrainingLoop, failure_detail
-from cartpole.training.session import (
-    RESUMABLE_STOPS,
-    STOP_SIGNALS,
-    AlreadyFinished,
-    RunSetup,
-    check_latest_exists,
-    load_latest,
-    make_callbacks,
-    resolve_device,
-    run_record,
-    went_past_best,
-)
-
-MAX_SEEDS = 4096
-"""More seeds than this in one process: split them (each seed holds a run folder and a status thread)."""
+from cartpole.runs import LiveStatus, RunDir, load_checkpoint
+from cartpole.training.budget import Budget
+from cartpole.training.callbacks import MetricsCallback, status_fields
+from cartpole.training.config import TrainSettings
+from cartpole.training.loop import Callback, LoopState, TrainingLoop, failure_detail
+from cartpole.training.setup import RunSetup, make_callbacks
 
 FLUSH_SECONDS = 5.0
 """How often each seed of a population writes its metric rows and status (a single run: every
 second). A hundred seeds writing every second spend more on files than on bookkeeping; the status
 thread's heartbeat still shows each run alive, and ``latest`` still writes the rows first."""
 
-# ----------------------------------------------------------------------------------------------
-# --seeds
-# ----------------------------------------------------------------------------------------------
-
-_RANGE = re.compile(r"^(\d+)-(\d+)$")
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
-def parse_seeds(text: str) -> list[int]:
-    """``0-99`` (inclusive range) or ``3,5,8`` or a mix (``0-9,20``); InputError on anything else:
-    empty, malformed, reversed ranges, duplicates, seeds out of range."""
-    hint = "use a range (0-99), a list (3,5,8) or both (0-9,20)"
-    if not text.strip():
-        raise InputError(f"--seeds is empty; {hint}")
-    seeds: list[int] = []
-    for part in text.split(","):
-        part = part.strip()
-        match = _RANGE.match(part)
-        if match:
-            low, high = int(match.group(1)), int(match.group(2))
-            if low > high:
-                raise InputError(f"--seeds range {part!r} is reversed; write {high}-{low}")
-            if len(seeds) + high - low + 1 > MAX_SEEDS:
-                raise InputError(
-                    f"--seeds asks for more than {MAX_SEEDS} seeds; split them into several runs"
-                )
-            seeds += range(low, high + 1)
-        elif part.isdigit():
-            seeds.append(int(part))
-        else:
-            raise InputError(f"--seeds {text!r}: {part!r} is not a seed or a range; {hint}")
-        if len(seeds) > MAX_SEEDS:
-            raise InputError(f"--seeds asks for more than {MAX_SEEDS} seeds; split them into several runs")
-    duplicates = sorted(seed for seed, count in Counter(seeds).items() if count > 1)
-    if duplicates:
-        raise InputError(f"--seeds lists seed {duplicates[0]} more than once; each seed trains once")
-    too_big = [s for s in seeds if s > MAX_TRAIN_SEED]
-    if too_big:
-        raise InputError(f"seed {too_big[0]} is out of range; seeds are 0 to {MAX_TRAIN_SEED}")
-    return seeds
+@contextmanager
+def signal_handler(handler: Any) -> Iterator[None]:
+    previous = {s: signal.signal(s, handler) for s in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
 
 
-def check_memory(needed: int, seeds: int) -> None:
-    """InputError, before anything is allocated, when ``needed`` bytes will not fit."""
-    fits, free = fits_in_memory(needed)
-    if not fits and free is not None:
-        raise InputError(
-            f"{seeds} seeds would take about {needed / 2**30:.1f} GiB but {free / 2**30:.1f} GiB is "
-            f"available; use fewer seeds (about {int(seeds * SHARE * free / needed)} fit)"
-        )
+class Interrupted(Exception):
+    """A stop signal arrived while the final verdicts were being judged."""
+
+    def __init__(self, signum: int):
+        super().__init__(f"interrupted ({signal.Signals(signum).name})")
+        self.signum = signum
 
 
-def check_population_agent(agent: str) -> None:
-    if agent not in POPULATION_AGENTS:
-        raise InputError(
-            f"--seeds trains a population in one process, which only {', '.join(POPULATION_AGENTS)} offers; "
-            f"train {agent} one seed at a time with --seed N"
-        )
+@contextmanager
+def interrupt_on_signals() -> Iterator[None]:
+    """While judging the verdicts, SIGINT/SIGTERM abandon them at once (raise :class:`Interrupted`)."""
+
+    def handler(signum: int, frame: Any) -> None:
+        raise Interrupted(signum)
+
+    with signal_handler(handler):
+        yield
 
 
-# ----------------------------------------------------------------------------------------------
-# One seed, as the shared callbacks see it
-# ----------------------------------------------------------------------------------------------
+def went_past_best(run: RunDir, state: LoopState) -> bool:
+    """Whether training went on after the kept best checkpoint (it did not stop at a solve)."""
+    if state.stop_reason is StopReason.SOLVED:
+        return False
+    return load_checkpoint(run.checkpoint_path(CheckpointName.BEST)).meta.get("step") != state.env_steps
 
 
 class SeedLearner:
@@ -271,195 +220,72 @@ class PopulationOutcome:
     """Final verdicts (empty when interrupted)."""
     seconds: float
     signal: int | None = None
+    last_reports: dict[int, EvalReport] = field(default_factory=dict)
+    """The last policies on their verdicts' episodes, for seeds that trained on past their best."""
 
 
-# ----------------------------------------------------------------------------------------------
-# Train and resume
-# ----------------------------------------------------------------------------------------------
-
-
-def train_population(
-    agent: str,
-    seeds: list[int],
-    env_id: str = "CartPole-v1",
-    *,
-    preset: str = "default",
-    overrides: dict[str, Any] | None = None,
-    budget: Budget | str | None = None,
-    runs_dir: Path | str = "runs",
-    device: str = "auto",
-    stop_when_solved: bool | None = None,
-    quiet: bool = True,
-    command: list[str] | None = None,
-    stream: TextIO | None = None,
-    tensorboard: bool = False,
-) -> PopulationOutcome:
-    """Train ``agent`` with every seed of ``seeds`` in one process; a run folder per seed.
-
-    With ``tensorboard`` each seed's metrics also go to ``<run>/tensorboard/`` (the tensorboard extra).
-    """
-    check_population_agent(agent)
-    if tensorboard:
-        require_tensorboard()  # before a run folder is made
-    if not seeds:
-        raise InputError("no seeds to train")
-    if len(set(seeds)) != len(seeds):
-        raise InputError("each seed may appear once in a population")
-    spec = get_agent(agent)
-    env = env_info(env_id)
-    config, settings = resolve_config(agent, spec.config_cls, preset, overrides)
-    if stop_when_solved is not None:
-        settings.stop_when_solved = stop_when_solved
-    if isinstance(budget, str):
-        budget = parse_budget(budget)
-    budget = budget or parse_budget(settings.budget)
-    device = population_device(device)
-    check_memory(bytes_per_seed(config, env) * len(seeds), len(seeds))
-    population = make_population(agent, config, env, seeds, device)
-    population_record = {"id": uuid.uuid4().hex[:12], "seeds": list(seeds)}
-    runs_path = Path(runs_dir)
-    with ExitStack() as stack:
-        setups = []
-        for seed in seeds:
-            run = RunDir.create(runs_path, env_id, agent, seed)
-            stack.enter_context(run.lock())
-            record = run_record(
-                agent, env_id, seed, preset, config, settings, overrides, budget, device, command
-            ) | {"population": population_record, "tensorboard": tensorboard}
-            run.write_config(record)
-            setups.append(RunSetup.from_record(run, record))
-        return run_population(population, setups, {}, quiet, stream)
-
-
-def population_device(device: str) -> str:
-    """``cpu`` for ``auto``: a population runs on a GPU only when asked (``--device cuda``). Its envs
-    step on the CPU whatever the device, so ``auto`` does not assume that a GPU pays;
-    ``benchmarks/population.py --device cuda`` measures whether it does."""
-    return "cpu" if device == "auto" else resolve_device(device)
-
-
-def population_members(run_path: Path | str) -> list[RunDir]:
-    """The run folders of the population that ``run_path`` belongs to (beside it, same id)."""
-    run = RunDir.open(Path(run_path))
-    record = run.config()
-    population = record.get("population")
-    if not population:
-        return [run]
-    members = []
-    for path in sorted(run.path.parent.iterdir()):
-        try:
-            other = RunDir.open(path).config()
-        except InputError:
-            continue
-        if (other.get("population") or {}).get("id") == population["id"]:
-            members.append(RunDir(path))
-    return members
-
-
-def is_population_run(run_path: Path | str) -> bool:
-    return bool(RunDir.open(Path(run_path)).config().get("population"))
-
-
-def resume_population(
-    run_path: Path | str,
-    *,
-    quiet: bool = True,
-    stream: TextIO | None = None,
-    device: str = "auto",
-    from_scratch: bool = False,
-) -> PopulationOutcome:
-    """Continue every unfinished member of ``run_path``'s population from its ``latest.pt``, on
-    ``device`` (the population's rule: ``auto`` is the CPU). LostProgress, before anything changes,
-    if a member that has trained lost its ``latest.pt``, unless ``from_scratch``."""
-    device = population_device(device)
-    runs = [
-        run for run in population_members(run_path) if displayed_state(run.status()) is not RunState.FINISHED
-    ]
-    if not runs:
-        name = Path(run_path).name
-        raise AlreadyFinished(f"every run of {name}'s population has finished; nothing to resume")
-    with ExitStack() as stack:
-        for run in runs:
-            stack.enter_context(run.lock())
-        setups = [RunSetup.from_record(run, run.config()) for run in runs]
-        for run in runs:
-            check_latest_exists(run, run.status(), from_scratch)
-        first = setups[0]
-        population = make_population(
-            first.spec.name, first.config, first.env, [s.seed for s in setups], device
-        )
-        states: dict[int, LoopState] = {}
-        for setup in setups:
-            latest = setup.run.checkpoint_path(CheckpointName.LATEST)
-            if not latest.exists():
-                setup.run.truncate_metrics_after(0)
-                continue  # killed before its first latest: starts over, the same run
-            checkpoint = load_latest(latest)
-            population.load_seed_state_dict(setup.seed, checkpoint.tensors, checkpoint.meta["learner"])
-            state = LoopState.from_dict(checkpoint.meta["loop"])
-            if state.stop_reason in RESUMABLE_STOPS:
-                state.clear_stop()
-            states[setup.seed] = state
-            setup.run.truncate_metrics_after(state.env_steps)
-        if not quiet:
-            steps = [states[s.seed].env_steps if s.seed in states else 0 for s in setups]
-            where = f"{min(steps):,}" if min(steps) == max(steps) else f"{min(steps):,} to {max(steps):,}"
-            print(
-                f"resuming {len(setups)} seed(s) of the population from env step {where} "
-                "(each seed's checkpoints/latest.pt)",
-                file=stream or sys.stderr,
-            )
-        return run_population(population, setups, states, quiet, stream)
-
-
-def run_population(
+def run_members(
     population: Population,
     setups: list[RunSetup],
     states: dict[int, LoopState],
     quiet: bool,
     stream: TextIO | None,
+    extra: Sequence[Callback] = (),
 ) -> PopulationOutcome:
-    """Train every member until each has stopped, then give all the verdicts in one batch."""
+    """Train every member until each has stopped, then give all the verdicts in one batch.
+
+    ``status.json`` of each says "running" (with a heartbeat) until its ``latest.pt`` and verdict are
+    on disk; only then "finished". A kill, a signal or an error before that leaves runs that
+    ``--resume`` accepts: they train on, or, when training was complete, only give the verdict.
+    One member (a single run) shows the run's own progress bar and writes its files every second;
+    a population shows one progress line for all and writes every few seconds.
+    """
     started = time.perf_counter()
     received: list[int] = []
     members: list[Member] = []
+    single = len(setups) == 1
     evaluations = PopulationEvaluations(population, setups[0].env, setups[0].settings)
     with ExitStack() as stack:
         for setup in setups:
             status = stack.enter_context(LiveStatus(setup.run))
             callbacks = make_callbacks(
-                setup, status, True, evaluator=evaluations.evaluator(setup.seed), flush_seconds=FLUSH_SECONDS
+                setup,
+                status,
+                quiet or not single,
+                extra,
+                evaluator=evaluations.evaluator(setup.seed),
+                flush_seconds=MetricsCallback.FLUSH_SECONDS if single else FLUSH_SECONDS,
             )
             loop = SeedLoop(SeedLearner(population, setup.seed), callbacks, states.get(setup.seed))
             members.append(Member(setup, status, loop))
         progress = PopulationProgress(
-            len(members), setups[0].budget, None if quiet else (stream or sys.stderr)
+            len(members), setups[0].budget, None if quiet or single else (stream or sys.stderr)
         )
-        previous = {s: signal.signal(s, lambda signum, frame: received.append(signum)) for s in STOP_SIGNALS}
         active: dict[int, Member] = {}
         try:
-            for member in members:
-                member.loop.start(started)
-                active[member.seed] = member
-            end_stopped(population, active, time.perf_counter())
-            while active and not received:
-                results = population.learn()
-                evaluations.prepare(active, results)
-                now = time.perf_counter()
-                for seed, result in results.items():
-                    active[seed].loop.advance(result, now)
-                evaluations.clear()
-                end_stopped(population, active, now)
-                progress.update(members, now - started)
+            with signal_handler(lambda signum, frame: received.append(signum)):
+                for member in members:
+                    member.loop.start(started)
+                    active[member.seed] = member
+                end_stopped(population, active, time.perf_counter())
+                while active and not received:
+                    results = population.learn()
+                    evaluations.prepare(active, results)
+                    now = time.perf_counter()
+                    for seed, result in results.items():
+                        active[seed].loop.advance(result, now)
+                    evaluations.clear()
+                    end_stopped(population, active, now)
+                    progress.update(members, now - started)
             if received:
                 return interrupt(population, members, active, received[0], started)
+            with interrupt_on_signals():
+                reports, lasts = final_verdicts(members)
+        except Interrupted as stop:
+            return interrupt_verdicts(members, stop, started)
         except BaseException as error:
             fail_every_member(members, active, error)
             raise
-        finally:
-            for s, handler in previous.items():
-                signal.signal(s, handler)
-        reports = final_verdicts(members)
         for member in members:
             report = reports[member.seed]
             member.status.write(
@@ -471,6 +297,7 @@ def run_population(
             states={m.seed: m.loop.state for m in members},
             reports=reports,
             seconds=time.perf_counter() - started,
+            last_reports=lasts,
         )
 
 
@@ -524,28 +351,43 @@ def interrupt(
     )
 
 
+def interrupt_verdicts(members: list[Member], stop: Interrupted, started: float) -> PopulationOutcome:
+    """A stop signal while judging: training is complete and saved; the verdicts are left to a resume."""
+    for member in members:
+        state = member.loop.state
+        state.stop_detail = f"{state.stop_detail}; verdict {stop}"
+        member.status.write(RunState.INTERRUPTED, status_fields(state))
+    return PopulationOutcome(
+        runs={m.seed: m.setup.run for m in members},
+        states={m.seed: m.loop.state for m in members},
+        reports={},
+        seconds=time.perf_counter() - started,
+        signal=stop.signum,
+    )
+
+
 # ----------------------------------------------------------------------------------------------
 # The final verdicts, batched
 # ----------------------------------------------------------------------------------------------
 
 
-def final_verdicts(members: list[Member]) -> dict[int, EvalReport]:
+def final_verdicts(members: list[Member]) -> tuple[dict[int, EvalReport], dict[int, EvalReport]]:
     """Each member's kept best checkpoint on ``max(eval_episodes, 100)`` greedy episodes from seeds
-    ``final_eval_seed(seed) + i``: the verdict :func:`cartpole.training.session.final_verdict` gives
-    a single run, for all members in one vector env. Written to each ``eval.json``; and for members
+    ``final_eval_seed(seed) + i`` (seeds no training or evaluation used, derived from the run's seed,
+    so the same run gives the same verdict; ``cartpole eval`` judges it again on any other seeds),
+    all members in one vector env. Written to each ``eval.json``; and for members
     that trained on past their best (no stop at a solve), the last policy (``latest.pt``) on the same
-    episodes, written to ``last_eval.json`` as :func:`~cartpole.training.session.last_policy_score`
-    does for a single run."""
+    episodes, written to ``last_eval.json`` (not a verdict: shown when it disagrees). Returns both,
+    by seed."""
     reports = play_final_episodes(members, CheckpointName.BEST)
     for member in members:
         member.setup.run.write_eval(reports[member.seed].to_dict())
     went_on = [m for m in members if went_past_best(m.setup.run, m.loop.state)]
-    if went_on:
-        lasts = play_final_episodes(went_on, CheckpointName.LATEST)
-        for member in went_on:
-            step = {"step": member.loop.state.env_steps}
-            member.setup.run.write_last_eval(lasts[member.seed].to_dict() | step)
-    return reports
+    lasts = play_final_episodes(went_on, CheckpointName.LATEST) if went_on else {}
+    for member in went_on:
+        step = {"step": member.loop.state.env_steps}
+        member.setup.run.write_last_eval(lasts[member.seed].to_dict() | step)
+    return reports, lasts
 
 
 def play_final_episodes(members: list[Member], checkpoint: CheckpointName) -> dict[int, EvalReport]:
@@ -558,12 +400,7 @@ def play_final_episodes(members: list[Member], checkpoint: CheckpointName) -> di
         for m in members
     ]
     episode_seeds = [[final_eval_seed(m.seed) + i for i in range(episodes)] for m in members]
-
-    def act_one_by_one(observations: np.ndarray, blocks: np.ndarray) -> np.ndarray:
-        rows = np.split(observations, len(blocks))  # policy b acts on block b's rows
-        return np.concatenate([policies[b].act(mine) for b, mine in zip(blocks, rows, strict=True)])
-
-    act = stacked_greedy_actor(list(policies), first.env.obs_dim) or act_one_by_one
+    act = policies_actor(policies, first.env.obs_dim)
 
     flat_seeds = [s for row in episode_seeds for s in row]
     returns, lengths = (
@@ -658,12 +495,11 @@ def population_summary(outcome: PopulationOutcome) -> list[str]:
 
 
 __all__ = [
-    "MAX_SEEDS",
+    "STOP_SIGNALS",
+    "Interrupted",
+    "PopulationEvaluations",
     "PopulationOutcome",
-    "check_population_agent",
-    "is_population_run",
-    "parse_seeds",
     "population_summary",
-    "resume_population",
-    "train_population",
+    "run_members",
+    "went_past_best",
 ]

@@ -1,0 +1,986 @@
+"""PPO, A2C and REINFORCE for a population of seeds in one process: S independent training runs, batched.
+
+Every seed is the single-run PPO of :mod:`cartpole.agents.ppo` with the same config: its own network
+(initialized as the single run initializes it), its own 8 (``num_envs``) CartPole envs seeded as the
+single run seeds them, its own action sampling, minibatch shuffling and Adam state. What is shared is
+only the arithmetic:
+
+- ``StackedActorCritic``: the parameters of all S actor-critics in one flat ``[S, P]`` tensor; each
+  layer is a view ``[S, out, in]`` of it and runs as one ``torch.baddbmm`` over the seed axis
+  (:func:`~cartpole.agents.stacked_linear.stacked_linear`, whose backward picks the fast
+  orientation of each product). Batched matmuls, not ``torch.func.vmap`` over ``functional_call``:
+  on the CPU, vmap's per-call batching rules cost more than these small layers' arithmetic, while
+  ``baddbmm`` is one kernel per layer; and it gives every seed the same bits
+  whatever the batch holds (tested), so a seed's run does not depend on which seeds share the process.
+- ``PopulationEnvs``: S x N CartPoles stepped by one call of the fast simulator's kernel
+  (:func:`~cartpole.envs.fast.step_cartpole`), with Gymnasium's next-step autoreset, and the start
+  states of each seed's envs drawn from that seed's own generator in Gymnasium's order (so they are
+  the start states of the single run's vector env).
+- ``PopulationAdam`` (:mod:`cartpole.agents.population_optimizers`): one Adam step for all seeds
+  over the flat parameters, one numba pass per seed's row on the CPU. Adam is per element,
+  so seeds stay independent; each seed has its own learning rate (schedules follow the seed's own
+  env steps), step count, and can sit a step out (its last minibatch is empty, or it stopped on the
+  target KL).
+- ``PopulationPPO``: one ``learn()`` = one rollout and one PPO update for every active seed, with
+  masked minibatches (seeds have different numbers of valid rows). ``remove`` drops seeds that have
+  stopped (solved or out of budget), so they cost nothing more; ``seed_state_dict`` and
+  ``seed_policy`` give one seed's checkpoint and greedy policy in the single run's format, so
+  ``load_policy``, ``cartpole eval`` and the web app read them unchanged.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from gymnasium.utils.seeding import np_random
+from torch import nn
+
+from cartpole.agents.a2c import A2CConfig
+from cartpole.agents.actor_critic import ActorCritic, CategoricalPolicy, block_greedy_actor, schedule_value
+from cartpole.agents.env_state import derived_seed
+from cartpole.agents.fast_tanh import tanh
+from cartpole.agents.learner import LearnResult
+from cartpole.agents.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step
+from cartpole.agents.policy_gradient import seeded_actor_critic
+from cartpole.agents.population_optimizers import PopulationAdam, PopulationOptimizer, PopulationRMSprop
+from cartpole.agents.ppo import PPOConfig
+from cartpole.agents.reinforce import LONGEST_EPISODE_WITHOUT_TIME_LIMIT, ReinforceConfig
+from cartpole.agents.rollout import generalized_advantages
+from cartpole.agents.stacked_linear import stacked_linear
+from cartpole.core.errors import ConfigError
+from cartpole.envs import EnvInfo
+from cartpole.envs.fast import DEFAULT_RESET_HIGH, DEFAULT_RESET_LOW, step_cartpole
+from cartpole.evaluation import BlockActor
+
+TORCH_ACTIVATIONS: dict[type[nn.Module], Callable[[torch.Tensor], torch.Tensor]] = {
+    nn.Tanh: tanh,
+    nn.ReLU: torch.relu,
+    nn.ELU: nn.functional.elu,
+}
+
+Layer = tuple[str, str] | type[nn.Module]
+"""A step of a forward pass: (weight name, bias name) of a linear layer, or an activation's type."""
+
+
+def forward_plan(model: ActorCritic, trunk_name: str, head_name: str) -> list[Layer]:
+    """The steps from observation to one head's output, by parameter name."""
+    plan: list[Layer] = []
+    for index, layer in enumerate(getattr(model, trunk_name)):
+        if isinstance(layer, nn.Linear):
+            plan.append((f"{trunk_name}.{index}.weight", f"{trunk_name}.{index}.bias"))
+        else:
+            plan.append(type(layer))
+    return [*plan, (f"{head_name}.weight", f"{head_name}.bias")]
+
+
+class StackedActorCritic:
+    """The actor-critics of S seeds: all parameters in one ``[S, P]`` tensor (``flat``), each
+    parameter a ``[S, *shape]`` view of it, each linear layer one ``torch.baddbmm`` for all seeds.
+
+    The gradients likewise live in one ``[S, P]`` tensor (``grad``; autograd accumulates into the
+    views in place), so clipping and Adam are a handful of operations for the whole population.
+    """
+
+    def __init__(self, models: list[ActorCritic], device: torch.device):
+        template = models[0]
+        self.template = template
+        self.names = [name for name, _ in template.named_parameters()]
+        self.shapes = {name: tuple(p.shape) for name, p in template.named_parameters()}
+        self.offsets: dict[str, tuple[int, int]] = {}
+        offset = 0
+        for name, shape in self.shapes.items():
+            self.offsets[name] = (offset, offset + math.prod(shape))
+            offset += math.prod(shape)
+        self.size = offset
+        with torch.no_grad():
+            self.flat = torch.stack([torch.cat([p.reshape(-1) for p in m.parameters()]) for m in models])
+            self.flat = self.flat.to(device)
+        self.bind()
+        critic_trunk = "actor_trunk" if template.shared_trunk else "critic_trunk"
+        self.actor_plan = forward_plan(template, "actor_trunk", "policy_head")
+        self.critic_plan = forward_plan(template, critic_trunk, "value_head")
+
+    def bind(self) -> None:
+        """Make the per-parameter leaves (views of ``flat``) and their gradients (views of ``grad``)."""
+        self.grad = torch.zeros_like(self.flat)
+        self.params: dict[str, torch.Tensor] = {}
+        for name, (start, end) in self.offsets.items():
+            leaf = self.flat[:, start:end].view(-1, *self.shapes[name]).requires_grad_(True)
+            leaf.grad = self.grad[:, start:end].view(-1, *self.shapes[name])
+            self.params[name] = leaf
+
+    @staticmethod
+    def run(plan: list[Layer], params: dict[str, torch.Tensor], x: torch.Tensor) -> torch.Tensor:
+        """``x`` [S, B, in] through ``plan``: one baddbmm per linear layer for all seeds."""
+        for step in plan:
+            if isinstance(step, tuple):
+                weight, bias = params[step[0]], params[step[1]]
+                x = stacked_linear(x, weight, bias)
+            else:
+                x = TORCH_ACTIVATIONS[step](x)
+        return x
+
+    def logits(self, observations: torch.Tensor) -> torch.Tensor:
+        """Action logits [S, B, n_actions] of observations [S, B, obs_dim]."""
+        return self.run(self.actor_plan, self.params, observations)
+
+    def values(self, observations: torch.Tensor) -> torch.Tensor:
+        """State values [S, B]."""
+        return self.run(self.critic_plan, self.params, observations).squeeze(-1)
+
+    def logits_and_values(self, observations: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.logits(observations), self.values(observations)
+
+    def unstack(self, index: int) -> ActorCritic:
+        """Seed ``index``'s network as an ordinary :class:`ActorCritic` (the template, overwritten)."""
+        with torch.no_grad():
+            for name, p in self.template.named_parameters():
+                start, end = self.offsets[name]
+                p.copy_(self.flat[index, start:end].view_as(p))
+        return self.template
+
+    def load_row(self, index: int, model: ActorCritic) -> None:
+        """Put ``model``'s parameters into seed ``index``'s row."""
+        with torch.no_grad():
+            self.flat[index] = torch.cat([p.reshape(-1) for p in model.parameters()]).to(self.flat.device)
+
+    def keep(self, rows: torch.Tensor) -> None:
+        """Keep only the seeds at ``rows``."""
+        self.flat = self.flat[rows.to(self.flat.device)]
+        self.bind()
+
+
+class PopulationEnvs:
+    """S x N CartPoles with Gymnasium's next-step autoreset, stepped together; seed s's envs draw
+    their start states from ``np_random(seed)`` as its single run's vector env does."""
+
+    def __init__(self, seeds: list[int], num_envs: int, max_episode_steps: int):
+        self.num_envs, self.max_episode_steps = num_envs, max_episode_steps
+        self.rngs = [np_random(seed)[0] for seed in seeds]
+        draws = [rng.uniform(DEFAULT_RESET_LOW, DEFAULT_RESET_HIGH, size=(4, num_envs)) for rng in self.rngs]
+        self.state = np.concatenate([d.T for d in draws]).astype(np.float32)  # [S * N, 4]
+        self.steps = np.zeros(len(self.state), dtype=np.int64)
+        self.pending = np.zeros(len(self.state), dtype=bool)
+        """Envs whose episode ended on the last step: the next step resets them."""
+
+    def observations(self) -> np.ndarray:
+        return self.state.copy()
+
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(observations, rewards, terminated, truncated), each for all S x N envs."""
+        self.state, terminated = step_cartpole(self.state, actions)
+        self.steps += 1
+        truncated = self.steps >= self.max_episode_steps
+        rewards = np.ones(len(self.state), dtype=np.float32)
+        resets = np.flatnonzero(self.pending)
+        if resets.size:
+            owners = resets // self.num_envs
+            for owner in np.unique(owners):
+                mine = resets[owners == owner]
+                draws = self.rngs[owner].uniform(DEFAULT_RESET_LOW, DEFAULT_RESET_HIGH, size=(4, len(mine)))
+                self.state[mine] = draws.T.astype(np.float32)
+            self.steps[resets] = 0
+            rewards[resets] = 0.0
+            terminated[resets] = False
+            truncated[resets] = False
+        self.pending = terminated | truncated
+        return self.state.copy(), rewards, terminated, truncated
+
+    def restart(self, row: int, seed: int) -> None:
+        """Fresh start states for seed ``row``'s envs from ``seed``, as a vector env's
+        ``reset(seed=seed)`` draws them; its generator continues from there."""
+        envs = slice(row * self.num_envs, (row + 1) * self.num_envs)
+        self.rngs[row] = np_random(seed)[0]
+        draws = self.rngs[row].uniform(DEFAULT_RESET_LOW, DEFAULT_RESET_HIGH, size=(4, self.num_envs))
+        self.state[envs] = draws.T.astype(np.float32)
+        self.steps[envs] = 0
+        self.pending[envs] = False
+
+    def keep(self, seed_rows: np.ndarray) -> None:
+        envs = (seed_rows[:, None] * self.num_envs + np.arange(self.num_envs)).reshape(-1)
+        self.rngs = [self.rngs[i] for i in seed_rows]
+        self.state, self.steps, self.pending = self.state[envs], self.steps[envs], self.pending[envs]
+
+    def seed_state(self, row: int) -> dict[str, Any]:
+        envs = slice(row * self.num_envs, (row + 1) * self.num_envs)
+        return {
+            "state": self.state[envs].tolist(),
+            "steps": self.steps[envs].tolist(),
+            "pending": self.pending[envs].tolist(),
+            "np_random": self.rngs[row].bit_generator.state,
+        }
+
+    def load_seed_state(self, row: int, data: dict[str, Any]) -> None:
+        envs = slice(row * self.num_envs, (row + 1) * self.num_envs)
+        self.state[envs] = np.asarray(data["state"], dtype=np.float32)
+        self.steps[envs] = data["steps"]
+        self.pending[envs] = data["pending"]
+        self.rngs[row].bit_generator.state = data["np_random"]
+
+
+def masked_mean(x: torch.Tensor, mask: torch.Tensor, count: torch.Tensor) -> torch.Tensor:
+    """Per-seed mean of ``x`` [S, B] over the rows where ``mask`` (float) is 1; [S]."""
+    return (x * mask).sum(dim=1) / count.clamp(min=1.0)
+
+
+def masked_normalize(x: torch.Tensor, mask: torch.Tensor, count: torch.Tensor) -> torch.Tensor:
+    """Per seed, ``(x - mean) / (std + 1e-8)`` over the masked rows (a single row is only centred),
+    as :func:`~cartpole.agents.rollout.normalize` does for one seed."""
+    mean = masked_mean(x, mask, count).unsqueeze(1)
+    centred = (x - mean) * mask
+    variance = centred.square().sum(dim=1) / (count - 1.0).clamp(min=1.0)
+    std = torch.where(count > 1.0, variance.sqrt() + 1e-8, torch.ones_like(variance))
+    return centred / std.unsqueeze(1)
+
+
+@dataclass
+class Transitions:
+    """What the envs of every active seed did, time-major ``[T, S * N]`` (observations ``T + 1``)."""
+
+    observations: torch.Tensor
+    actions: torch.Tensor
+    log_probs: torch.Tensor
+    rewards: torch.Tensor
+    terminated: torch.Tensor
+    truncated: torch.Tensor
+    valid: torch.Tensor
+
+    def columns(self, envs: torch.Tensor, steps: int) -> Transitions:
+        """The envs ``envs`` only, over ``steps`` steps (padded with invalid rows past the end)."""
+
+        def cut(x: torch.Tensor, rows: int) -> torch.Tensor:
+            x = x[: min(rows, x.shape[0]), envs]
+            if x.shape[0] < rows:
+                x = torch.cat([x, x.new_zeros(rows - x.shape[0], *x.shape[1:])])
+            return x
+
+        return Transitions(
+            observations=cut(self.observations, steps + 1),
+            actions=cut(self.actions, steps),
+            log_probs=cut(self.log_probs, steps),
+            rewards=cut(self.rewards, steps),
+            terminated=cut(self.terminated, steps),
+            truncated=cut(self.truncated, steps),
+            valid=cut(self.valid, steps),
+        )
+
+
+@dataclass
+class Rollout:
+    """One rollout of every active seed: rows ``[S, T * N]`` (time-major within a seed)."""
+
+    observations: torch.Tensor
+    actions: torch.Tensor
+    log_probs: torch.Tensor
+    values: torch.Tensor
+    advantages: torch.Tensor
+    returns: torch.Tensor
+    valid: torch.Tensor
+    counts: torch.Tensor
+    """Valid rows per seed [S]."""
+
+
+ROW_METRICS = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction")
+
+
+class PopulationActorCritic:
+    """What every actor-critic population shares: the seeds' stacked networks, their envs and
+    generators, the batched rollout with GAE, gradient clipping and the optimizer step, and each
+    seed's policy and checkpoint. Subclasses say what one ``learn()`` does with a rollout."""
+
+    config: PPOConfig | A2CConfig | ReinforceConfig
+
+    def __init__(
+        self,
+        config: PPOConfig | A2CConfig | ReinforceConfig,
+        env: EnvInfo,
+        seeds: list[int],
+        device: str,
+        make_optimizer: Callable[[int, int, torch.device], PopulationOptimizer],
+    ):
+        config.validate()
+        if not env.is_cartpole or config.simulator != "fast":
+            raise ConfigError("population training runs CartPole on the fast simulator only")
+        self.config, self.env_info = config, env
+        self.device = torch.device(device)
+        """Where the networks, rollouts and updates live. The envs step on the CPU (numpy) and the
+        seeds' random numbers come from their CPU generators, so a seed's draws are the same on any
+        device; only the floats of the network arithmetic differ between devices."""
+        # At least two rows: torch reduces a one-row batch in another order than a many-row one, so a
+        # lone seed would not get the bits it gets beside others. A lone seed gets a ghost twin whose
+        # results are dropped.
+        self.seeds = list(seeds) if len(seeds) != 1 else [seeds[0], seeds[0]]
+        self.ghosts = [False] * len(seeds) if len(seeds) != 1 else [False, True]
+        with torch.device("cpu"):  # initialized as the single run initializes them, then moved
+            models = [seeded_actor_critic(config, env, seed) for seed in self.seeds]
+        self.model = StackedActorCritic(models, self.device)
+        self.optimizer = make_optimizer(len(self.seeds), self.model.size, self.device)
+        self.generators = [torch.Generator().manual_seed(derived_seed(s, "actions")) for s in self.seeds]
+        steps = env.max_episode_steps or 500
+        self.envs = PopulationEnvs(self.seeds, config.num_envs, steps)
+        n = len(self.seeds) * config.num_envs
+        self.observations = self.envs.observations()
+        self.autoreset = np.zeros(n, dtype=bool)
+        self.episode_returns = np.zeros(n, dtype=np.float64)
+        self.episode_lengths = np.zeros(n, dtype=np.int64)
+        self.env_steps = np.zeros(len(self.seeds), dtype=np.int64)
+        self.updates = np.zeros(len(self.seeds), dtype=np.int64)
+
+    # -- which seeds --------------------------------------------------------------------------------
+
+    def row(self, seed: int) -> int:
+        return next(i for i, s in enumerate(self.seeds) if s == seed and not self.ghosts[i])
+
+    @property
+    def active_seeds(self) -> list[int]:
+        return [s for s, ghost in zip(self.seeds, self.ghosts, strict=True) if not ghost]
+
+    def remove(self, seeds: list[int]) -> None:
+        """Stop training ``seeds`` (solved or out of budget): they leave every batch (one stays as a
+        ghost when a single seed would be left, see ``__init__``)."""
+        gone = set(seeds)
+        keep_rows = [i for i, s in enumerate(self.seeds) if s not in gone and not self.ghosts[i]]
+        ghosts = [False] * len(keep_rows)
+        if len(keep_rows) == 1:
+            keep_rows.append(next(i for i in range(len(self.seeds)) if i != keep_rows[0]))
+            ghosts.append(True)
+        self.ghosts = ghosts
+        rows = torch.tensor(keep_rows, dtype=torch.int64, device=self.device)
+        rows_np = np.asarray(keep_rows, dtype=np.int64)
+        envs = (rows_np[:, None] * self.config.num_envs + np.arange(self.config.num_envs)).reshape(-1)
+        self.model.keep(rows)
+        self.optimizer.keep(rows)
+        self.envs.keep(rows_np)
+        self.generators = [self.generators[i] for i in keep_rows]
+        self.seeds = [self.seeds[i] for i in keep_rows]
+        self.observations = self.observations[envs]
+        self.autoreset = self.autoreset[envs]
+        self.episode_returns = self.episode_returns[envs]
+        self.episode_lengths = self.episode_lengths[envs]
+        self.env_steps, self.updates = self.env_steps[rows_np], self.updates[rows_np]
+
+    # -- one learning step: the shared parts --------------------------------------------------------
+
+    def learn(self) -> dict[int, LearnResult]:
+        """A rollout and an update for every active seed; each seed's result by seed."""
+        raise NotImplementedError
+
+    def learning_rates(self) -> list[float]:
+        """Each seed's learning rate now (schedules follow the seed's own env steps)."""
+        config = self.config
+        return [
+            schedule_value(config.lr, config.lr_schedule, int(s), config.schedule_steps)
+            for s in self.env_steps
+        ]
+
+    def count_steps(
+        self, counts: list[int], finished: list[tuple[list[float], list[int]]]
+    ) -> dict[int, LearnResult]:
+        """Add each seed's new transitions (``counts``) to its env steps; its result (steps and
+        finished episodes)."""
+        results = {}
+        for row, seed in enumerate(self.seeds):
+            returns, lengths = finished[row]
+            self.env_steps[row] += counts[row]
+            if not self.ghosts[row]:
+                results[seed] = LearnResult(
+                    env_steps=counts[row], episode_returns=returns, episode_lengths=lengths
+                )
+        return results
+
+    def attach_metrics(
+        self, results: dict[int, LearnResult], counts: torch.Tensor, metrics: list[dict[str, float]]
+    ) -> None:
+        """Give each seed that updated (``counts`` [S] of new transitions) its metrics row."""
+        for row, seed in enumerate(self.seeds):
+            if self.ghosts[row] or counts[row] == 0:
+                continue
+            results[seed].scalars = metrics[row]
+            results[seed].log_scalars = True
+
+    def backward_and_step(self, losses: torch.Tensor, lr: torch.Tensor, active: torch.Tensor) -> None:
+        """Gradients of every active seed's loss (``losses`` [S]), clipped per seed, one optimizer step."""
+        self.model.grad.zero_()
+        with warnings.catch_warnings():
+            # The gradients are views of one [S, P] tensor on purpose (see StackedActorCritic).
+            warnings.filterwarnings("ignore", "grad and param do not obey the gradient layout")
+            (losses * active.float()).sum().backward()
+        self.step(lr, active)
+
+    def explained_variances(self, rollout: Rollout) -> torch.Tensor:
+        """Per seed, how much of the returns' variance the values explain (NaN with no variance)."""
+        valid = rollout.valid.float()
+        variance = masked_variance(rollout.returns, valid, rollout.counts)
+        residual = masked_variance(rollout.returns - rollout.values, valid, rollout.counts)
+        return torch.where(variance > 0, 1.0 - residual / variance, torch.full_like(variance, math.nan))
+
+    def collect(self) -> tuple[Rollout, list[tuple[list[float], list[int]]]]:
+        """``n_steps`` batched steps of all S x N envs; the rollout with GAE advantages, and each
+        seed's finished episodes (returns, lengths)."""
+        transitions, finished = self.play(self.config.n_steps)  # type: ignore[union-attr]  # PPO, A2C
+        return self.advantages(transitions, self.model.params, len(self.seeds)), finished
+
+    @torch.no_grad()
+    def play(
+        self, steps: int, whole_episodes: bool = False
+    ) -> tuple[Transitions, list[tuple[list[float], list[int]]]]:
+        """Up to ``steps`` batched steps of all S x N envs; what they did, and each seed's finished
+        episodes (returns, lengths). With ``whole_episodes`` (REINFORCE) each env plays one
+        episode: its rows after it ended are invalid, and play stops once every env has ended one."""
+        config = self.config
+        seeds, envs = len(self.seeds), config.num_envs
+        obs_dim = self.env_info.obs_dim
+        device = self.device
+        observations = torch.zeros(steps + 1, seeds * envs, obs_dim, device=device)
+        actions = torch.zeros(steps, seeds * envs, dtype=torch.int64, device=device)
+        log_probs = torch.zeros(steps, seeds * envs, device=device)
+        rewards = np.zeros((steps, seeds * envs), dtype=np.float32)
+        terminated = np.zeros((steps, seeds * envs), dtype=np.float32)
+        truncated = np.zeros((steps, seeds * envs), dtype=np.float32)
+        valid = np.zeros((steps, seeds * envs), dtype=bool)
+        ended_once = np.zeros(seeds * envs, dtype=bool)
+        # Each seed's uniforms for the whole rollout, from its own generator: one call per seed.
+        uniforms = torch.stack(
+            [torch.rand(steps, envs, generator=g, device="cpu") for g in self.generators], dim=1
+        ).to(device)
+        finished: list[tuple[list[float], list[int]]] = [([], []) for _ in range(seeds)]
+        used = steps
+        for t in range(steps):
+            observations[t] = torch.from_numpy(self.observations).to(device)
+            logits = self.model.logits(observations[t].view(seeds, envs, obs_dim))
+            step_log_probs = torch.log_softmax(logits, dim=-1)
+            cdf = step_log_probs.exp().cumsum(dim=-1)[..., :-1]
+            chosen = (cdf < uniforms[t].unsqueeze(-1)).sum(dim=-1)  # inverse-CDF sampling
+            actions[t] = chosen.view(-1)
+            log_probs[t] = step_log_probs.gather(-1, chosen.unsqueeze(-1)).view(-1)
+            next_obs, step_rewards, step_terminated, step_truncated = self.envs.step(actions[t].cpu().numpy())
+            step_valid = ~(self.autoreset | ended_once)
+            ended = (step_terminated | step_truncated) & step_valid
+            rewards[t], terminated[t], truncated[t], valid[t] = (
+                step_rewards,
+                step_terminated,
+                step_truncated,
+                step_valid,
+            )
+            self.episode_returns += np.where(step_valid, step_rewards, 0.0)
+            self.episode_lengths += step_valid
+            for i in np.flatnonzero(ended):
+                finished[i // envs][0].append(float(self.episode_returns[i]))
+                finished[i // envs][1].append(int(self.episode_lengths[i]))
+            self.episode_returns[ended] = 0.0
+            self.episode_lengths[ended] = 0
+            self.autoreset = step_terminated | step_truncated
+            self.observations = next_obs
+            if whole_episodes:
+                ended_once |= ended
+                if ended_once.all():
+                    used = t + 1
+                    break
+        observations[used] = torch.from_numpy(self.observations).to(device)
+        transitions = Transitions(
+            observations=observations[: used + 1],
+            actions=actions[:used],
+            log_probs=log_probs[:used],
+            rewards=torch.from_numpy(rewards[:used]).to(device),
+            terminated=torch.from_numpy(terminated[:used]).to(device),
+            truncated=torch.from_numpy(truncated[:used]).to(device),
+            valid=torch.from_numpy(valid[:used]).to(device),
+        )
+        return transitions, finished
+
+    @torch.no_grad()
+    def advantages(
+        self,
+        t: Transitions,
+        params: dict[str, torch.Tensor],
+        seeds: int,
+        gae_lambda: float | None = None,
+        use_values: bool = True,
+    ) -> Rollout:
+        """GAE over the envs of ``seeds`` seeds at once (envs are columns, the seeds' networks are
+        ``params``), reshaped to [S, T * N]. ``use_values`` False: values are 0, so advantages are
+        the discounted reward-to-go."""
+        config = self.config
+        steps, envs = t.rewards.shape[0], config.num_envs
+        if gae_lambda is None:
+            gae_lambda = config.gae_lambda  # type: ignore[union-attr]  # PPO and A2C have one
+
+        def per_seed(x: torch.Tensor) -> torch.Tensor:  # [T, S * N, ...] -> [S, T * N, ...]
+            return (
+                x.view(steps, seeds, envs, *x.shape[2:])
+                .transpose(0, 1)
+                .reshape(seeds, steps * envs, *x.shape[2:])
+            )
+
+        obs_dim = self.env_info.obs_dim
+        if use_values:
+            by_seed = (
+                t.observations.view(steps + 1, seeds, envs, obs_dim)
+                .transpose(0, 1)
+                .reshape(seeds, -1, obs_dim)
+            )
+            critic = StackedActorCritic.run(self.model.critic_plan, params, by_seed).squeeze(-1)
+            values = critic.view(seeds, steps + 1, envs).transpose(0, 1).reshape(steps + 1, -1)
+        else:
+            values = torch.zeros(steps + 1, seeds * envs, device=self.device)
+        advantages = generalized_advantages(
+            t.rewards, values, t.terminated, t.truncated, t.valid, config.gamma, gae_lambda
+        )
+        valid_rows = per_seed(t.valid)
+        return Rollout(
+            observations=per_seed(t.observations[:steps]),
+            actions=per_seed(t.actions),
+            log_probs=per_seed(t.log_probs),
+            values=per_seed(values[:steps]),
+            advantages=per_seed(advantages),
+            returns=per_seed(advantages + values[:steps]),
+            valid=valid_rows,
+            counts=valid_rows.sum(dim=1).to(torch.float32),
+        )
+
+    def step(self, lr: torch.Tensor, active: torch.Tensor) -> None:
+        """Clip each seed's gradient norm to ``max_grad_norm`` (as clip_grad_norm_ does), then Adam."""
+        grads = self.model.grad
+        if self.config.max_grad_norm is not None:
+            norms = torch.linalg.vector_norm(grads, dim=1, keepdim=True)
+            grads.mul_((self.config.max_grad_norm / (norms + 1e-6)).clamp(max=1.0))
+        self.optimizer.step(self.model.flat, grads, lr, active)
+
+    def greedy_actor(self, seeds: list[int]) -> BlockActor:
+        """The greedy policies of ``seeds`` as one :data:`~cartpole.evaluation.BlockActor` (block i
+        holds seed i's rows), one stacked NumPy forward pass per call.
+
+        NumPy, as a single run's greedy policy (:class:`~cartpole.agents.numpy_mlp.NumpyMLP`): an
+        evaluation acts on a few rows at a time, where torch's per-op overhead dominates, so
+        ``np.matmul`` over the stacked weights costs less than ``baddbmm``."""
+        rows = [self.row(seed) for seed in seeds]
+        plan: list[Step] = []
+        for step in self.model.actor_plan:
+            if isinstance(step, tuple):
+                weight = self.model.params[step[0]].detach()[rows].transpose(1, 2).cpu().numpy().copy()
+                bias = self.model.params[step[1]].detach()[rows].unsqueeze(1).cpu().numpy().copy()
+                plan.append((weight, bias))
+            else:
+                plan.append(NUMPY_ACTIVATIONS[step])
+        return block_greedy_actor(StackedNumpyMLP(plan), self.env_info.obs_dim)
+
+    # -- one seed, as a single run sees it ----------------------------------------------------------
+
+    def seed_policy(self, seed: int) -> CategoricalPolicy:
+        """Seed ``seed``'s greedy policy (a frozen copy)."""
+        return CategoricalPolicy(self.model.unstack(self.row(seed)))
+
+    def seed_state_dict(self, seed: int, resume: bool) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+        """Seed ``seed``'s checkpoint: ``model.*`` as the single run's (``load_policy`` reads it), and
+        with ``resume`` its optimizer, generators, envs and counters."""
+        row = self.row(seed)
+        model = self.model.unstack(row)
+        tensors = {f"model.{k}": v.detach().clone() for k, v in model.state_dict().items()}
+        data: dict[str, Any] = {"obs_dim": self.env_info.obs_dim, "n_actions": self.env_info.n_actions}
+        if not resume:
+            return tensors, data
+        envs = slice(row * self.config.num_envs, (row + 1) * self.config.num_envs)
+        optim_tensors, optim_data = self.optimizer.row_state(row)
+        tensors |= optim_tensors | {
+            "rng.torch": self.generators[row].get_state(),
+            "collector.observations": torch.from_numpy(self.observations[envs].copy()),
+        }
+        data |= {
+            "population": True,
+            **optim_data,
+            "collector": {
+                "autoreset": self.autoreset[envs].tolist(),
+                "episode_returns": self.episode_returns[envs].tolist(),
+                "episode_lengths": self.episode_lengths[envs].tolist(),
+                "env_state": self.envs.seed_state(row),
+            },
+            "env_steps": int(self.env_steps[row]),
+            "updates": int(self.updates[row]),
+        }
+        return tensors, data
+
+    def load_seed_state_dict(self, seed: int, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None:
+        """Restore what ``seed_state_dict(seed, resume=True)`` gave."""
+        if not data.get("population"):
+            raise ConfigError("not a population checkpoint: resume it as a single run")
+        row = self.row(seed)
+        model = self.model.template
+        model.load_state_dict(
+            {k.removeprefix("model."): v for k, v in tensors.items() if k.startswith("model.")}
+        )
+        self.model.load_row(row, model)
+        self.optimizer.load_row_state(row, tensors, data)
+        self.generators[row].set_state(tensors["rng.torch"])
+        envs = slice(row * self.config.num_envs, (row + 1) * self.config.num_envs)
+        collector = data["collector"]
+        self.observations[envs] = tensors["collector.observations"].numpy()
+        self.autoreset[envs] = collector["autoreset"]
+        self.episode_returns[envs] = collector["episode_returns"]
+        self.episode_lengths[envs] = collector["episode_lengths"]
+        self.envs.load_seed_state(row, collector["env_state"])
+        self.env_steps[row], self.updates[row] = int(data["env_steps"]), int(data["updates"])
+
+
+class PopulationPPO(PopulationActorCritic):
+    """PPO for seeds ``seeds``, all with ``config``: one ``learn()`` = a rollout and an update each."""
+
+    config: PPOConfig
+
+    def __init__(self, config: PPOConfig, env: EnvInfo, seeds: list[int], device: str = "cpu"):
+        def make_optimizer(rows: int, size: int, device: torch.device) -> PopulationOptimizer:
+            return PopulationAdam(rows, size, config.adam_eps, device=device)
+
+        super().__init__(config, env, seeds, device, make_optimizer)
+
+    # -- one learning step --------------------------------------------------------------------------
+
+    def learn(self) -> dict[int, LearnResult]:
+        """A rollout and an update for every active seed; each seed's result by seed."""
+        config = self.config
+        lr = self.learning_rates()
+        clip = [
+            max(schedule_value(config.clip_range, config.clip_schedule, int(s), config.schedule_steps), 1e-8)
+            for s in self.env_steps
+        ]
+        rollout, finished = self.collect()
+        results = self.count_steps(rollout.counts.to(torch.int64).tolist(), finished)
+        metrics = self.update(
+            rollout, torch.tensor(lr, device=self.device), torch.tensor(clip, device=self.device).unsqueeze(1)
+        )
+        extra = [{"train/learning_rate": r, "train/clip_range": c} for r, c in zip(lr, clip, strict=True)]
+        self.attach_metrics(results, rollout.counts, [m | e for m, e in zip(metrics, extra, strict=True)])
+        return results
+
+    def update(self, rollout: Rollout, lr: torch.Tensor, clip: torch.Tensor) -> list[dict[str, float]]:
+        """``n_epochs`` passes of each seed's shuffled valid rows in minibatches; per-seed metrics."""
+        config = self.config
+        seeds, rows = rollout.valid.shape
+        size = config.minibatch_size
+        has_rows = rollout.counts > 0
+        # Each seed's shuffles for all epochs from its own generator; invalid rows sort last.
+        keys = torch.stack(
+            [torch.rand(config.n_epochs, rows, generator=g, device="cpu") for g in self.generators]
+        ).to(self.device)
+        keys.masked_fill_(~rollout.valid.unsqueeze(1), 2.0)
+        orders = keys.argsort(dim=-1, stable=True)
+        stopped = torch.zeros(seeds, dtype=torch.bool, device=self.device)
+        sums = torch.zeros(seeds, len(ROW_METRICS), device=self.device)
+        done_steps = torch.zeros(seeds, device=self.device)
+        batches = math.ceil(int(rollout.counts.max()) / size) if bool(has_rows.any()) else 0
+        positions = torch.arange(size, device=self.device)
+        for epoch in range(config.n_epochs):
+            for start in range(0, batches * size, size):
+                index = orders[:, epoch, start : start + size]
+                mask = (positions[: index.shape[1]] + start < rollout.counts.unsqueeze(1)).float()
+                count = mask.sum(dim=1)
+                active = (count > 0) & ~stopped
+                losses, row_metrics, kl = self.minibatch_loss(rollout, index, mask, count, clip)
+                if config.target_kl is not None:
+                    over = active & (kl > config.target_kl)
+                    stopped |= over
+                    active &= ~over
+                if not bool(active.any()):
+                    continue
+                self.backward_and_step(losses, lr, active)
+                sums += row_metrics * active.float().unsqueeze(1)
+                done_steps += active.float()
+        self.updates += has_rows.cpu().numpy()
+        means = (sums / done_steps.clamp(min=1.0).unsqueeze(1)).tolist()
+        stopped_list, done_list = stopped.tolist(), done_steps.tolist()
+        explained = self.explained_variances(rollout).tolist()
+        metrics = []
+        for row in range(seeds):
+            scalars = {
+                "train/updates": float(self.updates[row]),
+                "train/stopped_early": float(stopped_list[row]),
+            }
+            if done_list[row] > 0:
+                scalars |= {f"train/{name}": v for name, v in zip(ROW_METRICS, means[row], strict=True)}
+            scalars["train/explained_variance"] = float(explained[row])
+            metrics.append(scalars)
+        return metrics
+
+    def minibatch_loss(
+        self,
+        rollout: Rollout,
+        index: torch.Tensor,
+        mask: torch.Tensor,
+        count: torch.Tensor,
+        clip: torch.Tensor,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Per-seed PPO loss [S], metrics [S, 5] (detached) and approximate KL [S] of one minibatch."""
+        config = self.config
+
+        def take(x: torch.Tensor) -> torch.Tensor:
+            if x.dim() == 2:
+                return x.gather(1, index)
+            return x.gather(1, index.unsqueeze(-1).expand(-1, -1, x.shape[-1]))
+
+        observations, actions = take(rollout.observations), take(rollout.actions)
+        old_log_probs, old_values = take(rollout.log_probs), take(rollout.values)
+        advantages, returns = take(rollout.advantages), take(rollout.returns)
+        logits, values = self.model.logits_and_values(observations)
+        log_probs_all = torch.log_softmax(logits, dim=-1)
+        log_probs = log_probs_all.gather(-1, actions.unsqueeze(-1)).squeeze(-1)
+        entropy = masked_mean(-(log_probs_all.exp() * log_probs_all).sum(dim=-1), mask, count)
+        if config.normalize_advantages:
+            advantages = masked_normalize(advantages, mask, count)
+        log_ratio = log_probs - old_log_probs
+        ratio = log_ratio.exp()
+        clipped_ratio = torch.minimum(torch.maximum(ratio, 1.0 - clip), 1.0 + clip)
+        policy_loss = masked_mean(torch.max(-advantages * ratio, -advantages * clipped_ratio), mask, count)
+        squared = (values - returns).square()
+        if config.clip_range_vf is not None:
+            vf = config.clip_range_vf
+            clipped_values = old_values + (values - old_values).clamp(-vf, vf)
+            squared = torch.max(squared, (clipped_values - returns).square())
+        value_loss = 0.5 * masked_mean(squared, mask, count)
+        loss = policy_loss - config.ent_coef * entropy + config.vf_coef * value_loss
+        with torch.no_grad():
+            approx_kl = masked_mean((ratio - 1.0) - log_ratio, mask, count)
+            clip_fraction = masked_mean(((ratio - 1.0).abs() > clip).float(), mask, count)
+            row_metrics = torch.stack([policy_loss, value_loss, entropy, approx_kl, clip_fraction], dim=1)
+        return loss, row_metrics.detach(), approx_kl
+
+
+class PopulationA2C(PopulationActorCritic):
+    """A2C for seeds ``seeds``, all with ``config``: one ``learn()`` = a rollout and one gradient step
+    on all of it for each seed, as :class:`~cartpole.agents.a2c.A2CLearner` does."""
+
+    config: A2CConfig
+
+    def __init__(self, config: A2CConfig, env: EnvInfo, seeds: list[int], device: str = "cpu"):
+        def make_optimizer(rows: int, size: int, device: torch.device) -> PopulationOptimizer:
+            if config.optimizer == "adam":
+                return PopulationAdam(rows, size, config.optimizer_eps, device=device)
+            return PopulationRMSprop(rows, size, config.rms_alpha, config.optimizer_eps, device)
+
+        super().__init__(config, env, seeds, device, make_optimizer)
+
+    def learn(self) -> dict[int, LearnResult]:
+        config = self.config
+        lr = self.learning_rates()
+        rollout, finished = self.collect()
+        results = self.count_steps(rollout.counts.to(torch.int64).tolist(), finished)
+        valid, count = rollout.valid.float(), rollout.counts
+        logits, values = self.model.logits_and_values(rollout.observations)
+        log_probs_all = torch.log_softmax(logits, dim=-1)
+        log_probs = log_probs_all.gather(-1, rollout.actions.unsqueeze(-1)).squeeze(-1)
+        entropy = masked_mean(-(log_probs_all.exp() * log_probs_all).sum(dim=-1), valid, count)
+        advantages = rollout.advantages
+        if config.normalize_advantages:
+            advantages = masked_normalize(advantages, valid, count)
+        policy_loss = masked_mean(-(advantages * log_probs), valid, count)
+        value_loss = 0.5 * masked_mean((values - rollout.returns).square(), valid, count)
+        loss = policy_loss - config.ent_coef * entropy + config.vf_coef * value_loss
+        active = count > 0
+        self.backward_and_step(loss, torch.tensor(lr, device=self.device), active)
+        self.updates += active.cpu().numpy()
+        with torch.no_grad():  # how far the step moved each policy on its own batch
+            new_log_probs = torch.log_softmax(self.model.logits(rollout.observations), dim=-1)
+            log_ratio = (
+                new_log_probs.gather(-1, rollout.actions.unsqueeze(-1)).squeeze(-1) - rollout.log_probs
+            )
+            approx_kl = masked_mean((log_ratio.exp() - 1.0) - log_ratio, valid, count)
+            rows = torch.stack([policy_loss, value_loss, entropy, approx_kl], dim=1).tolist()
+        explained = self.explained_variances(rollout).tolist()
+        names = ("policy_loss", "value_loss", "entropy", "approx_kl")
+        metrics = [
+            {f"train/{name}": v for name, v in zip(names, row, strict=True)}
+            | {
+                "train/explained_variance": explained[i],
+                "train/learning_rate": lr[i],
+                "train/updates": float(self.updates[i]),
+            }
+            for i, row in enumerate(rows)
+        ]
+        self.attach_metrics(results, rollout.counts, metrics)
+        return results
+
+
+class PopulationReinforce(PopulationActorCritic):
+    """REINFORCE for seeds ``seeds``, all with ``config``: one ``learn()`` = one whole episode in each
+    of every seed's envs, all started fresh, then one gradient step each, as
+    :class:`~cartpole.agents.reinforce.ReinforceLearner` does.
+
+    Episodes have different lengths, and play lasts until the longest episode of *any* seed ends. So
+    that a seed's arithmetic does not depend on its neighbours, its update runs on its own rows cut
+    to a length that depends only on them: the next power of two at or above its longest episode.
+    Seeds of the same length update together (a lone one beside a ghost twin, see ``__init__`` of
+    the base), one batched forward and backward pass per length.
+    """
+
+    config: ReinforceConfig
+
+    def __init__(self, config: ReinforceConfig, env: EnvInfo, seeds: list[int], device: str = "cpu"):
+        def make_optimizer(rows: int, size: int, device: torch.device) -> PopulationOptimizer:
+            return PopulationAdam(rows, size, 1e-8, device=device)
+
+        super().__init__(config, env, seeds, device, make_optimizer)
+        self.episode_rngs = [np.random.default_rng(derived_seed(s, "episodes")) for s in self.seeds]
+        """Seed each batch's fresh episodes, as the single run's ``rng`` does."""
+        self.longest = env.max_episode_steps or LONGEST_EPISODE_WITHOUT_TIME_LIMIT
+
+    def remove(self, seeds: list[int]) -> None:
+        gone = set(seeds)
+        rows = zip(self.seeds, self.episode_rngs, self.ghosts, strict=True)
+        kept = [rng for seed, rng, ghost in rows if seed not in gone and not ghost]
+        super().remove(seeds)
+        if len(kept) < len(self.seeds):  # a ghost twin joined: its results are dropped
+            kept.append(np.random.default_rng(derived_seed(self.seeds[-1], "episodes")))
+        self.episode_rngs = kept
+
+    def restart(self) -> None:
+        """Fresh episodes in every env, from each seed's own episode generator."""
+        for row, rng in enumerate(self.episode_rngs):
+            self.envs.restart(row, int(rng.integers(2**32)))
+        self.observations = self.envs.observations()
+        self.autoreset[:] = False
+        self.episode_returns[:] = 0.0
+        self.episode_lengths[:] = 0
+
+    def seed_state_dict(self, seed: int, resume: bool) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+        tensors, data = super().seed_state_dict(seed, resume)
+        if resume:
+            data["rng_numpy"] = self.episode_rngs[self.row(seed)].bit_generator.state
+        return tensors, data
+
+    def load_seed_state_dict(self, seed: int, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None:
+        super().load_seed_state_dict(seed, tensors, data)
+        self.episode_rngs[self.row(seed)].bit_generator.state = data["rng_numpy"]
+
+    def update_lengths(self, transitions: Transitions) -> list[int]:
+        """Each seed's update length: a power of two (at least 8) covering its longest episode."""
+        steps, envs = transitions.valid.shape[0], self.config.num_envs
+        played = transitions.valid.view(steps, len(self.seeds), envs).any(dim=2)  # [T, S]
+        longest = [
+            int(played[:, row].nonzero().max()) + 1 if bool(played[:, row].any()) else 1
+            for row in range(len(self.seeds))
+        ]
+        return [min(self.longest, max(8, 1 << (n - 1).bit_length())) for n in longest]
+
+    def learn(self) -> dict[int, LearnResult]:
+        lr = self.learning_rates()
+        self.restart()
+        transitions, finished = self.play(self.longest, whole_episodes=True)
+        counts = transitions.valid.view(transitions.valid.shape[0], len(self.seeds), -1).sum(dim=(0, 2))
+        results = self.count_steps(counts.tolist(), finished)
+        lengths = self.update_lengths(transitions)
+        self.model.grad.zero_()
+        metrics: list[dict[str, float]] = [{} for _ in self.seeds]
+        for length in sorted(set(lengths)):
+            rows = [row for row, n in enumerate(lengths) if n == length]
+            self.backward_group(transitions, rows, length, metrics)
+        active = counts > 0
+        self.step(torch.tensor(lr, device=self.device), active)
+        self.updates += active.cpu().numpy()
+        for row, scalars in enumerate(metrics):
+            scalars |= {"train/learning_rate": lr[row], "train/updates": float(self.updates[row])}
+        self.attach_metrics(results, counts, metrics)
+        return results
+
+    def backward_group(
+        self, transitions: Transitions, rows: list[int], length: int, metrics: list[dict[str, float]]
+    ) -> None:
+        """The loss of the seeds at ``rows`` (all with update length ``length``), backpropagated into
+        their rows of the gradients; their metrics into ``metrics``."""
+        config, envs = self.config, self.config.num_envs
+        twin = len(rows) == 1
+        group = rows * 2 if twin else rows
+        index = torch.tensor(group, dtype=torch.int64, device=self.device)
+        columns = (index.unsqueeze(1) * envs + torch.arange(envs, device=self.device)).reshape(-1)
+        params = {name: p[index] for name, p in self.model.params.items()}
+        detached = {name: p.detach() for name, p in params.items()}
+        rollout = self.advantages(
+            transitions.columns(columns, length), detached, len(group), 1.0, config.baseline
+        )
+        valid, count = rollout.valid.float(), rollout.counts
+        logits = StackedActorCritic.run(self.model.actor_plan, params, rollout.observations)
+        values = StackedActorCritic.run(self.model.critic_plan, params, rollout.observations).squeeze(-1)
+        log_probs_all = torch.log_softmax(logits, dim=-1)
+        log_probs = log_probs_all.gather(-1, rollout.actions.unsqueeze(-1)).squeeze(-1)
+        entropy = masked_mean(-(log_probs_all.exp() * log_probs_all).sum(dim=-1), valid, count)
+        weights = (
+            masked_normalize(rollout.advantages, valid, count)
+            if config.normalize_returns
+            else rollout.advantages
+        )
+        policy_loss = masked_mean(-(weights * log_probs), valid, count)
+        value_loss = 0.5 * masked_mean((values - rollout.returns).square(), valid, count)
+        loss = policy_loss - config.ent_coef * entropy
+        if config.baseline:
+            loss = loss + config.vf_coef * value_loss
+        real = torch.tensor(
+            [1.0] + [0.0] * (len(group) - 1) if twin else [1.0] * len(group), device=self.device
+        )
+        with warnings.catch_warnings():
+            # The gradients are views of one [S, P] tensor on purpose (see StackedActorCritic).
+            warnings.filterwarnings("ignore", "grad and param do not obey the gradient layout")
+            (loss * real).sum().backward()
+        explained = self.explained_variances(rollout).tolist()
+        values_of = torch.stack([policy_loss, value_loss, entropy], dim=1).tolist()
+        for i, row in enumerate(rows):
+            policy, value, entropy_value = values_of[i]
+            metrics[row] = {"train/policy_loss": policy, "train/entropy": entropy_value}
+            if config.baseline:
+                metrics[row] |= {"train/value_loss": value, "train/explained_variance": explained[i]}
+
+
+def masked_variance(x: torch.Tensor, mask: torch.Tensor, count: torch.Tensor) -> torch.Tensor:
+    """Per-seed unbiased variance of ``x`` [S, B] over the masked rows (0 with fewer than 2)."""
+    mean = masked_mean(x, mask, count).unsqueeze(1)
+    variance = ((x - mean) * mask).square().sum(dim=1) / (count - 1.0).clamp(min=1.0)
+    return torch.where(count > 1.0, variance, torch.zeros_like(variance))
+
+
+BOOKKEEPING_BYTES = 2 * 1024**2
+"""What a seed costs besides its arrays: its run folder's writers, callbacks and status thread."""
+
+
+def actor_critic_bytes_per_seed(
+    config: PPOConfig | A2CConfig | ReinforceConfig, env: EnvInfo, rollout_steps: int, batch_rows: int
+) -> int:
+    """What one seed of an actor-critic population holds, roughly: parameters with their gradient
+    and optimizer state, a rollout of ``rollout_steps`` steps of every env, the activations of a
+    batch of ``batch_rows`` rows, and the bookkeeping."""
+    sizes = [env.obs_dim, *config.hidden_sizes]
+    trunk = sum(n_in * n_out + n_out for n_in, n_out in itertools.pairwise(sizes))
+    heads = sizes[-1] * (env.n_actions + 1) + env.n_actions + 1
+    parameters = trunk * (1 if config.shared_trunk else 2) + heads
+    rollout = rollout_steps * config.num_envs * (env.obs_dim + 8) * 4 * 3
+    activations = batch_rows * sum(config.hidden_sizes) * 4 * 12
+    return parameters * 4 * 6 + rollout + activations + BOOKKEEPING_BYTES
+
+
+def ppo_bytes_per_seed(config: PPOConfig, env: EnvInfo) -> int:
+    return actor_critic_bytes_per_seed(config, env, config.n_steps, config.minibatch_size)
+
+
+def a2c_bytes_per_seed(config: A2CConfig, env: EnvInfo) -> int:
+    return actor_critic_bytes_per_seed(config, env, config.n_steps, config.n_steps * config.num_envs)
+
+
+def reinforce_bytes_per_seed(config: ReinforceConfig, env: EnvInfo) -> int:
+    longest = env.max_episode_steps or LONGEST_EPISODE_WITHOUT_TIME_LIMIT
+    return actor_critic_bytes_per_seed(config, env, longest, longest * config.num_envs)
+
+
+__all__ = [
+    "PopulationA2C",
+    "PopulationAdam",
+    "PopulationEnvs",
+    "PopulationPPO",
+    "PopulationRMSprop",
+    "PopulationReinforce",
+    "StackedActorCritic",
+    "a2c_bytes_per_seed",
+    "ppo_bytes_per_seed",
+    "reinforce_bytes_per_seed",
+]

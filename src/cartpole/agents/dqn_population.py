@@ -1,0 +1,837 @@
+"""DQN for a population of seeds in one process: S independent training runs, batched.
+
+Every seed is the single-run DQN of :mod:`cartpole.agents.dqn` with the same config: its own
+Q-network (initialized as the single run initializes it), target network, Adam state and replay
+memory, its own ``num_envs`` CartPoles seeded as the single run seeds them, and its own random
+streams (exploration from ``derived_seed(seed, "explore")``, replay sampling from ``"replay"``,
+dropout masks from ``"dropout"``), drawn as the single run draws them. What is shared is only the
+arithmetic, along a leading seed axis:
+
+- ``StackedQNetwork``: the online parameters of all S Q-networks in one flat ``[S, P]`` tensor (each
+  parameter a ``[S, *shape]`` view of it, each linear layer one ``torch.baddbmm`` for all seeds, see
+  :func:`~cartpole.agents.stacked_linear.stacked_linear`), their gradients in another, and the
+  target networks in a third: a Polyak update is one ``lerp`` over the flat tensors.
+- ``StackedReplay``: the replay memories as one ``[S, capacity, 2 * obs_dim + 3]`` table (the row
+  layout of :class:`~cartpole.agents.replay_buffer.ReplayBuffer`) with a write position and a fill
+  count per seed; a minibatch of every seed is one ``index_select``.
+- :class:`~cartpole.agents.actor_critic_population.PopulationEnvs` steps the S x ``num_envs``
+  CartPoles with one call of the fast simulator, and
+  :class:`~cartpole.agents.population_optimizers.PopulationAdam` steps every seed's Adam in one pass.
+- ``PopulationDQN``: one ``learn()`` = one batched env step of every seed (one forward pass for all
+  seeds' greedy actions) and, for the seeds whose training round is due, ``gradient_steps`` batched
+  gradient steps (one forward, one backward and one Adam step for all of them).
+
+Why a seed's run stays bit for bit the same whoever shares its batch: every operation is either per
+seed (a batched matmul multiplies each seed's slice on its own; reductions run over a seed's own row:
+the loss, the Q mean, the gradient norm for clipping) or elementwise, and nothing is ever reduced
+over the seed axis (the summed loss that is backpropagated has the gradient 1 or 0 per seed). Shapes
+never depend on the other seeds: a minibatch has ``batch_size`` rows for every seed, and a seed
+whose memory still holds fewer rows masks the rest out, dividing by its own count; a seed that has
+not reached ``learning_starts`` (or whose training round is not due) sits the step out through the
+Adam ``active`` mask and keeps its generators untouched. Two details keep the bits equal where
+torch's kernels would otherwise betray a seed's position in the batch:
+
+- Elementwise CPU kernels run vectorized over the whole tensor and finish its last few elements
+  with scalar code, whose transcendental functions (tanh, elu, gelu, lerp's fused multiply-add) may
+  round differently. So every per-seed block is a multiple of :data:`ALIGN` elements (the flat
+  parameters are padded, minibatches and acting batches have a multiple of :data:`ALIGN` rows): no
+  seed's elements ever fall into the scalar tail.
+- torch reduces a one-row batch in another order than a many-row one: a lone seed trains beside a
+  "ghost twin" (a second row whose results are dropped), as the actor-critic populations do
+  (:mod:`cartpole.agents.actor_critic_population`).
+
+Only the floats of the network arithmetic differ from the single CPU run's (batched kernels, a
+masked mean over padded rows): its episodes, random draws and replay rows are the single run's, and
+its weights and losses agree with it to float rounding (``tests/test_dqn_population.py``).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import warnings
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from cartpole.agents.actor_critic_population import PopulationEnvs
+from cartpole.agents.dqn import DQNConfig, epsilon_at, td_targets
+from cartpole.agents.env_state import derived_seed
+from cartpole.agents.fast_tanh import tanh
+from cartpole.agents.learner import LearnResult
+from cartpole.agents.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step
+from cartpole.agents.population_optimizers import PopulationAdam
+from cartpole.agents.q_network import ACTIVATIONS, QNetwork, QNetworkPolicy
+from cartpole.agents.stacked_linear import stacked_linear
+from cartpole.core.errors import ConfigError
+from cartpole.envs import EnvInfo
+from cartpole.evaluation import BlockActor
+
+ALIGN = 32
+"""Every seed's block of an elementwise operation is a multiple of this many float32 elements: two
+AVX-512 vectors, the widest step of torch's vectorized CPU loops (see the module docstring)."""
+
+ADAM_EPS = 1e-8
+"""Adam's epsilon: :class:`~cartpole.agents.optimizers.FusedAdam`'s (torch's default)."""
+
+TORCH_ACTIVATIONS: dict[str, Callable[[torch.Tensor], torch.Tensor]] = {
+    "relu": torch.relu,
+    "tanh": tanh,  # the populations' fast tanh (cartpole.agents.fast_tanh)
+    "elu": F.elu,
+    "gelu": F.gelu,
+}
+
+
+def padded(n: int, multiple: int = ALIGN) -> int:
+    """``n`` rounded up to a multiple of ``multiple``."""
+    return -(-n // multiple) * multiple
+
+
+def to_device(tensor: torch.Tensor, device: torch.device) -> torch.Tensor:
+    """A CPU tensor copied to ``device`` without waiting for the device (no sync): only the read-back
+    at the end of ``learn()`` waits for it."""
+    return tensor.to(device, non_blocking=True)
+
+
+def seeded_q_network(config: DQNConfig, env: EnvInfo, seed: int) -> QNetwork:
+    """Seed ``seed``'s initial Q-network on the CPU, as :class:`~cartpole.agents.dqn.DQNLearner` builds it."""
+    with torch.device("cpu"):
+        generator = torch.Generator(device="cpu").manual_seed(derived_seed(seed, "init"))
+        return QNetwork(env.obs_dim, env.n_actions, config, generator).eval()
+
+
+# ----------------------------------------------------------------------------------------------
+# The stacked networks
+# ----------------------------------------------------------------------------------------------
+
+
+class StackedQNetwork:
+    """The online and target Q-networks of S seeds: parameters in flat ``[S, P]`` tensors (``flat``,
+    ``target``; P padded to a multiple of :data:`ALIGN`), each parameter a ``[S, *shape]`` view,
+    gradients in ``grad`` (autograd accumulates into the views in place)."""
+
+    def __init__(self, models: list[QNetwork], target_network: bool, device: torch.device):
+        template = models[0]
+        self.template = template
+        """A CPU QNetwork that :meth:`unstack` overwrites with one seed's weights."""
+        self.shapes = {name: tuple(p.shape) for name, p in template.named_parameters()}
+        self.offsets: dict[str, tuple[int, int]] = {}
+        offset = 0
+        for name, shape in self.shapes.items():
+            self.offsets[name] = (offset, offset + math.prod(shape))
+            offset += math.prod(shape)
+        self.size = offset
+        """Parameters of one network (the row's padding excluded)."""
+        row_size = padded(offset)
+        with torch.no_grad():
+            rows = [torch.cat([p.reshape(-1) for p in m.parameters()]) for m in models]
+            flat = torch.zeros(len(models), row_size, device="cpu")
+            flat[:, :offset] = torch.stack(rows)
+        self.flat = flat.to(device)
+        self.target = self.flat.clone() if target_network else None
+        self.hidden: list[tuple[str, str]] = []
+        """(weight, bias) of each hidden layer, in order; an activation (and dropout) follows each."""
+        for index, layer in enumerate(template.body):
+            if isinstance(layer, torch.nn.Linear):
+                self.hidden.append((f"body.{index}.weight", f"body.{index}.bias"))
+        self.dueling = template.value is not None
+        dropouts = template.dropout_layers()
+        self.dropout = dropouts[0].p if dropouts else 0.0
+        self.bind()
+
+    def bind(self) -> None:
+        """Make the parameter leaves (views of ``flat``), their gradients (views of ``grad``) and the
+        target's views."""
+        self.grad = torch.zeros_like(self.flat)
+        self.params = self.views(self.flat)
+        for name, leaf in self.params.items():
+            leaf.requires_grad_(True)
+            start, end = self.offsets[name]
+            leaf.grad = self.grad[:, start:end].view(-1, *self.shapes[name])
+        self.target_params = self.views(self.target) if self.target is not None else self.params
+
+    def views(self, flat: torch.Tensor) -> dict[str, torch.Tensor]:
+        return {
+            name: flat[:, start:end].view(-1, *self.shapes[name])
+            for name, (start, end) in self.offsets.items()
+        }
+
+    def forward(
+        self,
+        params: dict[str, torch.Tensor],
+        x: torch.Tensor,
+        activation: Callable[[torch.Tensor], torch.Tensor],
+        keeps: list[torch.Tensor] | None = None,
+    ) -> torch.Tensor:
+        """Q-values ``[S, B, n_actions]`` of observations ``x`` [S, B, obs_dim], as
+        ``QNetwork.forward``; ``keeps`` (one bool mask ``[S, B, width]`` per hidden layer) applies
+        dropout as :class:`~cartpole.agents.q_network.GeneratorDropout` does."""
+        for index, (weight, bias) in enumerate(self.hidden):
+            x = activation(stacked_linear(x, params[weight], params[bias]))
+            if keeps is not None:
+                x = x * keeps[index] / (1.0 - self.dropout)
+        q = stacked_linear(x, params["head.weight"], params["head.bias"])
+        if self.dueling:  # the head gives advantages
+            q = (
+                stacked_linear(x, params["value.weight"], params["value.bias"])
+                + q
+                - q.mean(dim=2, keepdim=True)
+            )
+        return q
+
+    def unstack(self, row: int, flat: torch.Tensor | None = None) -> QNetwork:
+        """Row ``row`` of ``flat`` (the online networks by default) as the template QNetwork."""
+        source = self.flat if flat is None else flat
+        with torch.no_grad():
+            for name, p in self.template.named_parameters():
+                start, end = self.offsets[name]
+                p.copy_(source[row, start:end].view_as(p))
+        return self.template
+
+    def load_row(self, row: int, flat: torch.Tensor, tensors: dict[str, torch.Tensor]) -> None:
+        """Put the parameters ``tensors`` (by QNetwork name) into row ``row`` of ``flat``."""
+        with torch.no_grad():
+            for name, (start, end) in self.offsets.items():
+                flat[row, start:end] = tensors[name].reshape(-1).to(flat.device)
+
+    def keep(self, rows: torch.Tensor) -> None:
+        """Keep only the seeds at ``rows``."""
+        self.flat = self.flat[rows]
+        if self.target is not None:
+            self.target = self.target[rows]
+        self.bind()
+
+    @torch.no_grad()
+    def update_target(self, rows: np.ndarray, tau: float) -> None:
+        """Polyak update of the targets of ``rows``: target <- target + tau * (online - target); a copy
+        when tau is 1."""
+        if self.target is None or not rows.any():
+            return
+        if rows.all():
+            if tau >= 1.0:
+                self.target.copy_(self.flat)
+            else:
+                self.target.lerp_(self.flat, tau)
+            return
+        index = to_device(torch.from_numpy(np.flatnonzero(rows)), self.flat.device)
+        online = self.flat.index_select(0, index)
+        moved = online if tau >= 1.0 else self.target.index_select(0, index).lerp_(online, tau)
+        self.target.index_copy_(0, index, moved)
+
+
+# ----------------------------------------------------------------------------------------------
+# The stacked replay memories
+# ----------------------------------------------------------------------------------------------
+
+
+class StackedReplay:
+    """S ring buffers of transitions in one ``[S, capacity, 2 * obs_dim + 3]`` table, each row laid
+    out as :class:`~cartpole.agents.replay_buffer.ReplayBuffer`'s (obs | next_obs | action | reward |
+    terminated); each seed has its own write position and fill count."""
+
+    def __init__(self, seeds: int, capacity: int, obs_dim: int, device: torch.device):
+        self.capacity, self.obs_dim = capacity, obs_dim
+        self.table = torch.zeros(seeds, capacity, 2 * obs_dim + 3, device=device)
+        self.pos = np.zeros(seeds, dtype=np.int64)
+        self.size = np.zeros(seeds, dtype=np.int64)
+        self.host_view()
+
+    def host_view(self) -> None:
+        """On the CPU rows are written through a numpy view of the table (cheaper for a few rows)."""
+        self.host = self.table.numpy() if self.table.device.type == "cpu" else None
+
+    def add(self, valid: np.ndarray, fields: list[np.ndarray]) -> None:
+        """Append the transitions of the envs where ``valid`` [S, N] is True to their seeds' buffers,
+        in env order, overwriting the oldest rows when full. ``fields`` are obs [S * N, obs_dim],
+        actions, rewards, next obs and terminated (each [S * N])."""
+        d = self.obs_dim
+        counts = valid.sum(axis=1)
+        offsets = np.cumsum(valid, axis=1) - 1
+        # A seed with more new rows than capacity keeps its newest `capacity` (as ReplayBuffer does).
+        kept = valid & (offsets >= (counts - self.capacity)[:, None])
+        seed_rows, env_columns = np.nonzero(kept)
+        if len(seed_rows):
+            slots = (self.pos[seed_rows] + offsets[seed_rows, env_columns]) % self.capacity
+            envs = seed_rows * valid.shape[1] + env_columns
+            observations, actions, rewards, next_observations, terminated = fields
+            rows = np.empty((len(envs), 2 * d + 3), dtype=np.float32)
+            rows[:, :d] = observations[envs]
+            rows[:, d : 2 * d] = next_observations[envs]
+            rows[:, 2 * d] = actions[envs]
+            rows[:, 2 * d + 1] = rewards[envs]
+            rows[:, 2 * d + 2] = terminated[envs]
+            if self.host is not None:
+                self.host[seed_rows, slots] = rows
+            else:
+                device = self.table.device
+                index = (
+                    to_device(torch.from_numpy(seed_rows), device),
+                    to_device(torch.from_numpy(slots), device),
+                )
+                self.table[index] = to_device(torch.from_numpy(rows), device)
+        self.pos = (self.pos + counts) % self.capacity
+        self.size = np.minimum(self.size + counts, self.capacity)
+
+    def gather(self, index: torch.Tensor) -> torch.Tensor:
+        """The rows ``index`` [S, B] (slot numbers within each seed's buffer): [S, B, 2 * obs_dim + 3]."""
+        seeds, capacity = self.table.shape[:2]
+        base = torch.arange(seeds, device=index.device).unsqueeze(1) * capacity
+        flat = self.table.view(seeds * capacity, -1).index_select(0, (index + base).view(-1))
+        return flat.view(seeds, index.shape[1], -1)
+
+    def keep(self, rows: torch.Tensor, rows_np: np.ndarray) -> None:
+        self.table = self.table[rows]
+        self.pos, self.size = self.pos[rows_np], self.size[rows_np]
+        self.host_view()
+
+    def row_state(self, row: int) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+        """Seed ``row``'s buffer as :meth:`ReplayBuffer.state_dict` gives a single run's."""
+        d, size = self.obs_dim, int(self.size[row])
+        written = self.table[row, :size].to("cpu", copy=True)
+        tensors = {
+            "observations": written[:, :d].clone(),
+            "actions": written[:, 2 * d].long(),
+            "rewards": written[:, 2 * d + 1].clone(),
+            "next_observations": written[:, d : 2 * d].clone(),
+            "terminated": written[:, 2 * d + 2].clone(),
+        }
+        return tensors, {"capacity": self.capacity, "pos": int(self.pos[row]), "size": size}
+
+    def load_row_state(self, row: int, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None:
+        if int(data["capacity"]) != self.capacity:
+            raise ConfigError(f"replay capacity {data['capacity']} in the checkpoint, {self.capacity} here")
+        d, size = self.obs_dim, int(data["size"])
+        rows = torch.zeros(self.capacity, 2 * d + 3, device="cpu")
+        rows[:size, :d] = tensors["observations"]
+        rows[:size, d : 2 * d] = tensors["next_observations"]
+        rows[:size, 2 * d] = tensors["actions"].to(torch.float32)
+        rows[:size, 2 * d + 1] = tensors["rewards"]
+        rows[:size, 2 * d + 2] = tensors["terminated"]
+        self.table[row] = rows.to(self.table.device)  # in place: the host view stays valid
+        self.pos[row], self.size[row] = int(data["pos"]), size
+
+
+# ----------------------------------------------------------------------------------------------
+# The population
+# ----------------------------------------------------------------------------------------------
+
+
+class PopulationDQN:
+    """DQN for seeds ``seeds``, all with ``config``: one ``learn()`` = one batched env step of every
+    seed and its due gradient steps, as :meth:`~cartpole.agents.dqn.DQNLearner.learn` does."""
+
+    def __init__(self, config: DQNConfig, env: EnvInfo, seeds: list[int], device: str = "cpu"):
+        config.validate()
+        if not env.is_cartpole or config.simulator != "fast":
+            raise ConfigError("population training runs CartPole on the fast simulator only")
+        if not seeds:
+            raise ConfigError("a population needs at least one seed")
+        self.config, self.env_info = config, env
+        self.device = torch.device(device)
+        """Where the networks, the replay memories and the updates live. The envs step on the CPU
+        (numpy) and every random draw comes from a seed's own CPU generator, so a seed's draws are the
+        same on any device."""
+        # A lone seed gets a ghost twin (a second row whose results are dropped): see the docstring.
+        self.seeds = list(seeds) if len(seeds) != 1 else [seeds[0], seeds[0]]
+        self.ghosts = [False] * len(seeds) if len(seeds) != 1 else [False, True]
+        self.activation = TORCH_ACTIVATIONS[config.activation]
+        self.net = StackedQNetwork(
+            [seeded_q_network(config, env, s) for s in self.seeds], config.target_network, self.device
+        )
+        self.optimizer = PopulationAdam(len(self.seeds), self.net.flat.shape[1], ADAM_EPS, device=self.device)
+        self.replay = StackedReplay(len(self.seeds), config.buffer_size, env.obs_dim, self.device)
+        self.explore_rngs = [np.random.default_rng(derived_seed(s, "explore")) for s in self.seeds]
+        self.replay_generators = [self.cpu_generator(derived_seed(s, "replay")) for s in self.seeds]
+        self.dropout_generators = [self.cpu_generator(derived_seed(s, "dropout")) for s in self.seeds]
+        self.envs = PopulationEnvs(self.seeds, config.num_envs, env.max_episode_steps or 500)
+        n = len(self.seeds) * config.num_envs
+        self.observations = self.envs.observations()
+        self.autoreset = np.zeros(n, dtype=bool)
+        """Envs whose last step ended an episode: their next step is a reset, not a transition."""
+        self.episode_returns = np.zeros(n, dtype=np.float64)
+        self.episode_lengths = np.zeros(n, dtype=np.int64)
+        rows = len(self.seeds)
+        self.env_steps = np.zeros(rows, dtype=np.int64)
+        self.calls = np.zeros(rows, dtype=np.int64)
+        self.gradient_steps = np.zeros(rows, dtype=np.int64)
+        self.epsilon_multiplied = np.full(rows, config.epsilon_start, dtype=np.float64)
+        self.last_loss = np.full(rows, math.nan)
+        self.last_q_mean = np.full(rows, math.nan)
+        self.greedy: np.ndarray | None = None
+        """The greedy actions [S, num_envs] for ``observations`` under the current weights, computed
+        at the end of the last ``learn()`` (read back with its metrics: one device sync a call)."""
+        self.batch_rows = padded(config.batch_size)
+        self.acting_rows = padded(config.num_envs)
+
+    @staticmethod
+    def cpu_generator(seed: int) -> torch.Generator:
+        return torch.Generator(device="cpu").manual_seed(seed)
+
+    # -- which seeds --------------------------------------------------------------------------------
+
+    def row(self, seed: int) -> int:
+        return next(i for i, s in enumerate(self.seeds) if s == seed and not self.ghosts[i])
+
+    @property
+    def active_seeds(self) -> list[int]:
+        return [s for s, ghost in zip(self.seeds, self.ghosts, strict=True) if not ghost]
+
+    def remove(self, seeds: list[int]) -> None:
+        """Stop training ``seeds``: they leave every batch (one stays as a ghost when a single seed
+        would be left)."""
+        gone = set(seeds)
+        keep_rows = [i for i, s in enumerate(self.seeds) if s not in gone and not self.ghosts[i]]
+        if not keep_rows:
+            raise ConfigError("cannot remove every seed of a population")
+        ghosts = [False] * len(keep_rows)
+        if len(keep_rows) == 1:
+            keep_rows.append(next(i for i in range(len(self.seeds)) if i != keep_rows[0]))
+            ghosts.append(True)
+        self.ghosts = ghosts
+        rows_np = np.asarray(keep_rows, dtype=np.int64)
+        rows = torch.from_numpy(rows_np).to(self.device)
+        n = self.config.num_envs
+        envs = (rows_np[:, None] * n + np.arange(n)).reshape(-1)
+        self.net.keep(rows)
+        self.optimizer.keep(rows)
+        self.replay.keep(rows, rows_np)
+        self.envs.keep(rows_np)
+        self.seeds = [self.seeds[i] for i in keep_rows]
+        self.explore_rngs = [self.explore_rngs[i] for i in keep_rows]
+        self.replay_generators = [self.replay_generators[i] for i in keep_rows]
+        self.dropout_generators = [self.dropout_generators[i] for i in keep_rows]
+        self.observations = self.observations[envs]
+        self.autoreset = self.autoreset[envs]
+        self.episode_returns = self.episode_returns[envs]
+        self.episode_lengths = self.episode_lengths[envs]
+        for name in (
+            "env_steps",
+            "calls",
+            "gradient_steps",
+            "epsilon_multiplied",
+            "last_loss",
+            "last_q_mean",
+        ):
+            setattr(self, name, getattr(self, name)[rows_np])
+        if self.greedy is not None:
+            self.greedy = self.greedy[rows_np]
+
+    # -- one learn() call ---------------------------------------------------------------------------
+
+    def learn(self) -> dict[int, LearnResult]:
+        """One batched env step of every seed, then the gradient steps of the seeds whose training
+        round is due; each active seed's result by seed."""
+        config = self.config
+        seeds, n = len(self.seeds), config.num_envs
+        epsilons = [
+            epsilon_at(config, int(steps), float(multiplied))
+            for steps, multiplied in zip(self.env_steps, self.epsilon_multiplied, strict=True)
+        ]
+        observations = self.observations
+        actions = self.select_actions(epsilons)
+        next_observations, rewards, terminated, truncated = self.envs.step(actions)
+
+        # Gymnasium's next-step autoreset: an env that ended an episode at the last call has just been
+        # reset (its action was ignored). That row is not a transition; drop it.
+        valid = ~self.autoreset
+        self.episode_returns += np.where(valid, rewards, 0.0)
+        self.episode_lengths += valid
+        done = (terminated | truncated) & valid
+        stored_rewards = self.shape_rewards(rewards, terminated & valid, done)
+        fields = [observations, actions, stored_rewards, next_observations, terminated.astype(np.float32)]
+        self.replay.add(valid.reshape(seeds, n), fields)
+        collected = valid.reshape(seeds, n).sum(axis=1)
+        self.env_steps += collected
+        finished = self.finish_episodes(done)
+        self.autoreset = done
+        self.observations = next_observations
+
+        self.calls += 1
+        training = (self.calls % config.train_freq == 0) & (self.env_steps >= config.learning_starts)
+        training &= config.gradient_steps > 0
+        metrics = self.train(training) if training.any() else None
+        self.read_back(metrics, training)
+        return self.results(collected, finished, epsilons)
+
+    def select_actions(self, epsilons: list[float]) -> np.ndarray:
+        """Epsilon-greedy actions of all envs: each seed's exploration draws from its own generator
+        (the single run's draws), the greedy actions from one forward pass for all seeds."""
+        n, n_actions = self.config.num_envs, self.env_info.n_actions
+        greedy = self.greedy if self.greedy is not None else self.greedy_actions()
+        explore = np.empty((len(self.seeds), n), dtype=bool)
+        random = np.empty((len(self.seeds), n), dtype=np.int64)
+        for row, rng in enumerate(self.explore_rngs):
+            explore[row] = rng.random(n) < epsilons[row]
+            random[row] = rng.integers(0, n_actions, size=n)
+        self.greedy = None
+        return np.where(explore, random, greedy).reshape(-1)
+
+    @torch.no_grad()
+    def greedy_q_argmax(self) -> torch.Tensor:
+        """The online networks' greedy actions [S, num_envs] for ``observations`` (on the device)."""
+        seeds, n, obs_dim = len(self.seeds), self.config.num_envs, self.env_info.obs_dim
+        x = torch.zeros(seeds, self.acting_rows, obs_dim, device="cpu")
+        x[:, :n] = torch.from_numpy(self.observations).view(seeds, n, obs_dim)
+        q = self.net.forward(self.net.params, to_device(x, self.device), self.activation)
+        return q[:, :n].argmax(dim=2)
+
+    def greedy_actions(self) -> np.ndarray:
+        return self.greedy_q_argmax().cpu().numpy()
+
+    def shape_rewards(self, rewards: np.ndarray, terminated: np.ndarray, done: np.ndarray) -> np.ndarray:
+        """The tutorials' reward shaping, where configured (as ``DQNLearner.shape_rewards``)."""
+        config = self.config
+        if config.termination_reward is None and config.short_episode_reward is None:
+            return rewards
+        shaped = rewards.astype(np.float32, copy=True)
+        if config.termination_reward is not None:
+            shaped[terminated] = config.termination_reward
+        if config.short_episode_reward is not None:
+            short = done & (self.episode_lengths < config.short_episode_length)
+            shaped[short] = config.short_episode_reward
+        return shaped
+
+    def finish_episodes(self, done: np.ndarray) -> list[tuple[list[float], list[int]]]:
+        """Each seed's episodes that ended (raw env returns and lengths); their counters restart."""
+        n = self.config.num_envs
+        finished: list[tuple[list[float], list[int]]] = [([], []) for _ in self.seeds]
+        for i in np.flatnonzero(done):
+            finished[i // n][0].append(float(self.episode_returns[i]))
+            finished[i // n][1].append(int(self.episode_lengths[i]))
+        self.episode_returns[done] = 0.0
+        self.episode_lengths[done] = 0
+        return finished
+
+    def read_back(self, metrics: torch.Tensor | None, training: np.ndarray) -> None:
+        """The next call's greedy actions and this call's metrics ([S, 2]: loss, Q mean), fetched from
+        the device together."""
+        greedy = self.greedy_q_argmax()
+        parts = [greedy.view(-1).to(torch.float64)]
+        if metrics is not None:
+            parts.append(metrics.view(-1).to(torch.float64))
+        values = torch.cat(parts).cpu().numpy()
+        self.greedy = values[: greedy.numel()].astype(np.int64).reshape(greedy.shape)
+        if metrics is not None:
+            losses, q_means = values[greedy.numel() :].reshape(-1, 2).T
+            self.last_loss = np.where(training, losses, self.last_loss)
+            self.last_q_mean = np.where(training, q_means, self.last_q_mean)
+
+    def results(
+        self, collected: np.ndarray, finished: list[tuple[list[float], list[int]]], epsilons: list[float]
+    ) -> dict[int, LearnResult]:
+        results = {}
+        for row, seed in enumerate(self.seeds):
+            if self.ghosts[row]:
+                continue
+            returns, lengths = finished[row]
+            result = LearnResult(
+                env_steps=int(collected[row]), episode_returns=returns, episode_lengths=lengths
+            )
+            steps = int(self.gradient_steps[row])
+            result.scalars = {"train/epsilon": epsilons[row], "train/gradient_steps": float(steps)}
+            if steps:  # no loss before the first update (and metrics hold no NaN)
+                result.scalars |= {
+                    "train/loss": float(self.last_loss[row]),
+                    "train/q_mean": float(self.last_q_mean[row]),
+                }
+            results[seed] = result
+        return results
+
+    # -- the gradient steps -------------------------------------------------------------------------
+
+    def train(self, training: np.ndarray) -> torch.Tensor:
+        """``gradient_steps`` batched updates in which the seeds where ``training`` [S] is True take
+        part (the others sit out); the last step's loss and Q mean per seed [S, 2] (on the device)."""
+        config, device = self.config, self.device
+        counts = np.where(training, np.minimum(config.batch_size, self.replay.size), 0)
+        slots = self.sample_slots(training, counts)
+        positions = np.arange(self.batch_rows)
+        mask = to_device(torch.from_numpy((positions < counts[:, None]).astype(np.float32)), device)
+        count = to_device(torch.from_numpy(np.maximum(counts, 1).astype(np.float32)), device)
+        active = to_device(torch.from_numpy(training), device)
+        lr = torch.full((len(self.seeds),), config.lr, dtype=torch.float64, device=device)
+        metrics = torch.zeros(len(self.seeds), 2, device=device)
+        for step in range(config.gradient_steps):
+            batch = self.replay.gather(slots[:, step])
+            keeps = self.dropout_keeps(training, counts) if self.net.dropout > 0 else None
+            metrics = self.gradient_step(batch, keeps, mask, count, active, lr)
+            self.after_step(training)
+        return metrics
+
+    def sample_slots(self, training: np.ndarray, counts: np.ndarray) -> torch.Tensor:
+        """Each training seed's minibatch rows for every gradient step of this round, drawn uniformly
+        (with replacement) from the rows its buffer holds, from its own replay generator as
+        ``ReplayBuffer.sample`` draws them; [S, gradient_steps, batch rows] (padding: slot 0)."""
+        steps = self.config.gradient_steps
+        slots = torch.zeros(len(self.seeds), steps, self.batch_rows, dtype=torch.int64, device="cpu")
+        for row in np.flatnonzero(training):
+            size, count = int(self.replay.size[row]), int(counts[row])
+            generator = self.replay_generators[row]
+            for step in range(steps):
+                slots[row, step, :count] = torch.randint(0, size, (count,), generator=generator, device="cpu")
+        return to_device(slots, self.device)
+
+    def dropout_keeps(self, training: np.ndarray, counts: np.ndarray) -> list[torch.Tensor]:
+        """Each hidden layer's dropout keep-mask [S, batch rows, width] for one gradient step: each
+        training seed's from its own dropout generator, layer by layer as ``GeneratorDropout`` draws."""
+        p, rows = self.net.dropout, self.batch_rows
+        widths = self.config.hidden_sizes
+        uniforms = [torch.zeros(len(self.seeds), rows, w, device="cpu") for w in widths]
+        for row in np.flatnonzero(training):
+            count, generator = int(counts[row]), self.dropout_generators[row]
+            for layer, width in zip(uniforms, widths, strict=True):
+                layer[row, :count] = torch.rand(count, width, generator=generator, device="cpu")
+        return [to_device(u >= p, self.device) for u in uniforms]
+
+    def gradient_step(
+        self,
+        batch: torch.Tensor,
+        keeps: list[torch.Tensor] | None,
+        mask: torch.Tensor,
+        count: torch.Tensor,
+        active: torch.Tensor,
+        lr: torch.Tensor,
+    ) -> torch.Tensor:
+        """One update of the online networks of the ``active`` seeds on ``batch`` [S, B, row width]
+        (rows where ``mask`` is 0 are padding); each seed's loss and Q mean [S, 2] (detached)."""
+        config, net, d = self.config, self.net, self.env_info.obs_dim
+        observations = batch[..., :d].contiguous()
+        next_observations = batch[..., d : 2 * d].contiguous()
+        actions = batch[..., 2 * d].long()
+        rewards, terminated = batch[..., 2 * d + 1], batch[..., 2 * d + 2]
+        q_all = net.forward(net.params, observations, self.activation, keeps)
+        targets = self.targets(next_observations, rewards, terminated)
+        q = q_all.gather(2, actions.unsqueeze(2)).squeeze(2)
+        if config.loss == "huber":
+            elementwise = F.smooth_l1_loss(q, targets, reduction="none")
+        else:
+            elementwise = F.mse_loss(q, targets, reduction="none")
+        losses = (elementwise * mask).sum(dim=1) / count  # each seed's mean over its own rows
+        net.grad.zero_()
+        with warnings.catch_warnings():
+            # The gradients are views of one [S, P] tensor on purpose (see StackedQNetwork).
+            warnings.filterwarnings("ignore", "grad and param do not obey the gradient layout")
+            (losses * active.to(losses.dtype)).sum().backward()
+        if config.max_grad_norm is not None:  # each seed's global norm, as clip_grad_norm_ computes it
+            norms = torch.linalg.vector_norm(net.grad, dim=1, keepdim=True)
+            net.grad.mul_((config.max_grad_norm / (norms + 1e-6)).clamp(max=1.0))
+        self.optimizer.step(net.flat, net.grad, lr, active)
+        with torch.no_grad():
+            q_means = (q.detach() * mask).sum(dim=1) / count
+            return torch.stack([losses.detach(), q_means], dim=1)
+
+    @torch.no_grad()
+    def targets(
+        self, next_observations: torch.Tensor, rewards: torch.Tensor, terminated: torch.Tensor
+    ) -> torch.Tensor:
+        """The Bellman targets [S, B] (:func:`~cartpole.agents.dqn.td_targets`, per row). Without a
+        target network the online nets (without dropout) value s', as the single run does."""
+        config, net = self.config, self.net
+        next_q_target = net.forward(net.target_params, next_observations, self.activation)
+        next_q_online = None
+        if config.double_dqn:
+            same = net.target is None
+            next_q_online = (
+                next_q_target if same else net.forward(net.params, next_observations, self.activation)
+            )
+        seeds, rows, n_actions = next_q_target.shape
+        targets = td_targets(
+            rewards.reshape(-1),
+            terminated.reshape(-1),
+            next_q_target.reshape(-1, n_actions),
+            None if next_q_online is None else next_q_online.reshape(-1, n_actions),
+            config.gamma,
+        )
+        return targets.view(seeds, rows)
+
+    def after_step(self, training: np.ndarray) -> None:
+        """Count the gradient step of the ``training`` seeds; their due target updates and their
+        multiplicative epsilon decay."""
+        config = self.config
+        self.gradient_steps += training
+        due = training & (self.gradient_steps % config.target_update_interval == 0)
+        self.net.update_target(due, config.tau)
+        if config.epsilon_schedule == "multiplicative":
+            m = self.epsilon_multiplied
+            decays = training & (m > config.epsilon_end)
+            self.epsilon_multiplied = np.where(
+                decays, np.maximum(config.epsilon_end, m * config.epsilon_decay_rate), m
+            )
+
+    # -- one seed, as a single run sees it ----------------------------------------------------------
+
+    def seed_policy(self, seed: int) -> QNetworkPolicy:
+        """Seed ``seed``'s greedy policy (a frozen copy)."""
+        return QNetworkPolicy(self.net.unstack(self.row(seed)))
+
+    def greedy_actor(self, seeds: list[int]) -> BlockActor:
+        """The greedy policies of ``seeds`` as one :data:`~cartpole.evaluation.BlockActor` (block i
+        holds seed i's rows): one stacked NumPy forward pass per call, as
+        :class:`~cartpole.agents.q_network.QNetworkPolicy` acts alone."""
+        rows = [self.row(seed) for seed in seeds]
+        params = {name: p.detach()[rows].cpu().numpy() for name, p in self.net.params.items()}
+
+        def linear(name: str) -> tuple[np.ndarray, np.ndarray]:
+            return params[f"{name}.weight"].transpose(0, 2, 1).copy(), params[f"{name}.bias"][
+                :, None, :
+            ].copy()
+
+        activation = NUMPY_ACTIVATIONS[ACTIVATIONS[self.config.activation]]
+        body: list[Step] = []
+        for weight, _ in self.net.hidden:
+            body += [linear(weight.removesuffix(".weight")), activation]
+        head: list[Step] = [linear("head")]
+        value: list[Step] | None = [linear("value")] if self.net.dueling else None
+        return block_greedy_q_actor(body, head, value, self.env_info.obs_dim)
+
+    def seed_state_dict(self, seed: int, resume: bool) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+        """Seed ``seed``'s checkpoint in ``DQNLearner.state_dict``'s format: ``q_net.*`` (what
+        :func:`~cartpole.agents.dqn.policy_from_checkpoint` reads) and, with ``resume``, everything
+        to continue exactly: target, Adam, replay rows, generators, counters and envs."""
+        row = self.row(seed)
+        tensors = self.network_tensors("q_net.", self.net.flat, row)
+        data: dict[str, Any] = {"obs_dim": self.env_info.obs_dim, "n_actions": self.env_info.n_actions}
+        if not resume:
+            return tensors, data
+        if self.net.target is not None:
+            tensors |= self.network_tensors("target_net.", self.net.target, row)
+        size = self.net.size
+        optim_tensors, optim_data = self.optimizer.row_state(row)
+        tensors |= {k: v[:size].clone() for k, v in optim_tensors.items()}
+        replay_tensors, replay_data = self.replay.row_state(row)
+        tensors |= {f"replay.{k}": v for k, v in replay_tensors.items()}
+        tensors["rng.dropout"] = self.dropout_generators[row].get_state()
+        tensors["rng.replay"] = self.replay_generators[row].get_state()
+        envs = slice(row * self.config.num_envs, (row + 1) * self.config.num_envs)
+        tensors["envs.observations"] = torch.from_numpy(self.observations[envs].copy())
+        data |= {
+            "population": True,
+            **optim_data,
+            "replay": replay_data,
+            "rng_numpy": self.explore_rngs[row].bit_generator.state,
+            "env_steps": int(self.env_steps[row]),
+            "calls": int(self.calls[row]),
+            "gradient_steps": int(self.gradient_steps[row]),
+            "epsilon_multiplied": float(self.epsilon_multiplied[row]),
+            "last_loss": none_if_nan(float(self.last_loss[row])),
+            "last_q_mean": none_if_nan(float(self.last_q_mean[row])),
+            "autoreset": self.autoreset[envs].tolist(),
+            "episode_returns": self.episode_returns[envs].tolist(),
+            "episode_lengths": self.episode_lengths[envs].tolist(),
+            "env_state": self.envs.seed_state(row),
+        }
+        return tensors, data
+
+    def network_tensors(self, prefix: str, flat: torch.Tensor, row: int) -> dict[str, torch.Tensor]:
+        """Row ``row`` of ``flat`` as a QNetwork state dict, keys prefixed (CPU copies)."""
+        model = self.net.unstack(row, flat)
+        return {prefix + k: v.detach().clone() for k, v in model.state_dict().items()}
+
+    def load_seed_state_dict(self, seed: int, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None:
+        """Restore what ``seed_state_dict(seed, resume=True)`` gave."""
+        if not data.get("population"):
+            raise ConfigError("not a population checkpoint: resume it as a single run")
+        row = self.row(seed)
+
+        def unprefixed(prefix: str) -> dict[str, torch.Tensor]:
+            return {k.removeprefix(prefix): v for k, v in tensors.items() if k.startswith(prefix)}
+
+        self.net.load_row(row, self.net.flat, unprefixed("q_net."))
+        if self.net.target is not None:
+            self.net.load_row(row, self.net.target, unprefixed("target_net."))
+        width = self.net.flat.shape[1]
+        optim = {k: torch.cat([v, v.new_zeros(width - len(v))]) for k, v in unprefixed("optim.").items()}
+        self.optimizer.load_row_state(row, {f"optim.{k}": v for k, v in optim.items()}, data)
+        self.replay.load_row_state(row, unprefixed("replay."), data["replay"])
+        self.dropout_generators[row].set_state(tensors["rng.dropout"])
+        self.replay_generators[row].set_state(tensors["rng.replay"])
+        self.explore_rngs[row].bit_generator.state = data["rng_numpy"]
+        self.env_steps[row], self.calls[row] = int(data["env_steps"]), int(data["calls"])
+        self.gradient_steps[row] = int(data["gradient_steps"])
+        self.epsilon_multiplied[row] = float(data["epsilon_multiplied"])
+        self.last_loss[row] = nan_if_none(data.get("last_loss"))
+        self.last_q_mean[row] = nan_if_none(data.get("last_q_mean"))
+        envs = slice(row * self.config.num_envs, (row + 1) * self.config.num_envs)
+        self.observations[envs] = tensors["envs.observations"].numpy()
+        self.autoreset[envs] = data["autoreset"]
+        self.episode_returns[envs] = data["episode_returns"]
+        self.episode_lengths[envs] = data["episode_lengths"]
+        self.envs.load_seed_state(row, data["env_state"])
+        self.greedy = None  # the row's weights and observations changed
+
+
+def none_if_nan(value: float) -> float | None:
+    """JSON metadata holds no NaN (checkpoints are written with ``allow_nan=False``)."""
+    return None if math.isnan(value) else value
+
+
+def nan_if_none(value: float | None) -> float:
+    return math.nan if value is None else float(value)
+
+
+def block_greedy_q_actor(
+    body: list[Step], head: list[Step], value: list[Step] | None, obs_dim: int
+) -> BlockActor:
+    """The greedy actions of S stacked Q-networks (numpy plans with ``[S, in, out]`` weights) as one
+    :data:`~cartpole.evaluation.BlockActor`: rows of blocks ``blocks`` ``[k * E, obs_dim]`` (network
+    b's E rows in block b) to actions ``[k * E]``. A subset of the blocks runs through a stack of
+    those networks only, kept until the subset changes."""
+    parts = [StackedNumpyMLP(body), StackedNumpyMLP(head)] + ([StackedNumpyMLP(value)] if value else [])
+    count = parts[1].count
+    kept: dict[bytes, list[StackedNumpyMLP]] = {}
+
+    def networks(blocks: np.ndarray) -> list[StackedNumpyMLP]:
+        if len(blocks) == count:
+            return parts
+        key = np.asarray(blocks, dtype=np.int64).tobytes()
+        if key not in kept:
+            kept.clear()
+            kept[key] = [part.subset(np.asarray(blocks)) for part in parts]
+        return kept[key]
+
+    def act(observations: np.ndarray, blocks: np.ndarray) -> np.ndarray:
+        mlps = networks(blocks)
+        x = np.asarray(observations, dtype=np.float32).reshape(len(blocks), -1, obs_dim)
+        features = mlps[0](x)
+        q = mlps[1](features)
+        if len(mlps) == 3:  # dueling, as QNetworkPolicy.scores
+            q = mlps[2](features) + q - q.mean(axis=-1, keepdims=True)
+        return q.argmax(axis=-1).reshape(-1)
+
+    return act
+
+
+def q_network_parameters(config: DQNConfig, env: EnvInfo) -> int:
+    """Parameters of one Q-network."""
+    sizes = [env.obs_dim, *config.hidden_sizes]
+    body = sum(n_in * n_out + n_out for n_in, n_out in itertools.pairwise(sizes))
+    head = sizes[-1] * env.n_actions + env.n_actions
+    value = sizes[-1] + 1 if config.dueling else 0
+    return body + head + value
+
+
+def dqn_bytes_per_seed(config: DQNConfig, env: EnvInfo) -> int:
+    """What one seed of a DQN population holds, roughly: its replay rows, its parameters five times
+    (online, target, gradient, Adam's two moments), a minibatch's activations (the online pass with
+    its gradients, the target and online passes over the next states, dropout masks) and the
+    per-seed bookkeeping (run folder, callbacks)."""
+    replay = config.buffer_size * (2 * env.obs_dim + 3) * 4
+    parameters = padded(q_network_parameters(config, env)) * 4 * 5
+    rows = padded(config.batch_size)
+    activations = rows * (sum(config.hidden_sizes) + env.n_actions + 2 * env.obs_dim + 8) * 4 * 8
+    bookkeeping = 2 * 1024**2
+    return replay + parameters + activations + bookkeeping
+
+
+__all__ = [
+    "ALIGN",
+    "PopulationDQN",
+    "StackedQNetwork",
+    "StackedReplay",
+    "block_greedy_q_actor",
+    "dqn_bytes_per_seed",
+    "q_network_parameters",
+]

@@ -1,0 +1,102 @@
+"""One engine for every run: ``cartpole train AGENT --seed N`` is a population of one, and seed N
+trains bit for bit the same alone as beside other seeds, for every agent, batched or not."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+import torch
+
+from cartpole.agents.population import LearnerPopulation, build_population
+from cartpole.agents.registry import agent_names, get_agent
+from cartpole.cli.main import main
+from cartpole.envs import env_info
+from cartpole.training import train
+from cartpole.training.config import resolve_config
+from cartpole.training.session import train_population
+
+SMALL = {
+    "ppo": ({"n_steps": 16, "num_envs": 4, "minibatch_size": 32, "hidden_sizes": "16,16"}, "3k"),
+    "a2c": ({"n_steps": 8, "num_envs": 4, "hidden_sizes": "16,16"}, "3k"),
+    "reinforce": ({"num_envs": 2, "hidden_sizes": "16,16"}, "3k"),
+    "dqn": ({"hidden_sizes": "16,16", "learning_starts": "200", "batch_size": "32"}, "2k"),
+    "cem": ({"population": "8"}, "3gen"),
+    "random-search": ({"population": "8"}, "3gen"),
+    "hill-climbing": ({"population": "8"}, "3gen"),
+}
+"""Per agent: small settings and a budget that trains a few updates and evaluates on the way."""
+
+
+@pytest.fixture(autouse=True, scope="module")
+def one_thread():
+    """The same thread count for every run compared (as ``cartpole train`` sets it: 1)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def test_every_agent_is_covered():
+    assert set(SMALL) == set(agent_names())
+
+
+def run_files(run: Path, idle: tuple[str, ...]) -> dict[str, Any]:
+    """What a run left that must not depend on its neighbours: metric rows (without wall times),
+    the verdict, and every tensor of its latest and best checkpoints but one: REINFORCE plays until
+    the longest episode of its batch ends, so a seed's finished envs step on idle until then, and
+    where they stand (``collector.*``) is never used: every batch restarts them."""
+    rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+    rows = [{k: v for k, v in row.items() if k not in ("time", "time/sps")} for row in rows]
+    files: dict[str, Any] = {"metrics": rows, "verdict": json.loads((run / "eval.json").read_text())}
+    for name in ("latest", "best"):
+        tensors = torch.load(run / "checkpoints" / f"{name}.pt", weights_only=True)["tensors"]
+        files[name] = {k: v for k, v in tensors.items() if not k.startswith(idle)}
+    return files
+
+
+def assert_same_run(a: Path, b: Path, agent: str) -> None:
+    idle = ("collector.",) if agent == "reinforce" else ()
+    left, right = run_files(a, idle), run_files(b, idle)
+    assert left["metrics"] == right["metrics"]
+    assert left["verdict"] == right["verdict"]
+    for name in ("latest", "best"):
+        assert left[name].keys() == right[name].keys()
+        for key, tensor in left[name].items():
+            assert torch.equal(tensor, right[name][key]), f"{name}.pt: {key} differs"
+
+
+@pytest.mark.parametrize("agent", sorted(SMALL))
+def test_seed_alone_is_bit_identical_to_the_seed_in_a_population(agent, tmp_path):
+    overrides, budget = SMALL[agent]
+    options = {"overrides": dict(overrides), "budget": budget, "stop_when_solved": False}
+    alone = train(agent, seed=4, runs_dir=tmp_path / "alone", **options)
+    among = train_population(agent, [9, 4, 2], runs_dir=tmp_path / "among", **options)
+    assert alone.state.env_steps == among.states[4].env_steps > 0
+    assert alone.state.evaluations >= 1
+    assert_same_run(alone.run.path, among.runs[4].path, agent)
+
+
+@pytest.mark.parametrize("agent", ["ppo", "dqn", "cem"])
+def test_other_envs_train_side_by_side_with_the_same_independence(agent, tmp_path):
+    """Acrobot has no batched simulator of ours: each seed gets its own learner, still one engine."""
+    overrides = SMALL[agent][0]
+    spec = get_agent(agent)
+    config, _ = resolve_config(agent, spec.config_cls, "default", dict(overrides))
+    assert isinstance(build_population(spec, config, env_info("Acrobot-v1"), [1, 2]), LearnerPopulation)
+    options = {"overrides": dict(overrides), "budget": "1500" if agent != "cem" else "2gen"}
+    alone = train(agent, "Acrobot-v1", seed=2, runs_dir=tmp_path / "alone", **options)
+    among = train_population(agent, [1, 2], "Acrobot-v1", runs_dir=tmp_path / "among", **options)
+    assert_same_run(alone.run.path, among.runs[2].path, agent)
+
+
+def test_the_tutorial_presets_on_gymnasiums_env_train_as_populations_too(tmp_path, capsys):
+    code = main(
+        ["train", "dqn", "--preset", "tutorial-pytorch", "--seeds", "0,1", "--budget", "600",
+         "--runs-dir", str(tmp_path), "--quiet"]
+    )  # fmt: skip
+    assert code == 0
+    assert "2 runs in" in capsys.readouterr().out
+    assert len(list(tmp_path.iterdir())) == 2
