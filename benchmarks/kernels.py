@@ -6,7 +6,7 @@ matmul, a policy head's weight gradient in both orientations, and the Adam step 
 
 Shapes are a 100-seed PPO population's full-batch step: ``[seeds, rows, width]`` activations, and
 ``[seeds, rows, width] x [seeds, width, width]`` for a hidden layer. Printed: nanoseconds an element
-for ``torch.tanh``, ``np.tanh`` and ``cartpole.agents.fast_tanh`` (the one the populations and the
+for ``torch.tanh``, ``np.tanh`` and ``cartpole.agents.nn.fast_tanh`` (the one the populations and the
 numpy greedy policies use), the largest relative difference of the last from float64 ``tanh``, and
 GFLOP/s of ``torch.bmm``; then the weight gradient of a 2-output head (``[seeds, width, rows] x
 [seeds, rows, 2]``, autograd's orientation for ``baddbmm``, against ``[seeds, 2, rows] x [seeds,
@@ -26,8 +26,8 @@ import numpy as np
 import torch
 from cpu import describe_cpu
 
-from cartpole.agents.fast_tanh import tanh_array
-from cartpole.agents.population_optimizers import PopulationAdam
+from cartpole.agents.nn.fast_tanh import tanh_array
+from cartpole.agents.nn.population_optimizers import PopulationAdam
 
 
 def seconds_per_call(call: Callable[[], object], repeats: int) -> float:

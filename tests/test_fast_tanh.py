@@ -1,4 +1,4 @@
-"""The fast float32 tanh (cartpole.agents.fast_tanh): accurate, odd, NaN-preserving, differentiable."""
+"""The fast float32 tanh (cartpole.agents.nn.fast_tanh): accurate, odd, NaN-preserving, differentiable."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from cartpole.agents.fast_tanh import tanh, tanh_array
+from cartpole.agents.nn.fast_tanh import tanh, tanh_array
 
 
 def grid() -> np.ndarray:

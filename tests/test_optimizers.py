@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from cartpole.agents.optimizers import FusedAdam, RMSprop
+from cartpole.agents.nn.optimizers import FusedAdam, RMSprop
 
 
 def make_parameters(seed: int) -> list[torch.Tensor]:

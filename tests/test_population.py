@@ -436,6 +436,7 @@ def run_cli(*args: str, **kwargs: object) -> subprocess.CompletedProcess[str]:
         ["ppo", "--seeds", ""],
         ["ppo", "--seeds", "a-b"],
         ["ppo", "--seeds", "0-4000", "--set", "hidden_sizes=2048,2048"],
+        ["dqn", "--seeds", "0-3000", "--set", "buffer_size=2000000"],
         pytest.param(
             ["ppo", "--seeds", "0-3", "--device", "cuda"],
             marks=pytest.mark.skipif(torch.cuda.is_available(), reason="a GPU is here: it would train"),
@@ -529,3 +530,19 @@ def test_kill_9_loses_at_most_one_checkpoint_interval_and_resume_finishes_every_
         steps = [row["step"] for row in RunDir(run).metrics() if "train/episode_return" in row]
         assert steps == sorted(steps)  # the lost steps were replayed, not logged twice
         assert saved_steps(run) >= budget
+
+
+def test_resume_of_a_population_with_one_corrupt_checkpoint_names_it_and_loses_nothing(tmp_path, capsys):
+    outcome = train_population("cem", [1, 2], budget="3gen", runs_dir=tmp_path, stop_when_solved=False)
+    for run in outcome.runs.values():  # as if interrupted: both would resume
+        status = json.loads((run.path / "status.json").read_text())
+        (run.path / "status.json").write_text(json.dumps(status | {"state": "interrupted"}))
+    broken = outcome.runs[2].checkpoint_path("latest")
+    broken.write_bytes(b"not a checkpoint")
+    kept = outcome.runs[1].checkpoint_path("latest").read_bytes()
+    metrics = (outcome.runs[1].path / "metrics.jsonl").read_text()
+    assert main(["train", "--resume", str(outcome.runs[1].path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(broken) in err
+    assert outcome.runs[1].checkpoint_path("latest").read_bytes() == kept
+    assert (outcome.runs[1].path / "metrics.jsonl").read_text() == metrics

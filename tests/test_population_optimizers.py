@@ -7,7 +7,7 @@ from collections.abc import Callable
 import pytest
 import torch
 
-from cartpole.agents.population_optimizers import PopulationAdam, PopulationOptimizer, PopulationRMSprop
+from cartpole.agents.nn.population_optimizers import PopulationAdam, PopulationOptimizer, PopulationRMSprop
 
 MAKERS: dict[str, Callable[[bool | None], PopulationOptimizer]] = {
     "adam": lambda fused: PopulationAdam(4, 33, eps=1e-5, betas=(0.8, 0.99), fused=fused),

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from cartpole.agents.stacked_linear import stacked_linear
+from cartpole.agents.nn.stacked_linear import stacked_linear
 
 
 def reference(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 import torch
 
 from cartpole.agents.learner import LearnResult
-from cartpole.agents.optimizers import Optimizer, RMSprop
+from cartpole.agents.nn.optimizers import Optimizer, RMSprop
 from cartpole.agents.policy_gradient import (
     PolicyGradientConfig,
     PolicyGradientLearner,

@@ -6,7 +6,7 @@
   1 on the value head, zero biases).
 - ``CategoricalPolicy``: the greedy policy of a trained actor, frozen: ``scores`` are the action
   probabilities, ``act`` their argmax. It runs the actor with numpy on copies of its weights
-  (:class:`~cartpole.agents.numpy_mlp.NumpyMLP`).
+  (:class:`~cartpole.agents.nn.numpy_mlp.NumpyMLP`).
 - ``schedule_value``: the constant and linear schedules of learning rate and clip range.
 """
 
@@ -19,11 +19,11 @@ import numpy as np
 import torch
 from torch import nn
 
-from cartpole.agents.numpy_mlp import NumpyMLP, StackedNumpyMLP
+from cartpole.agents.nn.numpy_mlp import NumpyMLP, StackedNumpyMLP
 from cartpole.evaluation import BlockActor
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
-"""Hidden-layer activations; each has a numpy twin (:mod:`cartpole.agents.numpy_mlp`)."""
+"""Hidden-layer activations; each has a numpy twin (:mod:`cartpole.agents.nn.numpy_mlp`)."""
 SCHEDULES = ("constant", "linear")
 
 

@@ -7,16 +7,17 @@ only the arithmetic:
 
 - ``StackedActorCritic``: the parameters of all S actor-critics in one flat ``[S, P]`` tensor; each
   layer is a view ``[S, out, in]`` of it and runs as one ``torch.baddbmm`` over the seed axis
-  (:func:`~cartpole.agents.stacked_linear.stacked_linear`, whose backward picks the fast
+  (:func:`~cartpole.agents.nn.stacked_linear.stacked_linear`, whose backward picks the fast
   orientation of each product). Batched matmuls, not ``torch.func.vmap`` over ``functional_call``:
   on the CPU, vmap's per-call batching rules cost more than these small layers' arithmetic, while
-  ``baddbmm`` is one kernel per layer; and it gives every seed the same bits
-  whatever the batch holds (tested), so a seed's run does not depend on which seeds share the process.
+  ``baddbmm`` is one kernel per layer; and it gives every seed the same bits whatever the batch
+  holds (tested; for layer widths that are multiples of 4, as every preset's are), so a seed's run
+  does not depend on which seeds share the process.
 - ``PopulationEnvs``: S x N CartPoles stepped by one call of the fast simulator's kernel
   (:func:`~cartpole.envs.fast.step_cartpole`), with Gymnasium's next-step autoreset, and the start
   states of each seed's envs drawn from that seed's own generator in Gymnasium's order (so they are
   the start states of the single run's vector env).
-- ``PopulationAdam`` (:mod:`cartpole.agents.population_optimizers`): one Adam step for all seeds
+- ``PopulationAdam`` (:mod:`cartpole.agents.nn.population_optimizers`): one Adam step for all seeds
   over the flat parameters, one numba pass per seed's row on the CPU. Adam is per element,
   so seeds stay independent; each seed has its own learning rate (schedules follow the seed's own
   env steps), step count, and can sit a step out (its last minibatch is empty, or it stopped on the
@@ -44,17 +45,17 @@ from torch import nn
 
 from cartpole.agents.a2c import A2CConfig
 from cartpole.agents.actor_critic import ActorCritic, CategoricalPolicy, block_greedy_actor, schedule_value
-from cartpole.agents.env_state import derived_seed
-from cartpole.agents.fast_tanh import tanh
 from cartpole.agents.learner import LearnResult
-from cartpole.agents.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step
+from cartpole.agents.nn.fast_tanh import tanh
+from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step
+from cartpole.agents.nn.population_optimizers import PopulationAdam, PopulationOptimizer, PopulationRMSprop
+from cartpole.agents.nn.stacked_linear import stacked_linear
 from cartpole.agents.policy_gradient import seeded_actor_critic
-from cartpole.agents.population_optimizers import PopulationAdam, PopulationOptimizer, PopulationRMSprop
 from cartpole.agents.ppo import PPOConfig
 from cartpole.agents.reinforce import LONGEST_EPISODE_WITHOUT_TIME_LIMIT, ReinforceConfig
 from cartpole.agents.rollout import generalized_advantages
-from cartpole.agents.stacked_linear import stacked_linear
 from cartpole.core.errors import ConfigError
+from cartpole.core.seeding import derived_seed
 from cartpole.envs import EnvInfo
 from cartpole.envs.fast import DEFAULT_RESET_HIGH, DEFAULT_RESET_LOW, step_cartpole
 from cartpole.evaluation import BlockActor
@@ -313,11 +314,7 @@ class PopulationActorCritic:
         """Where the networks, rollouts and updates live. The envs step on the CPU (numpy) and the
         seeds' random numbers come from their CPU generators, so a seed's draws are the same on any
         device; only the floats of the network arithmetic differ between devices."""
-        # At least two rows: torch reduces a one-row batch in another order than a many-row one, so a
-        # lone seed would not get the bits it gets beside others. A lone seed gets a ghost twin whose
-        # results are dropped.
-        self.seeds = list(seeds) if len(seeds) != 1 else [seeds[0], seeds[0]]
-        self.ghosts = [False] * len(seeds) if len(seeds) != 1 else [False, True]
+        self.seeds = list(seeds)
         with torch.device("cpu"):  # initialized as the single run initializes them, then moved
             models = [seeded_actor_critic(config, env, seed) for seed in self.seeds]
         self.model = StackedActorCritic(models, self.device)
@@ -336,22 +333,16 @@ class PopulationActorCritic:
     # -- which seeds --------------------------------------------------------------------------------
 
     def row(self, seed: int) -> int:
-        return next(i for i, s in enumerate(self.seeds) if s == seed and not self.ghosts[i])
+        return self.seeds.index(seed)
 
     @property
     def active_seeds(self) -> list[int]:
-        return [s for s, ghost in zip(self.seeds, self.ghosts, strict=True) if not ghost]
+        return list(self.seeds)
 
     def remove(self, seeds: list[int]) -> None:
-        """Stop training ``seeds`` (solved or out of budget): they leave every batch (one stays as a
-        ghost when a single seed would be left, see ``__init__``)."""
+        """Stop training ``seeds`` (solved or out of budget): they leave every batch."""
         gone = set(seeds)
-        keep_rows = [i for i, s in enumerate(self.seeds) if s not in gone and not self.ghosts[i]]
-        ghosts = [False] * len(keep_rows)
-        if len(keep_rows) == 1:
-            keep_rows.append(next(i for i in range(len(self.seeds)) if i != keep_rows[0]))
-            ghosts.append(True)
-        self.ghosts = ghosts
+        keep_rows = [i for i, s in enumerate(self.seeds) if s not in gone]
         rows = torch.tensor(keep_rows, dtype=torch.int64, device=self.device)
         rows_np = np.asarray(keep_rows, dtype=np.int64)
         envs = (rows_np[:, None] * self.config.num_envs + np.arange(self.config.num_envs)).reshape(-1)
@@ -389,10 +380,7 @@ class PopulationActorCritic:
         for row, seed in enumerate(self.seeds):
             returns, lengths = finished[row]
             self.env_steps[row] += counts[row]
-            if not self.ghosts[row]:
-                results[seed] = LearnResult(
-                    env_steps=counts[row], episode_returns=returns, episode_lengths=lengths
-                )
+            results[seed] = LearnResult(counts[row], episode_returns=returns, episode_lengths=lengths)
         return results
 
     def attach_metrics(
@@ -400,7 +388,7 @@ class PopulationActorCritic:
     ) -> None:
         """Give each seed that updated (``counts`` [S] of new transitions) its metrics row."""
         for row, seed in enumerate(self.seeds):
-            if self.ghosts[row] or counts[row] == 0:
+            if counts[row] == 0:
                 continue
             results[seed].scalars = metrics[row]
             results[seed].log_scalars = True
@@ -557,7 +545,7 @@ class PopulationActorCritic:
         """The greedy policies of ``seeds`` as one :data:`~cartpole.evaluation.BlockActor` (block i
         holds seed i's rows), one stacked NumPy forward pass per call.
 
-        NumPy, as a single run's greedy policy (:class:`~cartpole.agents.numpy_mlp.NumpyMLP`): an
+        NumPy, as a single run's greedy policy (:class:`~cartpole.agents.nn.numpy_mlp.NumpyMLP`): an
         evaluation acts on a few rows at a time, where torch's per-op overhead dominates, so
         ``np.matmul`` over the stacked weights costs less than ``baddbmm``."""
         rows = [self.row(seed) for seed in seeds]
@@ -813,8 +801,7 @@ class PopulationReinforce(PopulationActorCritic):
     Episodes have different lengths, and play lasts until the longest episode of *any* seed ends. So
     that a seed's arithmetic does not depend on its neighbours, its update runs on its own rows cut
     to a length that depends only on them: the next power of two at or above its longest episode.
-    Seeds of the same length update together (a lone one beside a ghost twin, see ``__init__`` of
-    the base), one batched forward and backward pass per length.
+    Seeds of the same length update together, one batched forward and backward pass per length.
     """
 
     config: ReinforceConfig
@@ -830,12 +817,9 @@ class PopulationReinforce(PopulationActorCritic):
 
     def remove(self, seeds: list[int]) -> None:
         gone = set(seeds)
-        rows = zip(self.seeds, self.episode_rngs, self.ghosts, strict=True)
-        kept = [rng for seed, rng, ghost in rows if seed not in gone and not ghost]
+        rngs = zip(self.seeds, self.episode_rngs, strict=True)
+        self.episode_rngs = [rng for seed, rng in rngs if seed not in gone]
         super().remove(seeds)
-        if len(kept) < len(self.seeds):  # a ghost twin joined: its results are dropped
-            kept.append(np.random.default_rng(derived_seed(self.seeds[-1], "episodes")))
-        self.episode_rngs = kept
 
     def restart(self) -> None:
         """Fresh episodes in every env, from each seed's own episode generator."""
@@ -892,14 +876,12 @@ class PopulationReinforce(PopulationActorCritic):
         """The loss of the seeds at ``rows`` (all with update length ``length``), backpropagated into
         their rows of the gradients; their metrics into ``metrics``."""
         config, envs = self.config, self.config.num_envs
-        twin = len(rows) == 1
-        group = rows * 2 if twin else rows
-        index = torch.tensor(group, dtype=torch.int64, device=self.device)
+        index = torch.tensor(rows, dtype=torch.int64, device=self.device)
         columns = (index.unsqueeze(1) * envs + torch.arange(envs, device=self.device)).reshape(-1)
         params = {name: p[index] for name, p in self.model.params.items()}
         detached = {name: p.detach() for name, p in params.items()}
         rollout = self.advantages(
-            transitions.columns(columns, length), detached, len(group), 1.0, config.baseline
+            transitions.columns(columns, length), detached, len(rows), 1.0, config.baseline
         )
         valid, count = rollout.valid.float(), rollout.counts
         logits = StackedActorCritic.run(self.model.actor_plan, params, rollout.observations)
@@ -917,13 +899,10 @@ class PopulationReinforce(PopulationActorCritic):
         loss = policy_loss - config.ent_coef * entropy
         if config.baseline:
             loss = loss + config.vf_coef * value_loss
-        real = torch.tensor(
-            [1.0] + [0.0] * (len(group) - 1) if twin else [1.0] * len(group), device=self.device
-        )
         with warnings.catch_warnings():
             # The gradients are views of one [S, P] tensor on purpose (see StackedActorCritic).
             warnings.filterwarnings("ignore", "grad and param do not obey the gradient layout")
-            (loss * real).sum().backward()
+            loss.sum().backward()
         explained = self.explained_variances(rollout).tolist()
         values_of = torch.stack([policy_loss, value_loss, entropy], dim=1).tolist()
         for i, row in enumerate(rows):

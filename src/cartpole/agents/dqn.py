@@ -12,8 +12,8 @@ What it does, in order:
 4. Checkpoints: what a resume restores, and the greedy policy rebuilt from a checkpoint.
 
 The parts it uses live apart: the network and its greedy policy in :mod:`cartpole.agents.q_network`,
-Adam in :mod:`cartpole.agents.optimizers`, the replay buffer in :mod:`cartpole.agents.replay_buffer`, and
-the vector envs a checkpoint can put back mid-episode in :mod:`cartpole.agents.resumable_envs`.
+Adam in :mod:`cartpole.agents.nn.optimizers`, the replay buffer in :mod:`cartpole.agents.replay_buffer`, and
+the vector envs a checkpoint can put back mid-episode in :mod:`cartpole.envs.resumable_envs`.
 
 The learner owns every random stream it uses (network initialization, dropout masks, exploration,
 replay sampling), each seeded from the run's seed: building or training one changes nothing global
@@ -27,10 +27,9 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import itertools
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -39,14 +38,18 @@ from torch import nn
 
 from cartpole.agents.learner import LearnResult
 from cartpole.agents.memory import dqn_memory_problem
-from cartpole.agents.optimizers import FusedAdam
+from cartpole.agents.nn.optimizers import FusedAdam
 from cartpole.agents.q_network import ACTIVATIONS, QNetwork, QNetworkPolicy
 from cartpole.agents.registry import AgentSpec
 from cartpole.agents.replay_buffer import ReplayBuffer
-from cartpole.agents.resumable_envs import make_resumable_vec_env, restore_vector_env_state, vector_env_state
 from cartpole.core.config import build_config, require
+from cartpole.core.seeding import derived_seed
 from cartpole.envs import EnvInfo, check_simulator
+from cartpole.envs.resumable_envs import make_resumable_vec_env, restore_vector_env_state, vector_env_state
 from cartpole.runs import Checkpoint, CheckpointError
+
+if TYPE_CHECKING:
+    from cartpole.agents.population import Population
 
 SCHEDULES = ("linear", "exponential", "multiplicative")
 LOSSES = ("huber", "mse")
@@ -193,12 +196,6 @@ def epsilon_at(config: DQNConfig, env_steps: int, multiplied: float) -> float:
     if config.epsilon_schedule == "exponential":
         return end + (start - end) * math.exp(-env_steps / config.epsilon_decay_steps)
     return multiplied
-
-
-def derived_seed(seed: int, stream: str) -> int:
-    """A seed for one named random stream of a run, independent of the run seed's other uses."""
-    words = np.random.SeedSequence([seed, *stream.encode()]).generate_state(2, dtype=np.uint32)
-    return int(words[0]) << 32 | int(words[1])
 
 
 class DQNLearner:
@@ -371,7 +368,7 @@ class DQNLearner:
     def state_dict(self, resume: bool) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
         """The weights (always); with ``resume`` everything a resume needs to continue exactly: target
         net, Adam, replay rows, the learner's random streams, its counters and the envs' episodes in
-        progress (see :mod:`cartpole.agents.resumable_envs` for exactly what of the envs is kept)."""
+        progress (see :mod:`cartpole.envs.resumable_envs` for exactly what of the envs is kept)."""
         tensors = prefixed("q_net.", self.q_net.state_dict())
         data: dict[str, Any] = {"obs_dim": self.env_info.obs_dim, "n_actions": self.env_info.n_actions}
         if not resume:
@@ -464,14 +461,16 @@ def make_learner(config: DQNConfig, env: EnvInfo, seed: int, device: str) -> DQN
     return DQNLearner(config, env, seed, device)
 
 
+def make_population(config: DQNConfig, env: EnvInfo, seeds: list[int], device: str) -> Population:
+    from cartpole.agents.dqn_population import PopulationDQN
+
+    return PopulationDQN(config, env, seeds, device)
+
+
 def bytes_per_seed(config: DQNConfig, env: EnvInfo) -> int:
-    """About what one seed holds: replay rows, the networks with their gradient and Adam state, a
-    batch's activations, and the run's bookkeeping."""
-    replay = config.buffer_size * (2 * env.obs_dim + 3) * 4
-    sizes = [env.obs_dim, *config.hidden_sizes, env.n_actions + int(config.dueling)]
-    parameters = sum(n_in * n_out + n_out for n_in, n_out in itertools.pairwise(sizes))
-    activations = config.batch_size * sum(config.hidden_sizes) * 4 * 6
-    return replay + parameters * 4 * 5 + activations + 2 * 1024**2
+    from cartpole.agents.dqn_population import dqn_bytes_per_seed
+
+    return dqn_bytes_per_seed(config, env)
 
 
 AGENT = AgentSpec(
@@ -481,6 +480,7 @@ AGENT = AgentSpec(
     make_learner=make_learner,
     policy_from_checkpoint=policy_from_checkpoint,
     bytes_per_seed=bytes_per_seed,
+    make_population=make_population,
     iteration="step",
     score_label="Q-values",
 )

@@ -9,14 +9,14 @@ arithmetic, along a leading seed axis:
 
 - ``StackedQNetwork``: the online parameters of all S Q-networks in one flat ``[S, P]`` tensor (each
   parameter a ``[S, *shape]`` view of it, each linear layer one ``torch.baddbmm`` for all seeds, see
-  :func:`~cartpole.agents.stacked_linear.stacked_linear`), their gradients in another, and the
+  :func:`~cartpole.agents.nn.stacked_linear.stacked_linear`), their gradients in another, and the
   target networks in a third: a Polyak update is one ``lerp`` over the flat tensors.
 - ``StackedReplay``: the replay memories as one ``[S, capacity, 2 * obs_dim + 3]`` table (the row
   layout of :class:`~cartpole.agents.replay_buffer.ReplayBuffer`) with a write position and a fill
   count per seed; a minibatch of every seed is one ``index_select``.
 - :class:`~cartpole.agents.actor_critic_population.PopulationEnvs` steps the S x ``num_envs``
   CartPoles with one call of the fast simulator, and
-  :class:`~cartpole.agents.population_optimizers.PopulationAdam` steps every seed's Adam in one pass.
+  :class:`~cartpole.agents.nn.population_optimizers.PopulationAdam` steps every seed's Adam in one pass.
 - ``PopulationDQN``: one ``learn()`` = one batched env step of every seed (one forward pass for all
   seeds' greedy actions) and, for the seeds whose training round is due, ``gradient_steps`` batched
   gradient steps (one forward, one backward and one Adam step for all of them).
@@ -36,9 +36,12 @@ torch's kernels would otherwise betray a seed's position in the batch:
   round differently. So every per-seed block is a multiple of :data:`ALIGN` elements (the flat
   parameters are padded, minibatches and acting batches have a multiple of :data:`ALIGN` rows): no
   seed's elements ever fall into the scalar tail.
-- torch reduces a one-row batch in another order than a many-row one: a lone seed trains beside a
-  "ghost twin" (a second row whose results are dropped), as the actor-critic populations do
-  (:mod:`cartpole.agents.actor_critic_population`).
+- A value head (one output) multiplies in the orientation whose bits do not depend on the number
+  of seeds (:func:`~cartpole.agents.nn.stacked_linear.linear_forward`), so a lone seed needs no company.
+
+Torch's batched products give every seed the same bits wherever it sits in the batch when the
+layer widths are multiples of 4 (every preset's are; ``tests/test_one_engine.py``); for other widths
+(7, 10, 33, ...) a seed's floats can depend on its position in the last bit.
 
 Only the floats of the network arithmetic differ from the single CPU run's (batched kernels, a
 masked mean over padded rows): its episodes, random draws and replay rows are the single run's, and
@@ -59,14 +62,14 @@ import torch.nn.functional as F
 
 from cartpole.agents.actor_critic_population import PopulationEnvs
 from cartpole.agents.dqn import DQNConfig, epsilon_at, td_targets
-from cartpole.agents.env_state import derived_seed
-from cartpole.agents.fast_tanh import tanh
 from cartpole.agents.learner import LearnResult
-from cartpole.agents.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step
-from cartpole.agents.population_optimizers import PopulationAdam
+from cartpole.agents.nn.fast_tanh import tanh
+from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step
+from cartpole.agents.nn.population_optimizers import PopulationAdam
+from cartpole.agents.nn.stacked_linear import stacked_linear
 from cartpole.agents.q_network import ACTIVATIONS, QNetwork, QNetworkPolicy
-from cartpole.agents.stacked_linear import stacked_linear
 from cartpole.core.errors import ConfigError
+from cartpole.core.seeding import derived_seed
 from cartpole.envs import EnvInfo
 from cartpole.evaluation import BlockActor
 
@@ -75,11 +78,11 @@ ALIGN = 32
 AVX-512 vectors, the widest step of torch's vectorized CPU loops (see the module docstring)."""
 
 ADAM_EPS = 1e-8
-"""Adam's epsilon: :class:`~cartpole.agents.optimizers.FusedAdam`'s (torch's default)."""
+"""Adam's epsilon: :class:`~cartpole.agents.nn.optimizers.FusedAdam`'s (torch's default)."""
 
 TORCH_ACTIVATIONS: dict[str, Callable[[torch.Tensor], torch.Tensor]] = {
     "relu": torch.relu,
-    "tanh": tanh,  # the populations' fast tanh (cartpole.agents.fast_tanh)
+    "tanh": tanh,  # the populations' fast tanh (cartpole.agents.nn.fast_tanh)
     "elu": F.elu,
     "gelu": F.gelu,
 }
@@ -334,9 +337,7 @@ class PopulationDQN:
         """Where the networks, the replay memories and the updates live. The envs step on the CPU
         (numpy) and every random draw comes from a seed's own CPU generator, so a seed's draws are the
         same on any device."""
-        # A lone seed gets a ghost twin (a second row whose results are dropped): see the docstring.
-        self.seeds = list(seeds) if len(seeds) != 1 else [seeds[0], seeds[0]]
-        self.ghosts = [False] * len(seeds) if len(seeds) != 1 else [False, True]
+        self.seeds = list(seeds)
         self.activation = TORCH_ACTIVATIONS[config.activation]
         self.net = StackedQNetwork(
             [seeded_q_network(config, env, s) for s in self.seeds], config.target_network, self.device
@@ -373,24 +374,18 @@ class PopulationDQN:
     # -- which seeds --------------------------------------------------------------------------------
 
     def row(self, seed: int) -> int:
-        return next(i for i, s in enumerate(self.seeds) if s == seed and not self.ghosts[i])
+        return self.seeds.index(seed)
 
     @property
     def active_seeds(self) -> list[int]:
-        return [s for s, ghost in zip(self.seeds, self.ghosts, strict=True) if not ghost]
+        return list(self.seeds)
 
     def remove(self, seeds: list[int]) -> None:
-        """Stop training ``seeds``: they leave every batch (one stays as a ghost when a single seed
-        would be left)."""
+        """Stop training ``seeds``: they leave every batch."""
         gone = set(seeds)
-        keep_rows = [i for i, s in enumerate(self.seeds) if s not in gone and not self.ghosts[i]]
+        keep_rows = [i for i, s in enumerate(self.seeds) if s not in gone]
         if not keep_rows:
             raise ConfigError("cannot remove every seed of a population")
-        ghosts = [False] * len(keep_rows)
-        if len(keep_rows) == 1:
-            keep_rows.append(next(i for i in range(len(self.seeds)) if i != keep_rows[0]))
-            ghosts.append(True)
-        self.ghosts = ghosts
         rows_np = np.asarray(keep_rows, dtype=np.int64)
         rows = torch.from_numpy(rows_np).to(self.device)
         n = self.config.num_envs
@@ -524,8 +519,6 @@ class PopulationDQN:
     ) -> dict[int, LearnResult]:
         results = {}
         for row, seed in enumerate(self.seeds):
-            if self.ghosts[row]:
-                continue
             returns, lengths = finished[row]
             result = LearnResult(
                 env_steps=int(collected[row]), episode_returns=returns, episode_lengths=lengths

@@ -23,10 +23,10 @@ from cartpole.agents.actor_critic import (
     CategoricalPolicy,
     schedule_value,
 )
-from cartpole.agents.env_state import derived_seed
-from cartpole.agents.optimizers import FusedAdam, Optimizer
+from cartpole.agents.nn.optimizers import FusedAdam, Optimizer
 from cartpole.agents.rollout import RolloutBuffer, RolloutCollector, generalized_advantages
 from cartpole.core.config import build_config, require
+from cartpole.core.seeding import derived_seed
 from cartpole.envs import EnvInfo, check_simulator
 from cartpole.runs import Checkpoint, CheckpointError
 

@@ -23,7 +23,7 @@ import torch
 
 from cartpole.agents.actor_critic import SCHEDULES, schedule_value
 from cartpole.agents.learner import LearnResult
-from cartpole.agents.optimizers import Optimizer
+from cartpole.agents.nn.optimizers import Optimizer
 from cartpole.agents.policy_gradient import (
     Batch,
     PolicyGradientConfig,

@@ -27,7 +27,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from cartpole.agents.numpy_mlp import NumpyMLP
+from cartpole.agents.nn.numpy_mlp import NumpyMLP
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {"relu": nn.ReLU, "tanh": nn.Tanh, "elu": nn.ELU, "gelu": nn.GELU}
 
@@ -123,7 +123,7 @@ class QNetworkPolicy:
     """Greedy policy of a Q-network: ``act`` = argmax of ``scores`` (the Q-values).
 
     A frozen snapshot: numpy copies of the network's weights taken when it is built, run without
-    dropout (:class:`~cartpole.agents.numpy_mlp.NumpyMLP`: for one row several times faster than a torch
+    dropout (:class:`~cartpole.agents.nn.numpy_mlp.NumpyMLP`: for one row several times faster than a torch
     forward pass, which the web app's episodes and every evaluation pay per step).
     """
 

@@ -29,8 +29,9 @@ import numpy as np
 import torch
 
 from cartpole.agents.actor_critic import ActorCritic, CategoricalPolicy
-from cartpole.agents.env_state import derived_seed, restore_vector_env_state, vector_env_state
+from cartpole.core.seeding import derived_seed
 from cartpole.envs import EnvInfo, make_vec_env
+from cartpole.envs.env_state import restore_vector_env_state, vector_env_state
 
 
 class RolloutBuffer:

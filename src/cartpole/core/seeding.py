@@ -32,3 +32,10 @@ def final_eval_seed(run_seed: int) -> int:
 def fresh_eval_seed() -> int:
     """A seed from OS entropy in the evaluation range, for verdicts on never-seen episodes."""
     return EVAL_SEED_LOW + random.SystemRandom().randrange(EVAL_SEED_SPAN - 10**6)
+
+
+def derived_seed(seed: int, stream: str) -> int:
+    """A 64-bit seed for one named random stream of a run (``"init"``, ``"replay"``, ...), independent
+    of the run seed's other uses."""
+    words = np.random.SeedSequence([seed, *stream.encode()]).generate_state(2, dtype=np.uint32)
+    return int(words[0]) << 32 | int(words[1])

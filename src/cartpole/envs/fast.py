@@ -122,6 +122,7 @@ install or an edit of the kernels) it compiles them instead, which takes longer.
 
 from __future__ import annotations
 
+import functools
 from types import ModuleType
 from typing import Any
 
@@ -159,9 +160,13 @@ def _check_dtype(dtype: DTypeLike) -> np.dtype[Any]:
     return dt
 
 
+_DEFAULT_PARAMS = CartPoleParams()
+"""Gymnasium's cart-pole (frozen: shared by every step that names no parameters)."""
+
+
 def _check_params(params: CartPoleParams | None) -> CartPoleParams:
     if params is None:
-        return CartPoleParams()
+        return _DEFAULT_PARAMS
     if not isinstance(params, CartPoleParams):
         raise TypeError(f"params must be a CartPoleParams, got {type(params).__name__}")
     return params
@@ -171,6 +176,14 @@ def _reference_max_episode_steps() -> int:
     steps = gym.spec("CartPole-v1").max_episode_steps
     assert steps is not None  # Gymnasium registers CartPole-v1 with a time limit
     return steps
+
+
+@functools.lru_cache(maxsize=64)
+def packed_params(params: CartPoleParams, dtype: np.dtype[Any]) -> NDArray[np.floating[Any]]:
+    """The kernels' parameter vector of ``params`` (read only), packed once per parameters and dtype."""
+    packed = _kernels().pack_params(params, dtype)
+    packed.flags.writeable = False
+    return packed
 
 
 def step_cartpole(
@@ -193,7 +206,7 @@ def step_cartpole(
     k = _kernels()
     columns = np.ascontiguousarray(s.T, dtype=dtype)  # the kernel works on (4, N): a fresh copy
     terminated = np.empty(s.shape[0], dtype=np.bool_)
-    if not k.step_states(columns, a.astype(np.int64, copy=False), k.pack_params(params, dtype), terminated):
+    if not k.step_states(columns, a.astype(np.int64, copy=False), packed_params(params, dtype), terminated):
         raise ValueError("actions must be 0 (push left) or 1 (push right)")
     return np.ascontiguousarray(columns.T), terminated
 

@@ -1,7 +1,8 @@
 """One linear layer for S networks at once, ``x [S, B, in] -> x W^T + b [S, B, out]``, whose backward
 multiplies in the orientation that is fast for thin matrices.
 
-Forward is one ``torch.baddbmm``. Autograd's own backward of it computes the weight's gradient as
+Forward is one ``torch.baddbmm`` (for one output, in the orientation whose bits do not depend on the
+number of seeds, see :func:`linear_forward`). Autograd's own backward of it computes the weight's gradient as
 ``x^T @ grad`` (``[S, in, B] x [S, B, out]``); when ``out`` is 1 or 2 (a value or policy head) that
 product has one or two columns, and a CPU ``bmm`` with so few columns runs several times slower
 than the other orientation (``benchmarks/kernels.py`` times both for a population's 2-action
@@ -33,11 +34,21 @@ def input_gradient(grad: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
     return torch.bmm(grad, weight)
 
 
+def linear_forward(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+    """``x @ weight^T + bias`` as one batched product. With one output (a value head) it is taken as
+    ``weight @ x^T``, ``[S, 1, B]``: ``x @ weight^T`` with a single column runs, for a lone seed, in
+    another order than for many (a matrix-vector kernel), so its bits would depend on how many seeds
+    share the batch; this orientation's do not (tested), and it is no slower."""
+    if weight.shape[1] == 1:
+        return torch.baddbmm(bias.unsqueeze(2), weight, x.transpose(1, 2)).transpose(1, 2)
+    return torch.baddbmm(bias.unsqueeze(1), x, weight.transpose(1, 2))
+
+
 class _StackedLinear(torch.autograd.Function):
     @staticmethod
     def forward(ctx: Any, x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
         ctx.save_for_backward(x, weight)
-        return torch.baddbmm(bias.unsqueeze(1), x, weight.transpose(1, 2))
+        return linear_forward(x, weight, bias)
 
     @staticmethod
     def backward(ctx: Any, grad: torch.Tensor) -> tuple[torch.Tensor | None, ...]:
@@ -54,7 +65,7 @@ def stacked_linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) ->
     """``x @ weight^T + bias`` per seed: ``x`` [S, B, in], ``weight`` [S, out, in], ``bias`` [S, out]."""
     if torch.is_grad_enabled() and (x.requires_grad or weight.requires_grad or bias.requires_grad):
         return _StackedLinear.apply(x, weight, bias)
-    return torch.baddbmm(bias.unsqueeze(1), x, weight.transpose(1, 2))
+    return linear_forward(x, weight, bias)
 
 
 __all__ = ["input_gradient", "stacked_linear", "weight_gradient"]

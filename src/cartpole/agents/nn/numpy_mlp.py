@@ -14,7 +14,7 @@ from collections.abc import Callable, Iterable
 import numpy as np
 from torch import nn
 
-from cartpole.agents.fast_tanh import tanh_array
+from cartpole.agents.nn.fast_tanh import tanh_array
 
 
 def _relu(x: np.ndarray) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Numba kernels behind :mod:`cartpole.agents.fast_tanh` (imported lazily, on first use).
+"""Numba kernels behind :mod:`cartpole.agents.nn.fast_tanh` (imported lazily, on first use).
 
 ``tanh`` is the odd rational minimax approximation ``x p(x^2) / q(x^2)`` of degrees 13/6 on
 ``[-7.9053, 7.9053]`` (beyond it float32 tanh is 1 to within the approximation's error), with the

@@ -2,10 +2,10 @@
 
 On CPUs without AVX-512, NumPy's and torch's float32 ``tanh`` cost more than the matrix products
 around them: a 64x64 tanh MLP spends most of its forward pass in it. The rational approximation of
-:mod:`cartpole.agents._tanh_kernels` is several times cheaper there (``benchmarks/kernels.py`` times
+:mod:`cartpole.agents.nn._tanh_kernels` is several times cheaper there (``benchmarks/kernels.py`` times
 all three), within 2.7e-7 relative error of the exact value (a few float32 ulps, the size of the
 differences between two CPUs' kernels). Used by the numpy greedy policies
-(:class:`~cartpole.agents.numpy_mlp.NumpyMLP`) and the populations' stacked networks; a single run's
+(:class:`~cartpole.agents.nn.numpy_mlp.NumpyMLP`) and the populations' stacked networks; a single run's
 torch network keeps ``torch.tanh``.
 
 ``tanh`` (torch) is differentiable: its gradient is ``(1 - y^2) * grad`` from the saved output. Other
@@ -26,7 +26,7 @@ _loaded: list[ModuleType] = []
 def _kernels() -> ModuleType:
     """The numba kernels, compiled on first use (importing this module does not import numba)."""
     if not _loaded:
-        from cartpole.agents import _tanh_kernels
+        from cartpole.agents.nn import _tanh_kernels
 
         _loaded.append(_tanh_kernels)
     return _loaded[0]

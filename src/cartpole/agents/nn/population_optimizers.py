@@ -3,7 +3,7 @@ with a learning rate, a step count and a "sit this step out" flag per seed.
 
 Each seed's row gets the update its single run's optimizer gives (torch.optim.Adam's and RMSprop's
 formulas; the floats may differ in the last bits). On the CPU the update is one numba pass per row
-(:mod:`cartpole.agents._population_optimizer_kernels`, compiled on first use): for 100 PPO seeds
+(:mod:`cartpole.agents.nn._population_optimizer_kernels`, compiled on first use): for 100 PPO seeds
 (``[100, 9218]``) torch's elementwise form of Adam makes about ten passes over tensors that no longer
 fit the core's cache, several times the one pass's time (``benchmarks/kernels.py`` times both).
 Other devices (and ``fused=False``) use the torch form.
@@ -22,7 +22,7 @@ _loaded: list[ModuleType] = []
 def _kernels() -> ModuleType:
     """The numba kernels, compiled on first use (importing this module does not import numba)."""
     if not _loaded:
-        from cartpole.agents import _population_optimizer_kernels
+        from cartpole.agents.nn import _population_optimizer_kernels
 
         _loaded.append(_population_optimizer_kernels)
     return _loaded[0]

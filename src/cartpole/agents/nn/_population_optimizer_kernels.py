@@ -1,4 +1,4 @@
-"""Numba kernels behind :mod:`cartpole.agents.population_optimizers` (imported on first use).
+"""Numba kernels behind :mod:`cartpole.agents.nn.population_optimizers` (imported on first use).
 
 One pass over each seed's row does the whole update: read the gradient and state, write the state and
 parameters. Torch's elementwise form of the same update makes about ten passes over ``[S, P]``

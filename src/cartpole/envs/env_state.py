@@ -40,9 +40,3 @@ def restore_vector_env_state(envs: Any, saved: dict[str, Any] | None) -> bool:
         setattr(base, name, np.asarray(value["values"], dtype=value["dtype"]))
     base.np_random.bit_generator.state = saved["np_random"]
     return True
-
-
-def derived_seed(seed: int, stream: str) -> int:
-    """A 64-bit seed for one named random stream of a run, independent of the seed's other uses."""
-    words = np.random.SeedSequence([seed, *stream.encode()]).generate_state(2, dtype=np.uint32)
-    return int(words[0]) << 32 | int(words[1])
