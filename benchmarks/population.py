@@ -189,7 +189,11 @@ def main() -> None:
         default=10,
         help="single runs as separate `cartpole train` processes, seeds 0..N-1 (default 10; 0: none)",
     )
-    parser.add_argument("--agent", default="ppo", help="ppo, a2c, cem, random-search or hill-climbing")
+    parser.add_argument(
+        "--agent",
+        default="ppo",
+        help="any agent: ppo, a2c, reinforce, dqn, cem, random-search, hill-climbing",
+    )
     parser.add_argument("--preset", default="default")
     parser.add_argument(
         "--population-threads",

@@ -1,5 +1,7 @@
-"""One engine for every run: ``cartpole train AGENT --seed N`` is a population of one, and seed N
-trains bit for bit the same alone as beside other seeds, for every agent, batched or not."""
+"""One engine for every run: every run trains as a population, and seed N trains bit for bit the same
+alone (``--seeds N``) as beside other seeds, for every agent, batched or not. A single run (``--seed
+N``) goes through the same engine with the seed's own learner: for the linear searches that is the
+same run bit for bit, for the neural agents the same algorithm in other floats."""
 
 from __future__ import annotations
 
@@ -72,11 +74,31 @@ def assert_same_run(a: Path, b: Path, agent: str) -> None:
 def test_seed_alone_is_bit_identical_to_the_seed_in_a_population(agent, tmp_path):
     overrides, budget = SMALL[agent]
     options = {"overrides": dict(overrides), "budget": budget, "stop_when_solved": False}
-    alone = train(agent, seed=4, runs_dir=tmp_path / "alone", **options)
+    alone = train_population(agent, [4], runs_dir=tmp_path / "alone", **options)
     among = train_population(agent, [9, 4, 2], runs_dir=tmp_path / "among", **options)
-    assert alone.state.env_steps == among.states[4].env_steps > 0
-    assert alone.state.evaluations >= 1
-    assert_same_run(alone.run.path, among.runs[4].path, agent)
+    assert alone.states[4].env_steps == among.states[4].env_steps > 0
+    assert alone.states[4].evaluations >= 1
+    assert_same_run(alone.runs[4].path, among.runs[4].path, agent)
+
+
+@pytest.mark.parametrize("agent", ["cem", "random-search", "hill-climbing"])
+def test_a_single_run_of_a_linear_search_is_its_seed_in_a_population(agent, tmp_path):
+    overrides, budget = SMALL[agent]
+    options = {"overrides": dict(overrides), "budget": budget, "stop_when_solved": False}
+    single = train(agent, seed=4, runs_dir=tmp_path / "single", **options)
+    among = train_population(agent, [9, 4], runs_dir=tmp_path / "among", **options)
+    assert_same_run(single.run.path, among.runs[4].path, agent)
+
+
+@pytest.mark.parametrize("agent", ["ppo", "dqn"])
+def test_a_single_run_trains_its_own_learner_through_the_engine(agent, tmp_path):
+    """``--seed N`` keeps the seed's own (faster) learner; ``--seeds N`` batches."""
+    overrides, _ = SMALL[agent]
+    spec = get_agent(agent)
+    config, _ = resolve_config(agent, spec.config_cls, "default", dict(overrides))
+    cartpole = env_info("CartPole-v1")
+    assert isinstance(build_population(spec, config, cartpole, [4], batched=False), LearnerPopulation)
+    assert not isinstance(build_population(spec, config, cartpole, [4]), LearnerPopulation)
 
 
 @pytest.mark.parametrize("agent", ["ppo", "dqn", "cem"])

@@ -449,15 +449,14 @@ class Crash(Exception):
 
 @contextmanager
 def learners_that_crash_after(agent: str, calls: int) -> Iterator[None]:
-    """While active, ``agent``'s populations (a single run is one) die at their ``calls + 1``-th
-    learn() and can save nothing after that (as under kill -9: only what was already on disk is left)."""
+    """While active, ``agent``'s learners die at their ``calls + 1``-th learn() and can save nothing
+    after that (as under kill -9: only what was already on disk is left)."""
     spec = get_agent(agent)
-    make_population = spec.make_population
-    assert make_population is not None
+    make_learner = spec.make_learner
 
-    def crashing_population(*args: Any) -> Any:
-        population = make_population(*args)
-        learn, state_dict, count = population.learn, population.seed_state_dict, [0]
+    def crashing_learner(*args: Any) -> Any:
+        learner = make_learner(*args)
+        learn, state_dict, count = learner.learn, learner.state_dict, [0]
 
         def learn_or_die() -> Any:
             count[0] += 1
@@ -465,19 +464,19 @@ def learners_that_crash_after(agent: str, calls: int) -> Iterator[None]:
                 raise Crash
             return learn()
 
-        def state_dict_unless_dead(seed: int, resume: bool) -> Any:
+        def state_dict_unless_dead(resume: bool) -> Any:
             if count[0] > calls:
                 raise Crash
-            return state_dict(seed, resume)
+            return state_dict(resume)
 
-        population.learn, population.seed_state_dict = learn_or_die, state_dict_unless_dead
-        return population
+        learner.learn, learner.state_dict = learn_or_die, state_dict_unless_dead
+        return learner
 
-    object.__setattr__(spec, "make_population", crashing_population)  # the spec is frozen; put it back
+    object.__setattr__(spec, "make_learner", crashing_learner)  # the spec is frozen; put it back below
     try:
         yield
     finally:
-        object.__setattr__(spec, "make_population", make_population)
+        object.__setattr__(spec, "make_learner", make_learner)
 
 
 def latest_step_after_a_crash(runs_dir: Path, checkpoint_every: int, calls: int) -> int | None:

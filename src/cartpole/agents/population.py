@@ -4,14 +4,16 @@
 spec (:class:`~cartpole.agents.registry.AgentSpec`) says how to batch its seeds, and
 :func:`build_population` picks the form:
 
-- batched (``spec.batches(config, env)``: CartPole on the fast simulator): one learner holds every
-  seed on a leading seed axis (networks, optimizers, replay or rollouts, envs, generators), one
-  update for all; each seed's arithmetic does not depend on which seeds share it, so seed N alone
-  and seed N among others train bit for bit the same (``tests/test_population.py``,
-  ``tests/test_dqn_population.py``).
-- side by side (every other env and simulator, e.g. Acrobot, or the tutorial presets on
-  Gymnasium's env): :class:`LearnerPopulation`, one single-seed learner per seed, stepped in turn.
-  Seeds share nothing, so the same holds trivially.
+- batched (``--seeds``, where ``spec.batches(config, env)``: CartPole on the fast simulator): one
+  learner holds every seed on a leading seed axis (networks, optimizers, replay or rollouts, envs,
+  generators), one update for all; each seed's arithmetic does not depend on which seeds share it,
+  so seed N alone (``--seeds N``) and seed N among others train bit for bit the same
+  (``tests/test_one_engine.py``).
+- side by side (a single run, ``--seed N``; every other env and simulator, e.g. Acrobot, or the
+  tutorial presets on Gymnasium's env): :class:`LearnerPopulation`, one single-seed learner per
+  seed, stepped in turn. Seeds share nothing, so the same holds trivially. (A single run keeps its
+  own learner because the batched code is still slower for one seed; the linear searches' batched
+  seeds are bit for bit their single runs, the neural agents' agree to float rounding.)
 """
 
 from __future__ import annotations
@@ -63,11 +65,13 @@ class Population(Protocol):
 
 
 def build_population(
-    spec: AgentSpec, config: Any, env: EnvInfo, seeds: list[int], device: str = "cpu"
+    spec: AgentSpec, config: Any, env: EnvInfo, seeds: list[int], device: str = "cpu", batched: bool = True
 ) -> Population:
     """``seeds`` of agent ``spec`` with ``config`` on ``env``: batched where the agent can batch
-    them, else one learner per seed."""
-    if spec.make_population is not None and spec.batches(config, env):
+    them (and ``batched``), else one learner per seed. ``cartpole train --seed N`` asks for no
+    batching: one seed's own learner is still faster than a batch of one (benchmarks/README.md),
+    while ``--seeds N`` is the batched population of one, bit for bit seed N of any population."""
+    if batched and spec.make_population is not None and spec.batches(config, env):
         return spec.make_population(config, env, seeds, device)
     return LearnerPopulation({seed: spec.make_learner(config, env, seed, device) for seed in seeds}, env)
 
