@@ -258,7 +258,9 @@ def small_disk(tmp_path: Path):
 
 
 @pytest.mark.parametrize(
-    "argv", [["dqn", "--seed", "0"], ["ppo", "--seeds", "0-3"]], ids=["single-dqn", "ppo-population"]
+    "argv",
+    [["dqn", "--seed", "0"], ["ppo", "--seeds", "0-3"], ["dqn", "--seeds", "0-1"]],
+    ids=["single-dqn", "ppo-population", "dqn-population"],
 )
 def test_a_full_disk_is_one_line_and_every_status_says_so(argv, small_disk):
     """torch.save reports a full disk as a RuntimeError; we still give one line naming the file, exit
@@ -275,12 +277,51 @@ def test_a_full_disk_is_one_line_and_every_status_says_so(argv, small_disk):
     assert done.stderr.count("\n") == 1 and "Traceback" not in done.stderr
     assert "No space left on device" in done.stderr and ".pt" in done.stderr
     runs = sorted((small_disk / "runs").iterdir())
-    assert len(runs) == (4 if "--seeds" in argv else 1)
+    assert len(runs) == {"0": 1, "0-3": 4, "0-1": 2}[argv[-1]]
     for run in runs:
         status = json.loads((run / "status.json").read_text())
         assert status["state"] == "failed" and status["stop_detail"].startswith("failed: disk full")
         for checkpoint in (run / "checkpoints").glob("*.pt"):
             load_checkpoint(checkpoint)  # atomic writes: nothing half-written
+
+
+@pytest.fixture
+def full_disk(tmp_path: Path):
+    """A 1 MiB tmpfs filled to its last 8 KiB: room for no figure and no video."""
+    disk = tmp_path / "full"
+    disk.mkdir()
+    mount = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(disk)], capture_output=True, text=True
+    )
+    if mount.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here (needs root): {mount.stderr.strip()}")
+    try:
+        (disk / "filler").write_bytes(bytes(2**20 - 8 * 2**10))
+        yield disk
+    finally:
+        subprocess.run(["umount", "-l", str(disk)], capture_output=True)
+
+
+@pytest.mark.parametrize(
+    ("command", "name"),
+    [(["plot"], "curve.png"), (["record", "--episodes", "2", "--max-steps", "50"], "episodes.gif")],
+    ids=["plot", "record"],
+)
+def test_a_figure_or_video_on_a_full_disk_is_one_line_naming_it_and_leaves_nothing(
+    command, name, cem_run, full_disk, capsys
+):
+    out = full_disk / name
+    assert main([command[0], str(cem_run), *command[1:], "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "No space left on device" in err and str(out) in err
+    assert [p.name for p in full_disk.iterdir()] == ["filler"]  # no half-written file, no temp file
+
+
+def test_metric_rows_on_a_full_disk_name_their_file(full_disk):
+    run = RunDir(full_disk)
+    with pytest.raises(OSError) as raised:
+        run.append_metrics([{"step": i, "train/episode_return": 500.0} for i in range(2000)])
+    assert raised.value.errno == errno.ENOSPC and raised.value.filename == str(run.metrics_path)
 
 
 # --- a resume never starts a run that has trained again from 0 unasked -----------------------------

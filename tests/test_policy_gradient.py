@@ -281,6 +281,22 @@ def test_resume_continues_exactly(agent: str, simulator: str) -> None:
 
 
 @pytest.mark.parametrize("agent", AGENTS)
+def test_resume_on_another_env_continues_its_episodes_exactly(agent: str) -> None:
+    """Acrobot's envs are put back mid-episode too (envs/resumable_envs.py), not restarted."""
+    config_fn, learner_cls = SMALL[agent]
+    acrobot = env_info("Acrobot-v1")
+    a = learner_cls(config_fn(), acrobot, 3, "cpu")  # type: ignore[arg-type]
+    run(a, 2)
+    tensors, data = a.state_dict(resume=True)
+    b = learner_cls(config_fn(), acrobot, 999, "cpu")  # type: ignore[arg-type]
+    b.load_state_dict({k: v.clone() for k, v in tensors.items()}, data)
+    results_a = [a.learn() for _ in range(2)]
+    results_b = [b.learn() for _ in range(2)]
+    assert [r.episode_returns for r in results_a] == [r.episode_returns for r in results_b]
+    assert torch.equal(flat_params(a), flat_params(b))
+
+
+@pytest.mark.parametrize("agent", AGENTS)
 def test_save_load_gives_the_same_action_probabilities(agent: str, tmp_path: Path) -> None:
     learner = make(agent, seed=1, shared_trunk=agent == "a2c", activation="relu")
     run(learner, 2)

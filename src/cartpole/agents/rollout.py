@@ -30,8 +30,8 @@ import torch
 
 from cartpole.agents.actor_critic import ActorCritic, CategoricalPolicy
 from cartpole.core.seeding import derived_seed
-from cartpole.envs import EnvInfo, make_vec_env
-from cartpole.envs.env_state import restore_vector_env_state, vector_env_state
+from cartpole.envs import EnvInfo, check_simulator
+from cartpole.envs.resumable_envs import make_resumable_vec_env, restore_vector_env_state, vector_env_state
 
 
 class RolloutBuffer:
@@ -115,7 +115,7 @@ class RolloutCollector:
 
     def __init__(self, env: EnvInfo, num_envs: int, simulator: str, seed: int):
         self.env_info, self.seed = env, seed
-        self.envs = make_vec_env(env.env_id, num_envs, simulator=simulator)
+        self.envs = make_resumable_vec_env(env.env_id, num_envs, check_simulator(simulator))
         self.observations = np.asarray(self.envs.reset(seed=seed)[0], dtype=np.float32)
         self.autoreset = np.zeros(num_envs, dtype=bool)
         """Envs whose last step ended an episode: their next step is a reset, not a transition."""
@@ -200,7 +200,7 @@ class RolloutCollector:
         self.autoreset = np.asarray(data["autoreset"], dtype=bool)
         self.episode_returns = np.asarray(data["episode_returns"], dtype=np.float64)
         self.episode_lengths = np.asarray(data["episode_lengths"], dtype=np.int64)
-        if restore_vector_env_state(self.envs, data.get("env_state")):
+        if restore_vector_env_state(self.envs, data.get("env_state"), self.episode_lengths, self.autoreset):
             self.observations = tensors["observations"].numpy().copy()
         else:
             self.restart(derived_seed(self.seed, f"resume-{progress}") % 2**32)

@@ -49,6 +49,19 @@ def replace_atomically(path: Path, write_file: Callable[[Path], None], suffix: s
         raise
 
 
+def append_text(path: Path, text: str) -> None:
+    """Append ``text`` (one write, then flush); an OS error is named for ``path``, as every other
+    write of a run is (:func:`replace_atomically`), so a full disk says which file it stopped."""
+    try:
+        with open(path, "a", encoding="utf-8") as handle:
+            handle.write(text)
+            handle.flush()
+    except OSError as err:
+        if err.filename:
+            raise
+        raise OSError(err.errno, err.strerror or str(err), str(path)) from err
+
+
 DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
 """The errors of a write that found no space: the disk is full, or the user's quota is spent."""
 

@@ -28,7 +28,13 @@ from typing import Any
 
 from cartpole.core.errors import InputError
 from cartpole.core.names import CheckpointName, RunState
-from cartpole.runs.atomic import DISK_FULL, overwrite_in_place, write_json_atomic, write_text_atomic
+from cartpole.runs.atomic import (
+    DISK_FULL,
+    append_text,
+    overwrite_in_place,
+    write_json_atomic,
+    write_text_atomic,
+)
 
 CONFIG = "config.json"
 STATUS = "status.json"
@@ -294,10 +300,7 @@ class RunDir:
         """Append rows as JSON lines (one write, then flush)."""
         if not rows:
             return
-        text = "".join(json.dumps(row, allow_nan=False) + "\n" for row in rows)
-        with open(self.metrics_path, "a", encoding="utf-8") as handle:
-            handle.write(text)
-            handle.flush()
+        append_text(self.metrics_path, "".join(json.dumps(row, allow_nan=False) + "\n" for row in rows))
 
     def metrics(self, offset: int = 0) -> list[dict[str, Any]]:
         """Complete rows from line ``offset`` on; a last line without its newline is not yet a row."""
