@@ -101,25 +101,6 @@ class SeedLearner:
         self.population.load_seed_state_dict(self.seed, tensors, data)
 
 
-class SeedLoop(TrainingLoop):
-    """A seed's :class:`TrainingLoop`, advanced one population step at a time instead of ``run()``:
-    the same counters and callback calls, in the same order."""
-
-    def start(self, clock_start: float) -> None:
-        self.clock_start = clock_start - self.state.elapsed
-        for cb in self.callbacks:
-            cb.on_start(self)
-
-    def advance(self, result: LearnResult, now: float) -> None:
-        if not self.count_result(result, now - self.clock_start):
-            self.state.stop(StopReason.CALLBACK, "stopped by a callback")
-
-    def end(self, now: float) -> None:
-        self.state.elapsed = now - self.clock_start
-        for cb in self.callbacks:
-            cb.on_end(self)
-
-
 class PopulationEvaluations:
     """The periodic evaluations of all seeds due at one step, played together.
 
@@ -203,7 +184,7 @@ class Member:
 
     setup: RunSetup
     status: LiveStatus
-    loop: SeedLoop
+    loop: TrainingLoop
 
     @property
     def seed(self) -> int:
@@ -256,7 +237,7 @@ def run_members(
                 evaluator=evaluations.evaluator(setup.seed),
                 flush_seconds=MetricsCallback.FLUSH_SECONDS if single else FLUSH_SECONDS,
             )
-            loop = SeedLoop(SeedLearner(population, setup.seed), callbacks, states.get(setup.seed))
+            loop = TrainingLoop(SeedLearner(population, setup.seed), callbacks, states.get(setup.seed))
             members.append(Member(setup, status, loop))
         progress = PopulationProgress(
             len(members), setups[0].budget, None if quiet or single else (stream or sys.stderr)

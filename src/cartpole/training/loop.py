@@ -124,6 +124,7 @@ class TrainingLoop:
         self.callbacks = callbacks
         self.state = state or LoopState()
         self._stop_requested: tuple[StopReason, str] | None = None
+        self.clock_start = time.perf_counter()
 
     def request_stop(self, reason: StopReason, detail: str) -> None:
         """Stop after the current step (safe to call from a signal handler)."""
@@ -159,25 +160,37 @@ class TrainingLoop:
         keep_going &= all([cb.on_step(self, result) for cb in self.callbacks])
         return keep_going
 
-    def run(self) -> LoopState:
-        """Train until a callback stops it or a stop is requested; returns the final counters."""
-        state = self.state
+    def start(self, clock_start: float) -> None:
+        """Training (or a resumed session) begins; ``clock_start`` is ``time.perf_counter()`` now."""
+        self.clock_start = clock_start - self.state.elapsed
         for cb in self.callbacks:
             cb.on_start(self)
-        started = time.perf_counter() - state.elapsed
+
+    def advance(self, result: LearnResult, now: float) -> None:
+        """Count one ``learn()`` result (the engine steps every seed's learner at once and hands each
+        loop its seed's result); a callback's or a signal's stop is recorded in the state."""
+        keep_going = self.count_result(result, now - self.clock_start)
+        if self._stop_requested:
+            self.state.stop(*self._stop_requested)
+        elif not keep_going:
+            self.state.stop(StopReason.CALLBACK, "stopped by a callback")
+
+    def end(self, now: float) -> None:
+        """Training ends, whatever the reason: the callbacks save what they keep."""
+        self.state.elapsed = now - self.clock_start
+        for cb in self.callbacks:
+            cb.on_end(self)
+
+    def run(self) -> LoopState:
+        """Train ``learner`` alone until a callback stops it or a stop is requested; returns the final
+        counters. (The engine drives many loops with :meth:`start`, :meth:`advance` and :meth:`end`.)"""
+        self.start(time.perf_counter())
         try:
-            while state.stop_reason is None:
-                result = self.learner.learn()
-                keep_going = self.count_result(result, time.perf_counter() - started)
-                if self._stop_requested:
-                    state.stop(*self._stop_requested)
-                elif not keep_going:
-                    state.stop(StopReason.CALLBACK, "stopped by a callback")
+            while self.state.stop_reason is None:
+                self.advance(self.learner.learn(), time.perf_counter())
         except BaseException as error:
-            state.stop(StopReason.FAILED, failure_detail(error))
+            self.state.stop(StopReason.FAILED, failure_detail(error))
             raise
         finally:
-            state.elapsed = time.perf_counter() - started
-            for cb in self.callbacks:
-                cb.on_end(self)
-        return state
+            self.end(time.perf_counter())
+        return self.state
