@@ -188,6 +188,26 @@ def td_targets(
 # ----------------------------------------------------------------------------------------------
 
 
+def shaped_rewards(
+    config: DQNConfig,
+    rewards: np.ndarray,
+    terminated: np.ndarray,
+    done: np.ndarray,
+    episode_lengths: np.ndarray,
+) -> np.ndarray:
+    """The tutorials' reward shaping, where configured (the raw rewards otherwise): ``termination_reward``
+    for a terminating transition, ``short_episode_reward`` for the last one of an episode shorter than
+    ``short_episode_length`` (``episode_lengths``: each env's episode so far)."""
+    if config.termination_reward is None and config.short_episode_reward is None:
+        return rewards
+    shaped = rewards.astype(np.float32, copy=True)
+    if config.termination_reward is not None:
+        shaped[terminated] = config.termination_reward
+    if config.short_episode_reward is not None:
+        shaped[done & (episode_lengths < config.short_episode_length)] = config.short_episode_reward
+    return shaped
+
+
 def epsilon_at(config: DQNConfig, env_steps: int, multiplied: float) -> float:
     """Exploration rate after ``env_steps`` (``multiplied`` is the multiplicative schedule's value)."""
     start, end = config.epsilon_start, config.epsilon_end
@@ -302,17 +322,7 @@ class DQNLearner:
         return result
 
     def shape_rewards(self, rewards: np.ndarray, terminated: np.ndarray, done: np.ndarray) -> np.ndarray:
-        """The tutorials' reward shaping, where configured; the raw rewards otherwise."""
-        config = self.config
-        if config.termination_reward is None and config.short_episode_reward is None:
-            return rewards
-        shaped = rewards.astype(np.float32, copy=True)
-        if config.termination_reward is not None:
-            shaped[terminated] = config.termination_reward
-        if config.short_episode_reward is not None:
-            short = done & (self.episode_lengths < config.short_episode_length)
-            shaped[short] = config.short_episode_reward
-        return shaped
+        return shaped_rewards(self.config, rewards, terminated, done, self.episode_lengths)
 
     # -- one gradient step -----------------------------------------------------------------------
 

@@ -61,7 +61,7 @@ import torch
 import torch.nn.functional as F
 
 from cartpole.agents.actor_critic_population import PopulationEnvs
-from cartpole.agents.dqn import DQNConfig, epsilon_at, td_targets
+from cartpole.agents.dqn import DQNConfig, epsilon_at, shaped_rewards, td_targets
 from cartpole.agents.learner import LearnResult
 from cartpole.agents.nn.fast_tanh import tanh
 from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step
@@ -477,17 +477,7 @@ class PopulationDQN:
         return self.greedy_q_argmax().cpu().numpy()
 
     def shape_rewards(self, rewards: np.ndarray, terminated: np.ndarray, done: np.ndarray) -> np.ndarray:
-        """The tutorials' reward shaping, where configured (as ``DQNLearner.shape_rewards``)."""
-        config = self.config
-        if config.termination_reward is None and config.short_episode_reward is None:
-            return rewards
-        shaped = rewards.astype(np.float32, copy=True)
-        if config.termination_reward is not None:
-            shaped[terminated] = config.termination_reward
-        if config.short_episode_reward is not None:
-            short = done & (self.episode_lengths < config.short_episode_length)
-            shaped[short] = config.short_episode_reward
-        return shaped
+        return shaped_rewards(self.config, rewards, terminated, done, self.episode_lengths)
 
     def finish_episodes(self, done: np.ndarray) -> list[tuple[list[float], list[int]]]:
         """Each seed's episodes that ended (raw env returns and lengths); their counters restart."""
