@@ -12,8 +12,8 @@ from typing import Any
 import pytest
 import torch
 
-from cartpole.agents.population import LearnerPopulation, build_population
-from cartpole.agents.registry import agent_names, get_agent
+from cartpole.agents.population import LearnerPopulation
+from cartpole.agents.registry import agent_names, build_population, get_agent
 from cartpole.cli.main import main
 from cartpole.envs import env_info
 from cartpole.training import train

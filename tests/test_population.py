@@ -20,9 +20,8 @@ import torch
 from cartpole.agents.a2c import A2CConfig
 from cartpole.agents.actor_critic_population import PopulationA2C, PopulationPPO, PopulationReinforce
 from cartpole.agents.learner import LearnResult
-from cartpole.agents.population import build_population
 from cartpole.agents.ppo import PPOConfig
-from cartpole.agents.registry import get_agent, load_policy
+from cartpole.agents.registry import build_population, get_agent, load_policy
 from cartpole.agents.reinforce import ReinforceConfig
 from cartpole.cli.main import main
 from cartpole.core.errors import InputError

@@ -13,7 +13,6 @@ What it does, in order:
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import torch
 
@@ -23,16 +22,11 @@ from cartpole.agents.policy_gradient import (
     PolicyGradientConfig,
     PolicyGradientLearner,
     adam,
-    policy_loader,
     policy_loss_terms,
 )
-from cartpole.agents.registry import AgentSpec
 from cartpole.agents.rollout import explained_variance, normalize
 from cartpole.core.config import require
 from cartpole.envs import EnvInfo
-
-if TYPE_CHECKING:
-    from cartpole.agents.population import Population
 
 OPTIMIZERS = ("rmsprop", "adam")
 
@@ -117,32 +111,4 @@ class A2CLearner(PolicyGradientLearner):
         return result
 
 
-def make_learner(config: A2CConfig, env: EnvInfo, seed: int, device: str) -> A2CLearner:
-    return A2CLearner(config, env, seed, device)
-
-
-def make_population(config: A2CConfig, env: EnvInfo, seeds: list[int], device: str) -> Population:
-    from cartpole.agents.actor_critic_population import PopulationA2C
-
-    return PopulationA2C(config, env, seeds, device)
-
-
-def bytes_per_seed(config: A2CConfig, env: EnvInfo) -> int:
-    from cartpole.agents.actor_critic_population import a2c_bytes_per_seed
-
-    return a2c_bytes_per_seed(config, env)
-
-
-AGENT = AgentSpec(
-    name="a2c",
-    summary="Advantage Actor-Critic (PyTorch): n-step rollouts from vector envs, GAE, RMSprop or Adam",
-    config_cls=A2CConfig,
-    make_learner=make_learner,
-    policy_from_checkpoint=policy_loader("a2c", A2CConfig),
-    bytes_per_seed=bytes_per_seed,
-    make_population=make_population,
-    iteration="update",
-    score_label="action probabilities",
-)
-
-__all__ = ["AGENT", "A2CConfig", "A2CLearner"]
+__all__ = ["A2CConfig", "A2CLearner"]

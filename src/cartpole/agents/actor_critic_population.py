@@ -43,16 +43,17 @@ import torch
 from gymnasium.utils.seeding import np_random
 from torch import nn
 
-from cartpole.agents.a2c import A2CConfig
+from cartpole.agents.a2c import A2CConfig, A2CLearner
 from cartpole.agents.actor_critic import ActorCritic, CategoricalPolicy, block_greedy_actor, schedule_value
 from cartpole.agents.learner import LearnResult
 from cartpole.agents.nn.fast_tanh import tanh
 from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step
 from cartpole.agents.nn.population_optimizers import PopulationAdam, PopulationOptimizer, PopulationRMSprop
 from cartpole.agents.nn.stacked_linear import stacked_linear
-from cartpole.agents.policy_gradient import seeded_actor_critic
-from cartpole.agents.ppo import PPOConfig
-from cartpole.agents.reinforce import LONGEST_EPISODE_WITHOUT_TIME_LIMIT, ReinforceConfig
+from cartpole.agents.policy_gradient import policy_loader, seeded_actor_critic
+from cartpole.agents.ppo import PPOConfig, PPOLearner
+from cartpole.agents.registry import AgentSpec
+from cartpole.agents.reinforce import LONGEST_EPISODE_WITHOUT_TIME_LIMIT, ReinforceConfig, ReinforceLearner
 from cartpole.agents.rollout import generalized_advantages
 from cartpole.core.errors import ConfigError
 from cartpole.core.seeding import derived_seed
@@ -951,7 +952,65 @@ def reinforce_bytes_per_seed(config: ReinforceConfig, env: EnvInfo) -> int:
     return actor_critic_bytes_per_seed(config, env, longest, longest * config.num_envs)
 
 
+def ppo_population(config: PPOConfig, env: EnvInfo, seeds: list[int], device: str) -> PopulationPPO:
+    return PopulationPPO(config, env, seeds, device)
+
+
+def a2c_population(config: A2CConfig, env: EnvInfo, seeds: list[int], device: str) -> PopulationA2C:
+    return PopulationA2C(config, env, seeds, device)
+
+
+def reinforce_population(
+    config: ReinforceConfig, env: EnvInfo, seeds: list[int], device: str
+) -> PopulationReinforce:
+    return PopulationReinforce(config, env, seeds, device)
+
+
+AGENTS = [
+    AgentSpec(
+        name="ppo",
+        summary=(
+            "Proximal Policy Optimization (PyTorch): clipped surrogate, GAE, minibatch epochs, vector envs"
+        ),
+        config_cls=PPOConfig,
+        make_learner=PPOLearner,
+        policy_from_checkpoint=policy_loader("ppo", PPOConfig),
+        bytes_per_seed=ppo_bytes_per_seed,
+        make_population=ppo_population,
+        iteration="update",
+        score_label="action probabilities",
+    ),
+    AgentSpec(
+        name="a2c",
+        summary="Advantage Actor-Critic (PyTorch): n-step rollouts from vector envs, GAE, RMSprop or Adam",
+        config_cls=A2CConfig,
+        make_learner=A2CLearner,
+        policy_from_checkpoint=policy_loader("a2c", A2CConfig),
+        bytes_per_seed=a2c_bytes_per_seed,
+        make_population=a2c_population,
+        iteration="update",
+        score_label="action probabilities",
+    ),
+    AgentSpec(
+        name="reinforce",
+        summary=(
+            "REINFORCE (PyTorch): Monte-Carlo policy gradient on whole episodes, optional learned baseline"
+        ),
+        config_cls=ReinforceConfig,
+        make_learner=ReinforceLearner,
+        policy_from_checkpoint=policy_loader("reinforce", ReinforceConfig),
+        bytes_per_seed=reinforce_bytes_per_seed,
+        make_population=reinforce_population,
+        iteration="update",
+        score_label="action probabilities",
+    ),
+]
+"""The actor-critic agents: each seed's own learner (ppo.py, a2c.py, reinforce.py) and their batched
+populations (above)."""
+
+
 __all__ = [
+    "AGENTS",
     "PopulationA2C",
     "PopulationAdam",
     "PopulationEnvs",

@@ -29,7 +29,7 @@ import copy
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import torch
@@ -40,16 +40,12 @@ from cartpole.agents.learner import LearnResult
 from cartpole.agents.memory import dqn_memory_problem
 from cartpole.agents.nn.optimizers import FusedAdam
 from cartpole.agents.q_network import ACTIVATIONS, QNetwork, QNetworkPolicy
-from cartpole.agents.registry import AgentSpec
 from cartpole.agents.replay_buffer import ReplayBuffer
 from cartpole.core.config import build_config, require
 from cartpole.core.seeding import derived_seed
 from cartpole.envs import EnvInfo, check_simulator
 from cartpole.envs.resumable_envs import make_resumable_vec_env, restore_vector_env_state, vector_env_state
 from cartpole.runs import Checkpoint, CheckpointError
-
-if TYPE_CHECKING:
-    from cartpole.agents.population import Population
 
 SCHEDULES = ("linear", "exponential", "multiplicative")
 LOSSES = ("huber", "mse")
@@ -467,42 +463,12 @@ def policy_from_checkpoint(checkpoint: Checkpoint) -> QNetworkPolicy:
     return QNetworkPolicy(q_net)
 
 
-def make_learner(config: DQNConfig, env: EnvInfo, seed: int, device: str) -> DQNLearner:
-    return DQNLearner(config, env, seed, device)
-
-
-def make_population(config: DQNConfig, env: EnvInfo, seeds: list[int], device: str) -> Population:
-    from cartpole.agents.dqn_population import PopulationDQN
-
-    return PopulationDQN(config, env, seeds, device)
-
-
-def bytes_per_seed(config: DQNConfig, env: EnvInfo) -> int:
-    from cartpole.agents.dqn_population import dqn_bytes_per_seed
-
-    return dqn_bytes_per_seed(config, env)
-
-
-AGENT = AgentSpec(
-    name="dqn",
-    summary="Deep Q-Network (PyTorch): double DQN, replay, target network, vectorized collection",
-    config_cls=DQNConfig,
-    make_learner=make_learner,
-    policy_from_checkpoint=policy_from_checkpoint,
-    bytes_per_seed=bytes_per_seed,
-    make_population=make_population,
-    iteration="step",
-    score_label="Q-values",
-)
-
 __all__ = [
-    "AGENT",
     "DQNConfig",
     "DQNLearner",
     "QNetwork",
     "QNetworkPolicy",
     "epsilon_at",
-    "make_learner",
     "policy_from_checkpoint",
     "td_targets",
 ]

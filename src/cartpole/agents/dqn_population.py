@@ -61,13 +61,21 @@ import torch
 import torch.nn.functional as F
 
 from cartpole.agents.actor_critic_population import PopulationEnvs
-from cartpole.agents.dqn import DQNConfig, epsilon_at, shaped_rewards, td_targets
+from cartpole.agents.dqn import (
+    DQNConfig,
+    DQNLearner,
+    epsilon_at,
+    policy_from_checkpoint,
+    shaped_rewards,
+    td_targets,
+)
 from cartpole.agents.learner import LearnResult
 from cartpole.agents.nn.fast_tanh import tanh
 from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step
 from cartpole.agents.nn.population_optimizers import PopulationAdam
 from cartpole.agents.nn.stacked_linear import stacked_linear
 from cartpole.agents.q_network import ACTIVATIONS, QNetwork, QNetworkPolicy
+from cartpole.agents.registry import AgentSpec
 from cartpole.core.errors import ConfigError
 from cartpole.core.seeding import derived_seed
 from cartpole.envs import EnvInfo
@@ -807,6 +815,20 @@ def dqn_bytes_per_seed(config: DQNConfig, env: EnvInfo) -> int:
     activations = rows * (sum(config.hidden_sizes) + env.n_actions + 2 * env.obs_dim + 8) * 4 * 8
     bookkeeping = 2 * 1024**2
     return replay + parameters + activations + bookkeeping
+
+
+AGENT = AgentSpec(
+    name="dqn",
+    summary="Deep Q-Network (PyTorch): double DQN, replay, target network, vectorized collection",
+    config_cls=DQNConfig,
+    make_learner=DQNLearner,
+    policy_from_checkpoint=policy_from_checkpoint,
+    bytes_per_seed=dqn_bytes_per_seed,
+    make_population=PopulationDQN,
+    iteration="step",
+    score_label="Q-values",
+)
+"""DQN: each seed's own learner (dqn.py) and the batched population (above)."""
 
 
 __all__ = [

@@ -11,19 +11,15 @@ candidates. Every generation's candidates play their episodes together in one ba
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 import torch
 
 from cartpole.agents.learner import LearnResult
-from cartpole.agents.registry import AgentSpec
 from cartpole.core.config import require
 from cartpole.envs import EnvInfo, make_vec_env
-
-if TYPE_CHECKING:
-    from cartpole.agents.population import Population
 from cartpole.runs import Checkpoint
 
 
@@ -300,37 +296,3 @@ def policy_from_checkpoint(checkpoint: Checkpoint) -> LinearPolicy:
         int(data["n_actions"]),
         bool(data["bias"]),
     )
-
-
-def linear_bytes_per_seed(config: LinearSearchConfig, env: EnvInfo) -> int:
-    """About what one seed of a search holds: its generation's envs, and its run's bookkeeping."""
-    envs = config.population * config.episodes_per_candidate
-    return envs * (env.obs_dim + 8) * 8 * 4 + 2 * 1024**2
-
-
-def _spec(cls: type[LinearSearch], summary: str) -> AgentSpec:
-    def make_population(
-        config: LinearSearchConfig, env: EnvInfo, seeds: list[int], device: str
-    ) -> Population:
-        from cartpole.agents.linear_population import LinearPopulation
-
-        return LinearPopulation(cls, config, env, seeds)
-
-    return AgentSpec(
-        name=cls.name,
-        summary=summary,
-        config_cls=LinearSearchConfig,
-        make_learner=cls,
-        policy_from_checkpoint=policy_from_checkpoint,
-        bytes_per_seed=linear_bytes_per_seed,
-        make_population=make_population,
-        iteration="generation",
-        score_label="linear score",
-    )
-
-
-AGENTS = [
-    _spec(RandomSearch, "random linear policies, keep the best (the second tutorial)"),
-    _spec(HillClimbing, "perturb the best linear policy with adaptive noise"),
-    _spec(CrossEntropyMethod, "cross-entropy method over linear policies (fastest to solve)"),
-]

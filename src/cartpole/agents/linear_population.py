@@ -18,12 +18,17 @@ import torch
 
 from cartpole.agents.learner import LearnResult
 from cartpole.agents.linear import (
+    CrossEntropyMethod,
+    HillClimbing,
     LinearPolicy,
     LinearSearch,
     LinearSearchConfig,
+    RandomSearch,
     batched_actions,
     play_candidates,
+    policy_from_checkpoint,
 )
+from cartpole.agents.registry import AgentSpec
 from cartpole.core.errors import ConfigError
 from cartpole.envs import EnvInfo, make_vec_env
 from cartpole.evaluation import BlockActor
@@ -106,4 +111,37 @@ class LinearPopulation:
         self.searches[seed].load_state_dict(tensors, data)
 
 
-__all__ = ["LinearPopulation"]
+def linear_bytes_per_seed(config: LinearSearchConfig, env: EnvInfo) -> int:
+    """About what one seed of a search holds: its generation's envs, and its run's bookkeeping."""
+    envs = config.population * config.episodes_per_candidate
+    return envs * (env.obs_dim + 8) * 8 * 4 + 2 * 1024**2
+
+
+def _spec(cls: type[LinearSearch], summary: str) -> AgentSpec:
+    def make_population(
+        config: LinearSearchConfig, env: EnvInfo, seeds: list[int], device: str
+    ) -> LinearPopulation:
+        return LinearPopulation(cls, config, env, seeds)
+
+    return AgentSpec(
+        name=cls.name,
+        summary=summary,
+        config_cls=LinearSearchConfig,
+        make_learner=cls,
+        policy_from_checkpoint=policy_from_checkpoint,
+        bytes_per_seed=linear_bytes_per_seed,
+        make_population=make_population,
+        iteration="generation",
+        score_label="linear score",
+    )
+
+
+AGENTS = [
+    _spec(RandomSearch, "random linear policies, keep the best (the second tutorial)"),
+    _spec(HillClimbing, "perturb the best linear policy with adaptive noise"),
+    _spec(CrossEntropyMethod, "cross-entropy method over linear policies (fastest to solve)"),
+]
+"""The linear searches: each seed's own search (linear.py) and their batched population (above)."""
+
+
+__all__ = ["AGENTS", "LinearPopulation", "linear_bytes_per_seed"]

@@ -2,7 +2,7 @@
 
 :class:`Population` is what the training session drives (:mod:`cartpole.training.engine`). An agent's
 spec (:class:`~cartpole.agents.registry.AgentSpec`) says how to batch its seeds, and
-:func:`build_population` picks the form:
+:func:`~cartpole.agents.registry.build_population` picks the form:
 
 - batched (``--seeds``, where ``spec.batches(config, env)``: CartPole on the fast simulator): one
   learner holds every seed on a leading seed axis (networks, optimizers, replay or rollouts, envs,
@@ -29,8 +29,6 @@ from cartpole.evaluation import BlockActor, Policy
 
 if TYPE_CHECKING:
     import torch
-
-    from cartpole.agents.registry import AgentSpec
 
 
 class Population(Protocol):
@@ -62,18 +60,6 @@ class Population(Protocol):
     def load_seed_state_dict(
         self, seed: int, tensors: dict[str, torch.Tensor], data: dict[str, Any]
     ) -> None: ...
-
-
-def build_population(
-    spec: AgentSpec, config: Any, env: EnvInfo, seeds: list[int], device: str = "cpu", batched: bool = True
-) -> Population:
-    """``seeds`` of agent ``spec`` with ``config`` on ``env``: batched where the agent can batch
-    them (and ``batched``), else one learner per seed. ``cartpole train --seed N`` asks for no
-    batching: one seed's own learner is still faster than a batch of one (benchmarks/README.md),
-    while ``--seeds N`` is the batched population of one, bit for bit seed N of any population."""
-    if batched and spec.make_population is not None and spec.batches(config, env):
-        return spec.make_population(config, env, seeds, device)
-    return LearnerPopulation({seed: spec.make_learner(config, env, seed, device) for seed in seeds}, env)
 
 
 class LearnerPopulation:
@@ -119,4 +105,4 @@ def policies_actor(policies: list[Policy], obs_dim: int) -> BlockActor:
     return stacked_greedy_actor(list(policies), obs_dim) or act_one_by_one
 
 
-__all__ = ["LearnerPopulation", "Population", "build_population", "policies_actor"]
+__all__ = ["LearnerPopulation", "Population", "policies_actor"]

@@ -17,7 +17,6 @@ The greedy policy (``act`` = argmax of the action probabilities) is
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import torch
 
@@ -29,16 +28,11 @@ from cartpole.agents.policy_gradient import (
     PolicyGradientConfig,
     PolicyGradientLearner,
     adam,
-    policy_loader,
     policy_loss_terms,
 )
-from cartpole.agents.registry import AgentSpec
 from cartpole.agents.rollout import explained_variance, normalize
 from cartpole.core.config import require
 from cartpole.envs import EnvInfo
-
-if TYPE_CHECKING:
-    from cartpole.agents.population import Population
 
 # ----------------------------------------------------------------------------------------------
 # 1. Configuration
@@ -205,32 +199,4 @@ class PPOLearner(PolicyGradientLearner):
         return scalars
 
 
-def make_learner(config: PPOConfig, env: EnvInfo, seed: int, device: str) -> PPOLearner:
-    return PPOLearner(config, env, seed, device)
-
-
-def make_population(config: PPOConfig, env: EnvInfo, seeds: list[int], device: str) -> Population:
-    from cartpole.agents.actor_critic_population import PopulationPPO
-
-    return PopulationPPO(config, env, seeds, device)
-
-
-def bytes_per_seed(config: PPOConfig, env: EnvInfo) -> int:
-    from cartpole.agents.actor_critic_population import ppo_bytes_per_seed
-
-    return ppo_bytes_per_seed(config, env)
-
-
-AGENT = AgentSpec(
-    name="ppo",
-    summary="Proximal Policy Optimization (PyTorch): clipped surrogate, GAE, minibatch epochs, vector envs",
-    config_cls=PPOConfig,
-    make_learner=make_learner,
-    policy_from_checkpoint=policy_loader("ppo", PPOConfig),
-    bytes_per_seed=bytes_per_seed,
-    make_population=make_population,
-    iteration="update",
-    score_label="action probabilities",
-)
-
-__all__ = ["AGENT", "PPOConfig", "PPOLearner", "clipped_surrogate_loss", "value_loss"]
+__all__ = ["PPOConfig", "PPOLearner", "clipped_surrogate_loss", "value_loss"]

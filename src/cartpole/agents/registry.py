@@ -49,15 +49,30 @@ class AgentSpec:
 
 
 AGENT_MODULES = {
-    "random-search": "cartpole.agents.linear",
-    "hill-climbing": "cartpole.agents.linear",
-    "cem": "cartpole.agents.linear",
-    "dqn": "cartpole.agents.dqn",
-    "reinforce": "cartpole.agents.reinforce",
-    "a2c": "cartpole.agents.a2c",
-    "ppo": "cartpole.agents.ppo",
+    "random-search": "cartpole.agents.linear_population",
+    "hill-climbing": "cartpole.agents.linear_population",
+    "cem": "cartpole.agents.linear_population",
+    "dqn": "cartpole.agents.dqn_population",
+    "reinforce": "cartpole.agents.actor_critic_population",
+    "a2c": "cartpole.agents.actor_critic_population",
+    "ppo": "cartpole.agents.actor_critic_population",
 }
-"""Agent name -> the module that defines it (imported only when the agent is used: torch is slow)."""
+"""Agent name -> the module that defines its spec, above both of its forms: a seed's own learner and
+the batched population (imported only when the agent is used: torch is slow)."""
+
+
+def build_population(
+    spec: AgentSpec, config: Any, env: EnvInfo, seeds: list[int], device: str = "cpu", batched: bool = True
+) -> Population:
+    """``seeds`` of agent ``spec`` with ``config`` on ``env``: batched where the agent can batch
+    them (and ``batched``), else one learner per seed. ``cartpole train --seed N`` asks for no
+    batching: one seed's own learner is still faster than a batch of one (benchmarks/README.md),
+    while ``--seeds N`` is the batched population of one, bit for bit seed N of any population."""
+    from cartpole.agents.population import LearnerPopulation  # torch: imported when training
+
+    if batched and spec.make_population is not None and spec.batches(config, env):
+        return spec.make_population(config, env, seeds, device)
+    return LearnerPopulation({seed: spec.make_learner(config, env, seed, device) for seed in seeds}, env)
 
 
 def agent_names() -> list[str]:

@@ -13,7 +13,6 @@ What it does, in order:
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import torch
 
@@ -22,15 +21,10 @@ from cartpole.agents.policy_gradient import (
     PolicyGradientConfig,
     PolicyGradientLearner,
     adam,
-    policy_loader,
     policy_loss_terms,
 )
-from cartpole.agents.registry import AgentSpec
 from cartpole.agents.rollout import explained_variance, normalize
 from cartpole.envs import EnvInfo
-
-if TYPE_CHECKING:
-    from cartpole.agents.population import Population
 
 LONGEST_EPISODE_WITHOUT_TIME_LIMIT = 10_000
 """Rows per env of the episode buffer for an env that registers no time limit (longer episodes are cut)."""
@@ -102,32 +96,4 @@ class ReinforceLearner(PolicyGradientLearner):
         return result
 
 
-def make_learner(config: ReinforceConfig, env: EnvInfo, seed: int, device: str) -> ReinforceLearner:
-    return ReinforceLearner(config, env, seed, device)
-
-
-def make_population(config: ReinforceConfig, env: EnvInfo, seeds: list[int], device: str) -> Population:
-    from cartpole.agents.actor_critic_population import PopulationReinforce
-
-    return PopulationReinforce(config, env, seeds, device)
-
-
-def bytes_per_seed(config: ReinforceConfig, env: EnvInfo) -> int:
-    from cartpole.agents.actor_critic_population import reinforce_bytes_per_seed
-
-    return reinforce_bytes_per_seed(config, env)
-
-
-AGENT = AgentSpec(
-    name="reinforce",
-    summary="REINFORCE (PyTorch): Monte-Carlo policy gradient on whole episodes, optional learned baseline",
-    config_cls=ReinforceConfig,
-    make_learner=make_learner,
-    policy_from_checkpoint=policy_loader("reinforce", ReinforceConfig),
-    bytes_per_seed=bytes_per_seed,
-    make_population=make_population,
-    iteration="update",
-    score_label="action probabilities",
-)
-
-__all__ = ["AGENT", "ReinforceConfig", "ReinforceLearner"]
+__all__ = ["ReinforceConfig", "ReinforceLearner"]

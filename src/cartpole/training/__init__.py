@@ -1,4 +1,5 @@
-"""Training: one loop for every agent, its callbacks, budgets, configs and seeds."""
+"""Training: one engine for every run (a single run is a population of one), its loop, callbacks,
+budgets, configs and seeds."""
 
 from cartpole.agents.learner import Learner, LearnResult
 from cartpole.core.errors import ConfigError

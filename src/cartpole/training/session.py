@@ -19,8 +19,8 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from cartpole.agents.population import Population, build_population
-from cartpole.agents.registry import get_agent
+from cartpole.agents.population import Population
+from cartpole.agents.registry import build_population, get_agent
 from cartpole.core.errors import ConfigError, InputError
 from cartpole.core.memory import SHARE, fits_in_memory
 from cartpole.core.names import CheckpointName, RunState, StopReason
