@@ -90,6 +90,7 @@ OS_ERROR_HINTS = {
     errno.EISDIR: "this is a folder, not a file: give a file path",
     errno.ELOOP: "the path is a symbolic link loop: fix the link or choose another path",
     errno.EEXIST: "something is already there: choose another path",
+    errno.EIO: "the disk failed to read or write: check it, then try again (runs resume from latest.pt)",
 }
 
 
