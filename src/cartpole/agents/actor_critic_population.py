@@ -51,6 +51,7 @@ from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Ste
 from cartpole.agents.nn.population_optimizers import PopulationAdam, PopulationOptimizer, PopulationRMSprop
 from cartpole.agents.nn.stacked_linear import stacked_linear
 from cartpole.agents.policy_gradient import policy_loader, seeded_actor_critic
+from cartpole.agents.population import SeedRows
 from cartpole.agents.ppo import PPOConfig, PPOLearner
 from cartpole.agents.registry import AgentSpec
 from cartpole.agents.reinforce import LONGEST_EPISODE_WITHOUT_TIME_LIMIT, ReinforceConfig, ReinforceLearner
@@ -292,7 +293,7 @@ class Rollout:
 ROW_METRICS = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction")
 
 
-class PopulationActorCritic:
+class PopulationActorCritic(SeedRows):
     """What every actor-critic population shares: the seeds' stacked networks, their envs and
     generators, the batched rollout with GAE, gradient clipping and the optimizer step, and each
     seed's policy and checkpoint. Subclasses say what one ``learn()`` does with a rollout."""
@@ -333,25 +334,14 @@ class PopulationActorCritic:
 
     # -- which seeds --------------------------------------------------------------------------------
 
-    def row(self, seed: int) -> int:
-        return self.seeds.index(seed)
-
-    @property
-    def active_seeds(self) -> list[int]:
-        return list(self.seeds)
-
     def remove(self, seeds: list[int]) -> None:
         """Stop training ``seeds`` (solved or out of budget): they leave every batch."""
-        gone = set(seeds)
-        keep_rows = [i for i, s in enumerate(self.seeds) if s not in gone]
-        rows = torch.tensor(keep_rows, dtype=torch.int64, device=self.device)
-        rows_np = np.asarray(keep_rows, dtype=np.int64)
-        envs = (rows_np[:, None] * self.config.num_envs + np.arange(self.config.num_envs)).reshape(-1)
+        rows_np, envs = self.leave(seeds, self.config.num_envs)
+        rows = torch.from_numpy(rows_np).to(self.device)
         self.model.keep(rows)
         self.optimizer.keep(rows)
         self.envs.keep(rows_np)
-        self.generators = [self.generators[i] for i in keep_rows]
-        self.seeds = [self.seeds[i] for i in keep_rows]
+        self.generators = [self.generators[i] for i in rows_np]
         self.observations = self.observations[envs]
         self.autoreset = self.autoreset[envs]
         self.episode_returns = self.episode_returns[envs]

@@ -74,6 +74,7 @@ from cartpole.agents.nn.fast_tanh import tanh
 from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step
 from cartpole.agents.nn.population_optimizers import PopulationAdam
 from cartpole.agents.nn.stacked_linear import stacked_linear
+from cartpole.agents.population import SeedRows
 from cartpole.agents.q_network import ACTIVATIONS, QNetwork, QNetworkPolicy
 from cartpole.agents.registry import AgentSpec
 from cartpole.core.errors import ConfigError
@@ -330,7 +331,7 @@ class StackedReplay:
 # ----------------------------------------------------------------------------------------------
 
 
-class PopulationDQN:
+class PopulationDQN(SeedRows):
     """DQN for seeds ``seeds``, all with ``config``: one ``learn()`` = one batched env step of every
     seed and its due gradient steps, as :meth:`~cartpole.agents.dqn.DQNLearner.learn` does."""
 
@@ -381,31 +382,17 @@ class PopulationDQN:
 
     # -- which seeds --------------------------------------------------------------------------------
 
-    def row(self, seed: int) -> int:
-        return self.seeds.index(seed)
-
-    @property
-    def active_seeds(self) -> list[int]:
-        return list(self.seeds)
-
     def remove(self, seeds: list[int]) -> None:
         """Stop training ``seeds``: they leave every batch."""
-        gone = set(seeds)
-        keep_rows = [i for i, s in enumerate(self.seeds) if s not in gone]
-        if not keep_rows:
-            raise ConfigError("cannot remove every seed of a population")
-        rows_np = np.asarray(keep_rows, dtype=np.int64)
+        rows_np, envs = self.leave(seeds, self.config.num_envs)
         rows = torch.from_numpy(rows_np).to(self.device)
-        n = self.config.num_envs
-        envs = (rows_np[:, None] * n + np.arange(n)).reshape(-1)
         self.net.keep(rows)
         self.optimizer.keep(rows)
         self.replay.keep(rows, rows_np)
         self.envs.keep(rows_np)
-        self.seeds = [self.seeds[i] for i in keep_rows]
-        self.explore_rngs = [self.explore_rngs[i] for i in keep_rows]
-        self.replay_generators = [self.replay_generators[i] for i in keep_rows]
-        self.dropout_generators = [self.dropout_generators[i] for i in keep_rows]
+        self.explore_rngs = [self.explore_rngs[i] for i in rows_np]
+        self.replay_generators = [self.replay_generators[i] for i in rows_np]
+        self.dropout_generators = [self.dropout_generators[i] for i in rows_np]
         self.observations = self.observations[envs]
         self.autoreset = self.autoreset[envs]
         self.episode_returns = self.episode_returns[envs]

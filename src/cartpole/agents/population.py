@@ -24,6 +24,7 @@ import numpy as np
 
 from cartpole.agents.actor_critic import stacked_greedy_actor
 from cartpole.agents.learner import Learner, LearnResult
+from cartpole.core.errors import ConfigError
 from cartpole.envs import EnvInfo
 from cartpole.evaluation import BlockActor, Policy
 
@@ -93,6 +94,30 @@ class LearnerPopulation:
         self.learners[seed].load_state_dict(tensors, data)
 
 
+class SeedRows:
+    """Which row of a batched population holds which seed: one row of every seed-axis tensor, and
+    ``num_envs`` consecutive rows of every per-env array."""
+
+    seeds: list[int]
+
+    def row(self, seed: int) -> int:
+        return self.seeds.index(seed)
+
+    @property
+    def active_seeds(self) -> list[int]:
+        return list(self.seeds)
+
+    def leave(self, seeds: list[int], num_envs: int) -> tuple[np.ndarray, np.ndarray]:
+        """``seeds`` leave: the seeds that stay become ``self.seeds``; returns their rows, and the rows
+        of their envs, for the caller to keep of every batch."""
+        gone = set(seeds)
+        rows = np.asarray([i for i, s in enumerate(self.seeds) if s not in gone], dtype=np.int64)
+        if not len(rows):
+            raise ConfigError("cannot remove every seed of a population")
+        self.seeds = [self.seeds[i] for i in rows]
+        return rows, (rows[:, None] * num_envs + np.arange(num_envs)).reshape(-1)
+
+
 def policies_actor(policies: list[Policy], obs_dim: int) -> BlockActor:
     """``policies`` as one :data:`~cartpole.evaluation.BlockActor` (policy b acts for block b): the
     stacked actors' one pass where they stack (actor-critics of one shape), else each in turn. Each
@@ -105,4 +130,4 @@ def policies_actor(policies: list[Policy], obs_dim: int) -> BlockActor:
     return stacked_greedy_actor(list(policies), obs_dim) or act_one_by_one
 
 
-__all__ = ["LearnerPopulation", "Population", "policies_actor"]
+__all__ = ["LearnerPopulation", "Population", "SeedRows", "policies_actor"]

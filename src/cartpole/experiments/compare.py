@@ -129,12 +129,13 @@ class Experiment:
         job (one process for all of them)."""
         jobs: list[Job] = []
         grouped: dict[Entry, list[int]] = {}
+        together = {entry: self.trains_populations(entry) for entry in self.entries}
         for entry, seed in self.pending():
-            if self.trains_populations(entry):
+            if together[entry]:
                 grouped.setdefault(entry, []).append(seed)
             else:
-                jobs.append(self.job(entry, [seed]))
-        return [self.job(entry, seeds) for entry, seeds in grouped.items()] + jobs
+                jobs.append(self.job(entry, [seed], population=False))
+        return [self.job(entry, seeds, population=True) for entry, seeds in grouped.items()] + jobs
 
     def trains_populations(self, entry: Entry) -> bool:
         """Whether ``entry``'s seeds train as one population: where its agent batches them (CartPole
@@ -146,12 +147,10 @@ class Experiment:
         config, _ = resolve_config(entry.agent, spec.config_cls, entry.preset)
         return spec.batches(config, env_info(self.env_id))
 
-    def job(self, entry: Entry, seeds: list[int]) -> Job:
-        """Train ``seeds`` of ``entry``: one seed, or several as one population."""
+    def job(self, entry: Entry, seeds: list[int], population: bool) -> Job:
+        """Train ``seeds`` of ``entry``: one seed, or (``population``) all of them as one population."""
         seed = seeds[0]
-        population = None
-        if self.trains_populations(entry):
-            population = {s: str(self.record_path(entry, s)) for s in seeds}
+        records = {s: str(self.record_path(entry, s)) for s in seeds} if population else None
         task = Task(
             agent=entry.agent,
             preset=str(Path(entry.preset).resolve()) if entry.preset.endswith(".toml") else entry.preset,
@@ -161,7 +160,7 @@ class Experiment:
             runs_dir=str(self.folder / "runs"),
             record=str(self.record_path(entry, seed)),
             command=self.command,
-            population=population,
+            population=records,
         )
         name = f"{entry.slug}__s{seed}" if len(seeds) == 1 else f"{entry.slug}__s{seed}-{seeds[-1]}"
         path = self.folder / "tasks" / f"{name}.json"
