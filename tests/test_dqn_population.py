@@ -515,13 +515,6 @@ def test_a_population_trains_on_cuda_and_its_checkpoints_load_on_the_cpu():
     population.seed_policy(3).act(np.zeros((2, 4), dtype=np.float32))
 
 
-def test_only_cartpole_on_the_fast_simulator():
-    with pytest.raises(ConfigError):
-        PopulationDQN(small_config(simulator="gymnasium"), CARTPOLE, [1, 2])
-    with pytest.raises(ConfigError):
-        PopulationDQN(small_config(), env_info("Acrobot-v1"), [1, 2])
-
-
 # -- learning -------------------------------------------------------------------------------------
 
 

@@ -101,17 +101,31 @@ def test_a_single_run_trains_its_own_learner_through_the_engine(agent, tmp_path)
     assert not isinstance(build_population(spec, config, cartpole, [4]), LearnerPopulation)
 
 
-@pytest.mark.parametrize("agent", ["ppo", "dqn", "cem"])
-def test_other_envs_train_side_by_side_with_the_same_independence(agent, tmp_path):
-    """Acrobot has no batched simulator of ours: each seed gets its own learner, still one engine."""
+OTHER_ENVS = [
+    ("ppo", "Acrobot-v1", "default"),
+    ("a2c", "MountainCar-v0", "default"),
+    ("reinforce", "Acrobot-v1", "default"),
+    ("dqn", "Acrobot-v1", "default"),
+    ("dqn", "CartPole-v1", "tutorial-pytorch"),
+    ("cem", "Acrobot-v1", "default"),
+]
+"""Envs and simulators of Gymnasium's own (each seed's vector env stepped in turn), one per agent."""
+
+
+@pytest.mark.parametrize(("agent", "env_id", "preset"), OTHER_ENVS)
+def test_other_envs_batch_with_the_same_independence(agent, env_id, preset, tmp_path):
+    """On Gymnasium's envs the seeds are batched too (not a learner each), and seed N alone is bit for
+    bit seed N among others."""
     overrides = SMALL[agent][0]
     spec = get_agent(agent)
-    config, _ = resolve_config(agent, spec.config_cls, "default", dict(overrides))
-    assert isinstance(build_population(spec, config, env_info("Acrobot-v1"), [1, 2]), LearnerPopulation)
-    options = {"overrides": dict(overrides), "budget": "1500" if agent != "cem" else "2gen"}
-    alone = train(agent, "Acrobot-v1", seed=2, runs_dir=tmp_path / "alone", **options)
-    among = train_population(agent, [1, 2], "Acrobot-v1", runs_dir=tmp_path / "among", **options)
-    assert_same_run(alone.run.path, among.runs[2].path, agent)
+    config, _ = resolve_config(agent, spec.config_cls, preset, dict(overrides))
+    assert not isinstance(build_population(spec, config, env_info(env_id), [1, 2]), LearnerPopulation)
+    budget = "2gen" if agent == "cem" else "600" if preset.startswith("tutorial") else "1500"
+    options = {"overrides": dict(overrides), "budget": budget, "preset": preset, "stop_when_solved": False}
+    alone = train_population(agent, [2], env_id, runs_dir=tmp_path / "alone", **options)
+    among = train_population(agent, [1, 2], env_id, runs_dir=tmp_path / "among", **options)
+    assert alone.states[2].env_steps == among.states[2].env_steps > 0
+    assert_same_run(alone.runs[2].path, among.runs[2].path, agent)
 
 
 def test_the_tutorial_presets_on_gymnasiums_env_train_as_populations_too(tmp_path, capsys):
@@ -122,3 +136,34 @@ def test_the_tutorial_presets_on_gymnasiums_env_train_as_populations_too(tmp_pat
     assert code == 0
     assert "2 runs in" in capsys.readouterr().out
     assert len(list(tmp_path.iterdir())) == 2
+
+
+@pytest.mark.parametrize(
+    ("agent", "env_id", "preset"),
+    [
+        ("ppo", "Acrobot-v1", "default"),
+        ("reinforce", "MountainCar-v0", "default"),
+        ("dqn", "MountainCar-v0", "default"),
+        ("dqn", "CartPole-v1", "tutorial-keras"),
+    ],
+)
+def test_a_seed_on_gymnasiums_envs_resumes_mid_episode_exactly(agent, env_id, preset):
+    """A seed's checkpoint (through JSON, as on disk) holds its Gymnasium envs mid-episode: resumed
+    beside another seed, it goes on exactly as without the break."""
+    spec = get_agent(agent)
+    config, _ = resolve_config(agent, spec.config_cls, preset, dict(SMALL[agent][0]))
+    env = env_info(env_id)
+    straight = build_population(spec, config, env, [3, 5])
+    calls = 40 if agent == "dqn" else 3
+    for _ in range(calls):
+        straight.learn()
+    tensors, data = straight.seed_state_dict(3, resume=True)
+    resumed = build_population(spec, config, env, [7, 3])
+    resumed.load_seed_state_dict(3, tensors, json.loads(json.dumps(data)))
+    for _ in range(calls):
+        assert straight.learn()[3] == resumed.learn()[3]
+    after, _ = straight.seed_state_dict(3, resume=True)
+    again, _ = resumed.seed_state_dict(3, resume=True)
+    assert after.keys() == again.keys()
+    for key, tensor in after.items():
+        assert torch.equal(tensor, again[key]), key

@@ -1,8 +1,8 @@
 """PPO, A2C and REINFORCE for a population of seeds in one process: S independent training runs, batched.
 
 Every seed is the single-run PPO of :mod:`cartpole.agents.ppo` with the same config: its own network
-(initialized as the single run initializes it), its own 8 (``num_envs``) CartPole envs seeded as the
-single run seeds them, its own action sampling, minibatch shuffling and Adam state. What is shared is
+(initialized as the single run initializes it), its own ``num_envs`` envs seeded as the single run
+seeds them, its own action sampling, minibatch shuffling and Adam state. What is shared is
 only the arithmetic:
 
 - ``StackedActorCritic``: the parameters of all S actor-critics in one flat ``[S, P]`` tensor; each
@@ -13,10 +13,11 @@ only the arithmetic:
   ``baddbmm`` is one kernel per layer; and it gives every seed the same bits whatever the batch
   holds (tested; for layer widths that are multiples of 4, as every preset's are), so a seed's run
   does not depend on which seeds share the process.
-- ``PopulationEnvs``: S x N CartPoles stepped by one call of the fast simulator's kernel
-  (:func:`~cartpole.envs.fast.step_cartpole`), with Gymnasium's next-step autoreset, and the start
-  states of each seed's envs drawn from that seed's own generator in Gymnasium's order (so they are
-  the start states of the single run's vector env).
+- The envs (:mod:`cartpole.envs.seed_envs`): on CartPole's fast simulator S x N envs stepped by one
+  kernel call, each seed's start states drawn from its own generator in Gymnasium's order (those of
+  the single run's vector env); on any other env each seed's own Gymnasium vector env. The actors
+  act through a frozen NumPy copy of their weights (``np.matmul`` per seed's slice), which costs
+  less than torch for the few rows of one step.
 - ``PopulationAdam`` (:mod:`cartpole.agents.nn.population_optimizers`): one Adam step for all seeds
   over the flat parameters, one numba pass per seed's row on the CPU. Adam is per element,
   so seeds stay independent; each seed has its own learning rate (schedules follow the seed's own
@@ -40,7 +41,6 @@ from typing import Any
 
 import numpy as np
 import torch
-from gymnasium.utils.seeding import np_random
 from torch import nn
 
 from cartpole.agents.a2c import A2CConfig, A2CLearner
@@ -54,12 +54,12 @@ from cartpole.agents.policy_gradient import policy_loader, seeded_actor_critic
 from cartpole.agents.population import SeedRows
 from cartpole.agents.ppo import PPOConfig, PPOLearner
 from cartpole.agents.registry import AgentSpec
-from cartpole.agents.reinforce import LONGEST_EPISODE_WITHOUT_TIME_LIMIT, ReinforceConfig, ReinforceLearner
+from cartpole.agents.reinforce import ReinforceConfig, ReinforceLearner
 from cartpole.agents.rollout import generalized_advantages
 from cartpole.core.errors import ConfigError
 from cartpole.core.seeding import derived_seed
 from cartpole.envs import EnvInfo
-from cartpole.envs.fast import DEFAULT_RESET_HIGH, DEFAULT_RESET_LOW, step_cartpole
+from cartpole.envs.seed_envs import LONGEST_EPISODE_WITHOUT_TIME_LIMIT, make_seed_envs
 from cartpole.evaluation import BlockActor
 
 TORCH_ACTIVATIONS: dict[type[nn.Module], Callable[[torch.Tensor], torch.Tensor]] = {
@@ -141,6 +141,25 @@ class StackedActorCritic:
     def logits_and_values(self, observations: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return self.logits(observations), self.values(observations)
 
+    def numpy_actor(self, rows: list[int] | None = None) -> StackedNumpyMLP:
+        """A frozen NumPy copy of the actors of ``rows`` (default: all), logits ``[S, B, n_actions]``.
+
+        NumPy, as a single run's policy (:class:`~cartpole.agents.nn.numpy_mlp.NumpyMLP`): acting
+        runs a few rows at a time, where torch's per-op overhead dominates, so ``np.matmul`` over the
+        stacked weights (each seed's slice on its own) costs less than ``baddbmm``."""
+        plan: list[Step] = []
+        for step in self.actor_plan:
+            if isinstance(step, tuple):
+                weight, bias = self.params[step[0]].detach(), self.params[step[1]].detach()
+                if rows is not None:
+                    weight, bias = weight[rows], bias[rows]
+                plan.append(
+                    (weight.transpose(1, 2).cpu().numpy().copy(), bias.unsqueeze(1).cpu().numpy().copy())
+                )
+            else:
+                plan.append(NUMPY_ACTIVATIONS[step])
+        return StackedNumpyMLP(plan)
+
     def unstack(self, index: int) -> ActorCritic:
         """Seed ``index``'s network as an ordinary :class:`ActorCritic` (the template, overwritten)."""
         with torch.no_grad():
@@ -160,72 +179,12 @@ class StackedActorCritic:
         self.bind()
 
 
-class PopulationEnvs:
-    """S x N CartPoles with Gymnasium's next-step autoreset, stepped together; seed s's envs draw
-    their start states from ``np_random(seed)`` as its single run's vector env does."""
-
-    def __init__(self, seeds: list[int], num_envs: int, max_episode_steps: int):
-        self.num_envs, self.max_episode_steps = num_envs, max_episode_steps
-        self.rngs = [np_random(seed)[0] for seed in seeds]
-        draws = [rng.uniform(DEFAULT_RESET_LOW, DEFAULT_RESET_HIGH, size=(4, num_envs)) for rng in self.rngs]
-        self.state = np.concatenate([d.T for d in draws]).astype(np.float32)  # [S * N, 4]
-        self.steps = np.zeros(len(self.state), dtype=np.int64)
-        self.pending = np.zeros(len(self.state), dtype=bool)
-        """Envs whose episode ended on the last step: the next step resets them."""
-
-    def observations(self) -> np.ndarray:
-        return self.state.copy()
-
-    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(observations, rewards, terminated, truncated), each for all S x N envs."""
-        self.state, terminated = step_cartpole(self.state, actions)
-        self.steps += 1
-        truncated = self.steps >= self.max_episode_steps
-        rewards = np.ones(len(self.state), dtype=np.float32)
-        resets = np.flatnonzero(self.pending)
-        if resets.size:
-            owners = resets // self.num_envs
-            for owner in np.unique(owners):
-                mine = resets[owners == owner]
-                draws = self.rngs[owner].uniform(DEFAULT_RESET_LOW, DEFAULT_RESET_HIGH, size=(4, len(mine)))
-                self.state[mine] = draws.T.astype(np.float32)
-            self.steps[resets] = 0
-            rewards[resets] = 0.0
-            terminated[resets] = False
-            truncated[resets] = False
-        self.pending = terminated | truncated
-        return self.state.copy(), rewards, terminated, truncated
-
-    def restart(self, row: int, seed: int) -> None:
-        """Fresh start states for seed ``row``'s envs from ``seed``, as a vector env's
-        ``reset(seed=seed)`` draws them; its generator continues from there."""
-        envs = slice(row * self.num_envs, (row + 1) * self.num_envs)
-        self.rngs[row] = np_random(seed)[0]
-        draws = self.rngs[row].uniform(DEFAULT_RESET_LOW, DEFAULT_RESET_HIGH, size=(4, self.num_envs))
-        self.state[envs] = draws.T.astype(np.float32)
-        self.steps[envs] = 0
-        self.pending[envs] = False
-
-    def keep(self, seed_rows: np.ndarray) -> None:
-        envs = (seed_rows[:, None] * self.num_envs + np.arange(self.num_envs)).reshape(-1)
-        self.rngs = [self.rngs[i] for i in seed_rows]
-        self.state, self.steps, self.pending = self.state[envs], self.steps[envs], self.pending[envs]
-
-    def seed_state(self, row: int) -> dict[str, Any]:
-        envs = slice(row * self.num_envs, (row + 1) * self.num_envs)
-        return {
-            "state": self.state[envs].tolist(),
-            "steps": self.steps[envs].tolist(),
-            "pending": self.pending[envs].tolist(),
-            "np_random": self.rngs[row].bit_generator.state,
-        }
-
-    def load_seed_state(self, row: int, data: dict[str, Any]) -> None:
-        envs = slice(row * self.num_envs, (row + 1) * self.num_envs)
-        self.state[envs] = np.asarray(data["state"], dtype=np.float32)
-        self.steps[envs] = data["steps"]
-        self.pending[envs] = data["pending"]
-        self.rngs[row].bit_generator.state = data["np_random"]
+def sample_actions(logits: np.ndarray, uniforms: np.ndarray) -> np.ndarray:
+    """One action per row of ``logits`` [..., n_actions] by inverse CDF from ``uniforms`` [...]: the
+    number of cumulative softmax probabilities (the last left out) below the uniform."""
+    shifted = np.exp(logits - logits.max(axis=-1, keepdims=True))
+    cdf = shifted.cumsum(axis=-1)
+    return (cdf[..., :-1] < uniforms[..., None] * cdf[..., -1:]).sum(axis=-1)
 
 
 def masked_mean(x: torch.Tensor, mask: torch.Tensor, count: torch.Tensor) -> torch.Tensor:
@@ -309,8 +268,6 @@ class PopulationActorCritic(SeedRows):
         make_optimizer: Callable[[int, int, torch.device], PopulationOptimizer],
     ):
         config.validate()
-        if not env.is_cartpole or config.simulator != "fast":
-            raise ConfigError("population training runs CartPole on the fast simulator only")
         self.config, self.env_info = config, env
         self.device = torch.device(device)
         """Where the networks, rollouts and updates live. The envs step on the CPU (numpy) and the
@@ -322,8 +279,7 @@ class PopulationActorCritic(SeedRows):
         self.model = StackedActorCritic(models, self.device)
         self.optimizer = make_optimizer(len(self.seeds), self.model.size, self.device)
         self.generators = [torch.Generator().manual_seed(derived_seed(s, "actions")) for s in self.seeds]
-        steps = env.max_episode_steps or 500
-        self.envs = PopulationEnvs(self.seeds, config.num_envs, steps)
+        self.envs = make_seed_envs(env, config.simulator, self.seeds, config.num_envs)
         n = len(self.seeds) * config.num_envs
         self.observations = self.envs.observations()
         self.autoreset = np.zeros(n, dtype=bool)
@@ -412,34 +368,30 @@ class PopulationActorCritic(SeedRows):
     ) -> tuple[Transitions, list[tuple[list[float], list[int]]]]:
         """Up to ``steps`` batched steps of all S x N envs; what they did, and each seed's finished
         episodes (returns, lengths). With ``whole_episodes`` (REINFORCE) each env plays one
-        episode: its rows after it ended are invalid, and play stops once every env has ended one."""
+        episode: its rows after it ended are invalid, and play stops once every env has ended one.
+        The actors act through a frozen NumPy copy (:meth:`StackedActorCritic.numpy_actor`)."""
         config = self.config
         seeds, envs = len(self.seeds), config.num_envs
         obs_dim = self.env_info.obs_dim
-        device = self.device
-        observations = torch.zeros(steps + 1, seeds * envs, obs_dim, device=device)
-        actions = torch.zeros(steps, seeds * envs, dtype=torch.int64, device=device)
-        log_probs = torch.zeros(steps, seeds * envs, device=device)
+        actor = self.model.numpy_actor()
+        observations = np.zeros((steps + 1, seeds * envs, obs_dim), dtype=np.float32)
+        actions = np.zeros((steps, seeds * envs), dtype=np.int64)
         rewards = np.zeros((steps, seeds * envs), dtype=np.float32)
         terminated = np.zeros((steps, seeds * envs), dtype=np.float32)
         truncated = np.zeros((steps, seeds * envs), dtype=np.float32)
         valid = np.zeros((steps, seeds * envs), dtype=bool)
         ended_once = np.zeros(seeds * envs, dtype=bool)
         # Each seed's uniforms for the whole rollout, from its own generator: one call per seed.
-        uniforms = torch.stack(
-            [torch.rand(steps, envs, generator=g, device="cpu") for g in self.generators], dim=1
-        ).to(device)
+        uniforms = np.stack(
+            [torch.rand(steps, envs, generator=g, device="cpu").numpy() for g in self.generators], axis=1
+        )
         finished: list[tuple[list[float], list[int]]] = [([], []) for _ in range(seeds)]
         used = steps
         for t in range(steps):
-            observations[t] = torch.from_numpy(self.observations).to(device)
-            logits = self.model.logits(observations[t].view(seeds, envs, obs_dim))
-            step_log_probs = torch.log_softmax(logits, dim=-1)
-            cdf = step_log_probs.exp().cumsum(dim=-1)[..., :-1]
-            chosen = (cdf < uniforms[t].unsqueeze(-1)).sum(dim=-1)  # inverse-CDF sampling
-            actions[t] = chosen.view(-1)
-            log_probs[t] = step_log_probs.gather(-1, chosen.unsqueeze(-1)).view(-1)
-            next_obs, step_rewards, step_terminated, step_truncated = self.envs.step(actions[t].cpu().numpy())
+            observations[t] = self.observations
+            logits = actor(self.observations.reshape(seeds, envs, obs_dim))
+            actions[t] = sample_actions(logits, uniforms[t]).reshape(-1)
+            next_obs, step_rewards, step_terminated, step_truncated = self.envs.step(actions[t])
             step_valid = ~(self.autoreset | ended_once)
             ended = (step_terminated | step_truncated) & step_valid
             rewards[t], terminated[t], truncated[t], valid[t] = (
@@ -462,17 +414,34 @@ class PopulationActorCritic(SeedRows):
                 if ended_once.all():
                     used = t + 1
                     break
-        observations[used] = torch.from_numpy(self.observations).to(device)
+        observations[used] = self.observations
+
+        def tensor(x: np.ndarray) -> torch.Tensor:
+            return torch.from_numpy(x).to(self.device)
+
+        played = tensor(observations[: used + 1])
+        taken = tensor(actions[:used])
         transitions = Transitions(
-            observations=observations[: used + 1],
-            actions=actions[:used],
-            log_probs=log_probs[:used],
-            rewards=torch.from_numpy(rewards[:used]).to(device),
-            terminated=torch.from_numpy(terminated[:used]).to(device),
-            truncated=torch.from_numpy(truncated[:used]).to(device),
-            valid=torch.from_numpy(valid[:used]).to(device),
+            observations=played,
+            actions=taken,
+            log_probs=self.log_probs_of(played[:used], taken),
+            rewards=tensor(rewards[:used]),
+            terminated=tensor(terminated[:used]),
+            truncated=tensor(truncated[:used]),
+            valid=tensor(valid[:used]),
         )
         return transitions, finished
+
+    @torch.no_grad()
+    def log_probs_of(self, observations: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+        """The log-probabilities [T, S * N] under the current actors of ``actions`` [T, S * N] taken at
+        ``observations`` [T, S * N, obs_dim]: one batched pass over the whole rollout."""
+        steps, rows, obs_dim = observations.shape
+        seeds = len(self.seeds)
+        by_seed = observations.view(steps, seeds, -1, obs_dim).transpose(0, 1).reshape(seeds, -1, obs_dim)
+        log_probs = torch.log_softmax(self.model.logits(by_seed), dim=-1)
+        chosen = actions.view(steps, seeds, -1).transpose(0, 1).reshape(seeds, -1, 1)
+        return log_probs.gather(-1, chosen).view(seeds, steps, -1).transpose(0, 1).reshape(steps, rows)
 
     @torch.no_grad()
     def advantages(
@@ -534,21 +503,8 @@ class PopulationActorCritic(SeedRows):
 
     def greedy_actor(self, seeds: list[int]) -> BlockActor:
         """The greedy policies of ``seeds`` as one :data:`~cartpole.evaluation.BlockActor` (block i
-        holds seed i's rows), one stacked NumPy forward pass per call.
-
-        NumPy, as a single run's greedy policy (:class:`~cartpole.agents.nn.numpy_mlp.NumpyMLP`): an
-        evaluation acts on a few rows at a time, where torch's per-op overhead dominates, so
-        ``np.matmul`` over the stacked weights costs less than ``baddbmm``."""
-        rows = [self.row(seed) for seed in seeds]
-        plan: list[Step] = []
-        for step in self.model.actor_plan:
-            if isinstance(step, tuple):
-                weight = self.model.params[step[0]].detach()[rows].transpose(1, 2).cpu().numpy().copy()
-                bias = self.model.params[step[1]].detach()[rows].unsqueeze(1).cpu().numpy().copy()
-                plan.append((weight, bias))
-            else:
-                plan.append(NUMPY_ACTIVATIONS[step])
-        return block_greedy_actor(StackedNumpyMLP(plan), self.env_info.obs_dim)
+        holds seed i's rows), one stacked NumPy forward pass per call."""
+        return block_greedy_actor(self.model.numpy_actor([self.row(s) for s in seeds]), self.env_info.obs_dim)
 
     # -- one seed, as a single run sees it ----------------------------------------------------------
 
@@ -1003,7 +959,6 @@ __all__ = [
     "AGENTS",
     "PopulationA2C",
     "PopulationAdam",
-    "PopulationEnvs",
     "PopulationPPO",
     "PopulationRMSprop",
     "PopulationReinforce",

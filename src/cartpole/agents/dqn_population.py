@@ -14,8 +14,8 @@ arithmetic, along a leading seed axis:
 - ``StackedReplay``: the replay memories as one ``[S, capacity, 2 * obs_dim + 3]`` table (the row
   layout of :class:`~cartpole.agents.replay_buffer.ReplayBuffer`) with a write position and a fill
   count per seed; a minibatch of every seed is one ``index_select``.
-- :class:`~cartpole.agents.actor_critic_population.PopulationEnvs` steps the S x ``num_envs``
-  CartPoles with one call of the fast simulator, and
+- :func:`~cartpole.envs.seed_envs.make_seed_envs` gives each seed its own ``num_envs`` envs (on
+  CartPole's fast simulator all S x ``num_envs`` step in one call), and
   :class:`~cartpole.agents.nn.population_optimizers.PopulationAdam` steps every seed's Adam in one pass.
 - ``PopulationDQN``: one ``learn()`` = one batched env step of every seed (one forward pass for all
   seeds' greedy actions) and, for the seeds whose training round is due, ``gradient_steps`` batched
@@ -60,7 +60,6 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from cartpole.agents.actor_critic_population import PopulationEnvs
 from cartpole.agents.dqn import (
     DQNConfig,
     DQNLearner,
@@ -80,6 +79,7 @@ from cartpole.agents.registry import AgentSpec
 from cartpole.core.errors import ConfigError
 from cartpole.core.seeding import derived_seed
 from cartpole.envs import EnvInfo
+from cartpole.envs.seed_envs import make_seed_envs
 from cartpole.evaluation import BlockActor
 
 ALIGN = 32
@@ -337,8 +337,6 @@ class PopulationDQN(SeedRows):
 
     def __init__(self, config: DQNConfig, env: EnvInfo, seeds: list[int], device: str = "cpu"):
         config.validate()
-        if not env.is_cartpole or config.simulator != "fast":
-            raise ConfigError("population training runs CartPole on the fast simulator only")
         if not seeds:
             raise ConfigError("a population needs at least one seed")
         self.config, self.env_info = config, env
@@ -356,7 +354,7 @@ class PopulationDQN(SeedRows):
         self.explore_rngs = [np.random.default_rng(derived_seed(s, "explore")) for s in self.seeds]
         self.replay_generators = [self.cpu_generator(derived_seed(s, "replay")) for s in self.seeds]
         self.dropout_generators = [self.cpu_generator(derived_seed(s, "dropout")) for s in self.seeds]
-        self.envs = PopulationEnvs(self.seeds, config.num_envs, env.max_episode_steps or 500)
+        self.envs = make_seed_envs(env, config.simulator, self.seeds, config.num_envs)
         n = len(self.seeds) * config.num_envs
         self.observations = self.envs.observations()
         self.autoreset = np.zeros(n, dtype=bool)
@@ -375,6 +373,8 @@ class PopulationDQN(SeedRows):
         at the end of the last ``learn()`` (read back with its metrics: one device sync a call)."""
         self.batch_rows = padded(config.batch_size)
         self.acting_rows = padded(config.num_envs)
+        self.rounds: dict[bytes, tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]] = {}
+        """The last training round's tensors (see :meth:`round_tensors`), by who trained and their rows."""
 
     @staticmethod
     def cpu_generator(seed: int) -> torch.Generator:
@@ -469,7 +469,30 @@ class PopulationDQN(SeedRows):
         return q[:, :n].argmax(dim=2)
 
     def greedy_actions(self) -> np.ndarray:
+        """The online networks' greedy actions [S, num_envs] for ``observations``: on the CPU through
+        NumPy views of the weights (:meth:`numpy_q_values`: cheaper than torch for a few rows)."""
+        if self.device.type == "cpu":
+            n, obs_dim = self.config.num_envs, self.env_info.obs_dim
+            return self.numpy_q_values(self.observations.reshape(-1, n, obs_dim)).argmax(axis=2)
         return self.greedy_q_argmax().cpu().numpy()
+
+    def numpy_q_values(self, x: np.ndarray) -> np.ndarray:
+        """Q-values ``[S, B, n_actions]`` of ``x`` [S, B, obs_dim] as :meth:`StackedQNetwork.forward`
+        computes them, in NumPy on views of the online weights (CPU only; no copies). ``np.matmul``
+        multiplies each seed's slice on its own, so a seed's actions do not depend on its neighbours."""
+        params = {name: p.detach().numpy() for name, p in self.net.params.items()}
+        activation = NUMPY_ACTIVATIONS[ACTIVATIONS[self.config.activation]]
+
+        def linear(features: np.ndarray, name: str) -> np.ndarray:
+            weight, bias = params[f"{name}.weight"], params[f"{name}.bias"]
+            return np.matmul(features, weight.transpose(0, 2, 1)) + bias[:, None, :]
+
+        for weight, _ in self.net.hidden:
+            x = activation(linear(x, weight.removesuffix(".weight")))
+        q = linear(x, "head")
+        if self.net.dueling:
+            q = linear(x, "value") + q - q.mean(axis=2, keepdims=True)
+        return q
 
     def shape_rewards(self, rewards: np.ndarray, terminated: np.ndarray, done: np.ndarray) -> np.ndarray:
         return shaped_rewards(self.config, rewards, terminated, done, self.episode_lengths)
@@ -486,16 +509,22 @@ class PopulationDQN(SeedRows):
         return finished
 
     def read_back(self, metrics: torch.Tensor | None, training: np.ndarray) -> None:
-        """The next call's greedy actions and this call's metrics ([S, 2]: loss, Q mean), fetched from
-        the device together."""
-        greedy = self.greedy_q_argmax()
-        parts = [greedy.view(-1).to(torch.float64)]
+        """This call's metrics ([S, 2]: loss, Q mean) and, off the CPU, the next call's greedy
+        actions, fetched from the device together (one sync a call)."""
+        parts, greedy = [], None
+        if self.device.type != "cpu":
+            greedy = self.greedy_q_argmax()
+            parts.append(greedy.view(-1).to(torch.float64))
         if metrics is not None:
             parts.append(metrics.view(-1).to(torch.float64))
+        if not parts:
+            return
         values = torch.cat(parts).cpu().numpy()
-        self.greedy = values[: greedy.numel()].astype(np.int64).reshape(greedy.shape)
+        if greedy is not None:
+            self.greedy = values[: greedy.numel()].astype(np.int64).reshape(greedy.shape)
+            values = values[greedy.numel() :]
         if metrics is not None:
-            losses, q_means = values[greedy.numel() :].reshape(-1, 2).T
+            losses, q_means = values.reshape(-1, 2).T
             self.last_loss = np.where(training, losses, self.last_loss)
             self.last_q_mean = np.where(training, q_means, self.last_q_mean)
 
@@ -526,11 +555,7 @@ class PopulationDQN(SeedRows):
         config, device = self.config, self.device
         counts = np.where(training, np.minimum(config.batch_size, self.replay.size), 0)
         slots = self.sample_slots(training, counts)
-        positions = np.arange(self.batch_rows)
-        mask = to_device(torch.from_numpy((positions < counts[:, None]).astype(np.float32)), device)
-        count = to_device(torch.from_numpy(np.maximum(counts, 1).astype(np.float32)), device)
-        active = to_device(torch.from_numpy(training), device)
-        lr = torch.full((len(self.seeds),), config.lr, dtype=torch.float64, device=device)
+        mask, count, active, lr = self.round_tensors(training, counts)
         metrics = torch.zeros(len(self.seeds), 2, device=device)
         for step in range(config.gradient_steps):
             batch = self.replay.gather(slots[:, step])
@@ -538,6 +563,25 @@ class PopulationDQN(SeedRows):
             metrics = self.gradient_step(batch, keeps, mask, count, active, lr)
             self.after_step(training)
         return metrics
+
+    def round_tensors(
+        self, training: np.ndarray, counts: np.ndarray
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """A training round's row mask [S, B], rows per seed [S], who trains [S] and learning rates
+        [S], on the device; made again only when who trains or how many rows they have changes."""
+        key = training.tobytes() + counts.tobytes()
+        if key not in self.rounds:
+            device = self.device
+            mask = (np.arange(self.batch_rows) < counts[:, None]).astype(np.float32)
+            self.rounds = {
+                key: (
+                    to_device(torch.from_numpy(mask), device),
+                    to_device(torch.from_numpy(np.maximum(counts, 1).astype(np.float32)), device),
+                    to_device(torch.from_numpy(training.copy()), device),
+                    torch.full((len(self.seeds),), self.config.lr, dtype=torch.float64, device=device),
+                )
+            }
+        return self.rounds[key]
 
     def sample_slots(self, training: np.ndarray, counts: np.ndarray) -> torch.Tensor:
         """Each training seed's minibatch rows for every gradient step of this round, drawn uniformly
@@ -548,8 +592,7 @@ class PopulationDQN(SeedRows):
         for row in np.flatnonzero(training):
             size, count = int(self.replay.size[row]), int(counts[row])
             generator = self.replay_generators[row]
-            for step in range(steps):
-                slots[row, step, :count] = torch.randint(0, size, (count,), generator=generator, device="cpu")
+            slots[row, :, :count] = torch.randint(0, size, (steps, count), generator=generator, device="cpu")
         return to_device(slots, self.device)
 
     def dropout_keeps(self, training: np.ndarray, counts: np.ndarray) -> list[torch.Tensor]:

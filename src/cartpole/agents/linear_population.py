@@ -3,9 +3,10 @@
 Every seed is its single run's search (:mod:`cartpole.agents.linear`): its own generator, its own
 candidates, its own update, the same start states. What is shared is the simulation: each
 generation, the candidates of every seed play their episodes in one vector env of the fast
-simulator, stepped by one call per step. Because the fast simulator steps every env on its own and
-a candidate's actions depend only on its own parameters and observations, each seed's generations
-are bit-identical to its single run's (tested), whichever seeds share the process.
+simulator, stepped by one call per step (on other envs and simulators each search plays its own).
+Because the fast simulator steps every env on its own and a candidate's actions depend only on its
+own parameters and observations, each seed's generations are bit-identical to its single run's
+(tested), whichever seeds share the process.
 """
 
 from __future__ import annotations
@@ -29,8 +30,7 @@ from cartpole.agents.linear import (
     policy_from_checkpoint,
 )
 from cartpole.agents.registry import AgentSpec
-from cartpole.core.errors import ConfigError
-from cartpole.envs import EnvInfo, make_vec_env
+from cartpole.envs import EnvInfo, make_vec_env, resolve_simulator
 from cartpole.evaluation import BlockActor
 
 
@@ -42,11 +42,12 @@ class LinearPopulation:
         self, search: type[LinearSearch], config: LinearSearchConfig, env: EnvInfo, seeds: list[int]
     ):
         config.validate()
-        if not env.is_cartpole or config.simulator != "fast":
-            raise ConfigError("population training runs CartPole on the fast simulator only")
         self.config, self.env_info = config, env
         self.searches = {seed: search(config, env, seed) for seed in seeds}
         self.shared_env: gym.vector.VectorEnv | None = None
+        self.plays_together = resolve_simulator(env.env_id, config.simulator) == "fast"
+        """Whether every seed's candidates play in one fast vector env (CartPole on the fast
+        simulator); elsewhere each search plays its own generation in its own envs."""
 
     @property
     def active_seeds(self) -> list[int]:
@@ -68,6 +69,8 @@ class LinearPopulation:
     def learn(self) -> dict[int, LearnResult]:
         """One generation of every seed: each proposes and resets its own envs as its single run
         does, then all candidates play together from those start states."""
+        if not self.plays_together:
+            return {seed: search.learn() for seed, search in self.searches.items()}
         searches = list(self.searches.items())
         candidates = [search.propose() for _, search in searches]
         starts = [search.reset_episodes() for _, search in searches]

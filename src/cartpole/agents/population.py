@@ -4,16 +4,17 @@
 spec (:class:`~cartpole.agents.registry.AgentSpec`) says how to batch its seeds, and
 :func:`~cartpole.agents.registry.build_population` picks the form:
 
-- batched (``--seeds``, where ``spec.batches(config, env)``: CartPole on the fast simulator): one
-  learner holds every seed on a leading seed axis (networks, optimizers, replay or rollouts, envs,
-  generators), one update for all; each seed's arithmetic does not depend on which seeds share it,
-  so seed N alone (``--seeds N``) and seed N among others train bit for bit the same
+- batched (``--seeds``, any env): one learner holds every seed on a leading seed axis (networks,
+  optimizers, replay or rollouts, envs, generators), one update for all. Each seed's envs are its own
+  (:mod:`cartpole.envs.seed_envs`): on CartPole's fast simulator all seeds' envs step in one call,
+  elsewhere (Acrobot, MountainCar, Gymnasium's own CartPole for the tutorial presets) each seed's
+  Gymnasium vector env steps in turn. Each seed's arithmetic does not depend on which seeds share
+  it, so seed N alone (``--seeds N``) and seed N among others train bit for bit the same
   (``tests/test_one_engine.py``).
-- side by side (a single run, ``--seed N``; every other env and simulator, e.g. Acrobot, or the
-  tutorial presets on Gymnasium's env): :class:`LearnerPopulation`, one single-seed learner per
-  seed, stepped in turn. Seeds share nothing, so the same holds trivially. (A single run keeps its
-  own learner because the batched code is still slower for one seed; the linear searches' batched
-  seeds are bit for bit their single runs, the neural agents' agree to float rounding.)
+- a single run (``--seed N``): :class:`LearnerPopulation`, the seed's own single-seed learner,
+  through the same engine. A single run keeps its own learner because the batched code is still
+  slower for one seed (benchmarks/README.md); the linear searches' batched seeds are bit for bit
+  their single runs, the neural agents' agree to float rounding.
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from cartpole.envs import EnvInfo, env_info
+from cartpole.envs import EnvInfo, env_info, resolve_simulator
 from cartpole.evaluation import Policy
 from cartpole.runs import Checkpoint, CheckpointError, RunDir, load_checkpoint
 
@@ -29,23 +29,24 @@ class AgentSpec:
     config_cls: type
     """Its settings (a dataclass with ``validate()``), built from presets and ``--set``."""
     make_learner: Callable[[Any, EnvInfo, int, str], Learner]
-    """(config, env info, seed, device) -> one seed's learner, for the seeds it cannot batch."""
+    """(config, env info, seed, device) -> one seed's own learner (``cartpole train --seed N``)."""
+    make_population: Callable[[Any, EnvInfo, list[int], str], Population]
+    """(config, env info, seeds, device) -> every seed batched in one learner, on any env."""
     policy_from_checkpoint: Callable[[Checkpoint], Policy]
     """Rebuild the greedy policy from a checkpoint's tensors and metadata."""
     bytes_per_seed: Callable[[Any, EnvInfo], int]
     """(config, env info) -> about how much memory one seed takes, checked before training starts."""
-    make_population: Callable[[Any, EnvInfo, list[int], str], Population] | None = None
-    """(config, env info, seeds, device) -> every seed batched in one learner, where the agent
-    batches (see :meth:`batches`)."""
     iteration: str = "step"
     """What one ``learn()`` call is, in words: "generation" or "step"."""
     score_label: str = "score"
     """What its policy's ``scores()`` are, for people ("Q-values", "action probabilities", ...)."""
 
     def batches(self, config: Any, env: EnvInfo) -> bool:
-        """Whether seeds of ``config`` on ``env`` train batched (one update for all): CartPole on
-        the fast simulator; elsewhere they train side by side, a learner each."""
-        return self.make_population is not None and env.is_cartpole and config.simulator == "fast"
+        """Whether seeds of ``config`` on ``env`` also step their envs together (CartPole on the fast
+        simulator), so that one process training them all beats a process per seed. (Elsewhere a
+        population steps each seed's Gymnasium envs in turn; ``compare`` runs such seeds in
+        parallel processes instead.)"""
+        return resolve_simulator(env.env_id, config.simulator) == "fast"
 
 
 AGENT_MODULES = {
@@ -64,13 +65,13 @@ the batched population (imported only when the agent is used: torch is slow)."""
 def build_population(
     spec: AgentSpec, config: Any, env: EnvInfo, seeds: list[int], device: str = "cpu", batched: bool = True
 ) -> Population:
-    """``seeds`` of agent ``spec`` with ``config`` on ``env``: batched where the agent can batch
-    them (and ``batched``), else one learner per seed. ``cartpole train --seed N`` asks for no
-    batching: one seed's own learner is still faster than a batch of one (benchmarks/README.md),
-    while ``--seeds N`` is the batched population of one, bit for bit seed N of any population."""
+    """``seeds`` of agent ``spec`` with ``config`` on ``env``, batched (any env), or with ``batched``
+    False one seed's own learner each. ``cartpole train --seed N`` asks for the seed's own learner:
+    it is still faster than a batch of one (benchmarks/README.md); ``--seeds N`` is the batched
+    population of one, bit for bit seed N of any population."""
     from cartpole.agents.population import LearnerPopulation  # torch: imported when training
 
-    if batched and spec.make_population is not None and spec.batches(config, env):
+    if batched:
         return spec.make_population(config, env, seeds, device)
     return LearnerPopulation({seed: spec.make_learner(config, env, seed, device) for seed in seeds}, env)
 

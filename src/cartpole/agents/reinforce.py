@@ -25,8 +25,8 @@ from cartpole.agents.policy_gradient import (
 )
 from cartpole.agents.rollout import explained_variance, normalize
 from cartpole.envs import EnvInfo
+from cartpole.envs.seed_envs import LONGEST_EPISODE_WITHOUT_TIME_LIMIT
 
-LONGEST_EPISODE_WITHOUT_TIME_LIMIT = 10_000
 """Rows per env of the episode buffer for an env that registers no time limit (longer episodes are cut)."""
 
 

@@ -211,6 +211,18 @@ def step_cartpole(
     return np.ascontiguousarray(columns.T), terminated
 
 
+def step_cartpole_columns(columns: NDArray[np.floating[Any]], action: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """:func:`step_cartpole` in place, for callers that keep their states as the kernel's columns:
+    ``columns`` ``(4, N)`` (C-contiguous float32 or float64) advance one step under Gymnasium's
+    parameters; ``action`` ``(N,)`` int64 of 0/1. Returns ``terminated`` ``(N,)``."""
+    terminated = np.empty(columns.shape[1], dtype=np.bool_)
+    if not _kernels().step_states(
+        columns, action, packed_params(_check_params(None), columns.dtype), terminated
+    ):
+        raise ValueError("actions must be 0 (push left) or 1 (push right)")
+    return terminated
+
+
 class CartPoleStepper:
     """Steps one float64 state at a time: Gymnasium's equations, through the same kernel, and nothing else.
 
@@ -628,4 +640,5 @@ __all__ = [
     "KinematicsIntegrator",
     "register_fast_envs",
     "step_cartpole",
+    "step_cartpole_columns",
 ]
