@@ -2,16 +2,19 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import tomllib
 from pathlib import Path
+from types import SimpleNamespace
 
 import optuna
 import pytest
 
 from cartpole.cli.main import main
 from cartpole.experiments.space import parse_space
+from cartpole.experiments.sweep import PruneReporter
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
@@ -47,6 +50,8 @@ def test_sweep_two_workers_then_more_trials_and_best_toml_trains(tmp_path, capsy
     for trial in complete:  # the objective is the median of the seeds' costs
         costs = sorted(trial.user_attrs[f"cost_seed{i}"] for i in range(2))
         assert trial.value == pytest.approx(sum(costs) / 2)
+        record = json.loads((Path(trial.user_attrs["run_seed1"]) / "config.json").read_text())
+        assert record["population"]["seeds"] == [0, 1]  # a trial's seeds train as one population
         assert set(trial.params) == set(
             parse_space(
                 "cem",
@@ -73,6 +78,49 @@ def test_sweep_two_workers_then_more_trials_and_best_toml_trains(tmp_path, capsy
     assert main(["presets", "cem", "--runs-dir", str(runs_dir)]) == 0
     out = capsys.readouterr().out
     assert "agents/presets/cem.toml" in out and str(folder / "best.toml") in out
+
+
+class PruningTrial:
+    """What the reporter needs of an Optuna trial: it records the reports, and prunes from the
+    ``prune_from``-th report on."""
+
+    def __init__(self, prune_from: int):
+        self.reports: list[tuple[int, float]] = []
+        self.prune_from = prune_from
+
+    def report(self, value: float, step: int) -> None:
+        self.reports.append((step, value))
+
+    def should_prune(self) -> bool:
+        return len(self.reports) >= self.prune_from
+
+
+def seed_loop(env_steps: int, solved_at: int | None = None) -> SimpleNamespace:
+    state = SimpleNamespace(env_steps=env_steps, solved=solved_at is not None, solved_at_step=solved_at)
+    return SimpleNamespace(state=state)
+
+
+def test_the_reporter_bounds_the_median_and_stops_every_unsolved_seed_once_pruned():
+    """Three seeds train together: each report is the median of the seeds' costs so far (unevaluated
+    seeds 0); after the pruner says so, unsolved seeds stop and solved ones are not stopped."""
+    trial = PruningTrial(prune_from=3)
+    reporter = PruneReporter(trial, seeds=3)
+    a, b, c = seed_loop(1000), seed_loop(2000), seed_loop(500, solved_at=500)
+    assert reporter.on_eval(a, None) is True  # costs 1000, 0, 0
+    assert reporter.on_eval(b, None) is True  # 1000, 2000, 0
+    assert not reporter.pruned
+    assert reporter.on_eval(c, None) is True  # a solved seed is never stopped
+    a.state.env_steps = 3000
+    assert reporter.on_eval(a, None) is False  # 3000, 2000, 500: pruned, and a is unsolved
+    assert reporter.pruned
+    assert reporter.on_eval(b, None) is False  # every unsolved seed stops at its next evaluation
+    assert trial.reports == [(1, 0.0), (2, 1000.0), (3, 1000.0), (4, 2000.0), (5, 2000.0)]
+
+
+def test_the_reporter_never_stops_a_trial_the_pruner_keeps():
+    reporter = PruneReporter(PruningTrial(prune_from=10**6), seeds=2)
+    assert all(reporter.on_eval(seed_loop(steps), None) for steps in (100, 200, 300, 400))
+    assert not reporter.pruned
 
 
 def write(path: Path, text: str) -> str:

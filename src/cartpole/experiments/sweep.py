@@ -2,10 +2,11 @@
 
 Objective (minimized): the median over the trial's K seeds (seeds 0..K-1, the same for every trial) of
 the env steps to the first verified solve; a seed that does not solve within its budget counts as twice
-the env steps it used. After every evaluation during training the trial reports a lower bound of that
-median (finished seeds at their cost, the running seed at the steps it has used, seeds not started at 0);
-the pruner stops a trial as soon as that lower bound exceeds the median cost of the complete trials, so
-it never stops a trial that would have ended better than that median.
+the env steps it used. The K seeds train together, as one population (``--seeds``: batched, each seed
+bit for bit its run alone). After every evaluation of any seed the trial reports a lower bound of that
+median (each seed at its solve, or at the env steps it has used; seeds not yet evaluated at 0); the
+pruner stops a trial as soon as that lower bound exceeds the median cost of the complete trials, so it
+never stops a trial that would have ended better than that median.
 
 Storage: by default a journal file, ``D/sweeps/NAME/journal.log`` (Optuna's JournalFileBackend, safe for
 the J local workers); with ``--storage postgresql://user@host:port/db`` every machine that runs the same
@@ -43,8 +44,6 @@ from cartpole.training.budget import parse_budget
 WORKER = "cartpole.experiments.sweep"
 UNSOLVED_FACTOR = 2
 """A seed that never solves costs this many times the env steps it used."""
-EVALS_PER_SEED = 100_000
-"""Pruning steps: seed i's evaluation e is step i * EVALS_PER_SEED + e, so steps rise across seeds."""
 STUDY_ATTR = "cartpole"
 STARTUP_TRIALS = 5
 """Random trials before TPE models the results (Optuna's default is 10: too many for short sweeps)."""
@@ -277,23 +276,26 @@ class Interrupted(Exception):
 
 
 class PruneReporter(Callback):
-    """After each evaluation: report the lower bound of the trial's cost, stop when the pruner says so."""
+    """After each evaluation of any of the trial's seeds (trained together): report the lower bound of
+    the trial's cost, the median of the seeds' running costs (env steps so far, or at the solve); once
+    the pruner says so, every unsolved seed stops at its next evaluation."""
 
-    def __init__(self, trial: Any, costs: list[float], seed_index: int, seeds: int):
-        self.trial, self.costs, self.seed_index, self.seeds = trial, costs, seed_index, seeds
+    def __init__(self, trial: Any, seeds: int):
+        self.trial, self.seeds = trial, seeds
+        self.running: dict[int, float] = {}
+        """Each evaluated seed's cost so far, by its loop."""
+        self.reports = 0
         self.pruned = False
 
     def on_eval(self, loop: TrainingLoop, report: EvalReport) -> bool:
         state = loop.state
-        running = state.solved_at_step if state.solved else state.env_steps
-        bound = self.costs + [float(running or 0)] + [0.0] * (self.seeds - len(self.costs) - 1)
-        self.trial.report(
-            float(statistics.median(bound)), self.seed_index * EVALS_PER_SEED + state.evaluations
-        )
-        if not state.solved and self.trial.should_prune():
+        self.running[id(loop)] = float((state.solved_at_step if state.solved else state.env_steps) or 0)
+        bound = [*self.running.values()] + [0.0] * (self.seeds - len(self.running))
+        self.reports += 1
+        self.trial.report(float(statistics.median(bound)), self.reports)
+        if not self.pruned and not state.solved and self.trial.should_prune():
             self.pruned = True
-            return False
-        return True
+        return state.solved or not self.pruned
 
 
 @contextlib.contextmanager
@@ -313,41 +315,40 @@ def stop_flag() -> Iterator[list[int]]:
 
 
 def trial_cost(spec: SweepSpec, trial: Any, params: dict[str, Any], stop: list[int]) -> float:
-    """Train the trial's K seeds; the median cost, or TrialPruned / Interrupted."""
+    """Train the trial's K seeds as one population; the median cost, or TrialPruned / Interrupted."""
     import optuna
 
-    from cartpole.training import train
+    from cartpole.training.session import train_population
 
-    costs: list[float] = []
-    for index in range(spec.seeds_per_trial):
-        if stop:
-            raise Interrupted
-        reporter = PruneReporter(trial, costs, index, spec.seeds_per_trial)
-        outcome = train(
-            spec.agent,
-            spec.env_id,
-            seed=index,
-            preset=spec.preset,
-            overrides=params,
-            budget=spec.budget,
-            runs_dir=spec.path / "runs",
-            device="cpu",
-            quiet=True,
-            command=["cartpole", "sweep", spec.agent, "--study", spec.name, f"(trial {trial.number})"],
-            callbacks=[reporter],
-        )
-        trial.set_user_attr(f"run_seed{index}", str(outcome.run.path))
-        if outcome.signal is not None:
-            stop.append(outcome.signal)
-            raise Interrupted
-        state = outcome.state
-        cost = float(
-            state.solved_at_step if state.solved_at_step is not None else UNSOLVED_FACTOR * state.env_steps
-        )
+    if stop:
+        raise Interrupted
+    reporter = PruneReporter(trial, spec.seeds_per_trial)
+    outcome = train_population(
+        spec.agent,
+        list(range(spec.seeds_per_trial)),
+        spec.env_id,
+        preset=spec.preset,
+        overrides=params,
+        budget=spec.budget,
+        runs_dir=spec.path / "runs",
+        device="cpu",
+        quiet=True,
+        command=["cartpole", "sweep", spec.agent, "--study", spec.name, f"(trial {trial.number})"],
+        callbacks=[reporter],
+    )
+    for seed, run in outcome.runs.items():
+        trial.set_user_attr(f"run_seed{seed}", str(run.path))
+    if outcome.signal is not None:
+        stop.append(outcome.signal)
+        raise Interrupted
+    costs = []
+    for seed, state in outcome.states.items():
+        solved_at = state.solved_at_step
+        cost = float(solved_at if solved_at is not None else UNSOLVED_FACTOR * state.env_steps)
         costs.append(cost)
-        trial.set_user_attr(f"cost_seed{index}", cost)
-        if reporter.pruned:
-            raise optuna.TrialPruned(f"pruned at seed {index}, {state.env_steps} env steps")
+        trial.set_user_attr(f"cost_seed{seed}", cost)
+    if reporter.pruned:
+        raise optuna.TrialPruned(f"pruned after {reporter.reports} evaluations")
     return float(statistics.median(costs))
 
 

@@ -121,10 +121,12 @@ def train_population(
     command: list[str] | None = None,
     stream: TextIO | None = None,
     tensorboard: bool = False,
+    callbacks: Sequence[Callback] = (),
 ) -> PopulationOutcome:
     """Train ``agent`` with every seed of ``seeds`` in one process; a run folder per seed. Their
     configs record the population (an id and the seeds): ``--resume`` of any member continues
-    every unfinished member."""
+    every unfinished member. ``callbacks`` (one list for all seeds) see every seed's events after
+    the standard ones."""
     if not seeds:
         raise InputError("no seeds to train")
     if len(set(seeds)) != len(seeds):
@@ -132,7 +134,7 @@ def train_population(
     return start(
         agent, seeds, env_id, preset=preset, overrides=overrides, budget=budget, runs_dir=runs_dir,
         device=device, stop_when_solved=stop_when_solved, quiet=quiet, command=command, stream=stream,
-        tensorboard=tensorboard, callbacks=(), population=True,
+        tensorboard=tensorboard, callbacks=callbacks, population=True,
     )  # fmt: skip
 
 
