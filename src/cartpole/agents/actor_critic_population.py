@@ -364,12 +364,14 @@ class PopulationActorCritic(SeedRows):
 
     @torch.no_grad()
     def play(
-        self, steps: int, whole_episodes: bool = False
+        self, steps: int, whole_episodes: bool = False, log_probs: bool = True
     ) -> tuple[Transitions, list[tuple[list[float], list[int]]]]:
         """Up to ``steps`` batched steps of all S x N envs; what they did, and each seed's finished
         episodes (returns, lengths). With ``whole_episodes`` (REINFORCE) each env plays one
         episode: its rows after it ended are invalid, and play stops once every env has ended one.
-        The actors act through a frozen NumPy copy (:meth:`StackedActorCritic.numpy_actor`)."""
+        The actors act through a frozen NumPy copy (:meth:`StackedActorCritic.numpy_actor`); the
+        log-probabilities of their actions (PPO's old ones; zeros without ``log_probs``) come from one
+        torch pass after the rollout."""
         config = self.config
         seeds, envs = len(self.seeds), config.num_envs
         obs_dim = self.env_info.obs_dim
@@ -424,7 +426,9 @@ class PopulationActorCritic(SeedRows):
         transitions = Transitions(
             observations=played,
             actions=taken,
-            log_probs=self.log_probs_of(played[:used], taken),
+            log_probs=self.log_probs_of(played[:used], taken)
+            if log_probs
+            else torch.zeros_like(taken, dtype=torch.float32),
             rewards=tensor(rewards[:used]),
             terminated=tensor(terminated[:used]),
             truncated=tensor(truncated[:used]),
@@ -747,7 +751,7 @@ class PopulationReinforce(PopulationActorCritic):
 
     Episodes have different lengths, and play lasts until the longest episode of *any* seed ends. So
     that a seed's arithmetic does not depend on its neighbours, its update runs on its own rows cut
-    to a length that depends only on them: the next power of two at or above its longest episode.
+    to a length that depends only on them (its longest episode, rounded up: :func:`rounded_up`).
     Seeds of the same length update together, one batched forward and backward pass per length.
     """
 
@@ -788,19 +792,20 @@ class PopulationReinforce(PopulationActorCritic):
         self.episode_rngs[self.row(seed)].bit_generator.state = data["rng_numpy"]
 
     def update_lengths(self, transitions: Transitions) -> list[int]:
-        """Each seed's update length: a power of two (at least 8) covering its longest episode."""
+        """Each seed's update length, covering its longest episode (:func:`rounded_up`, at least 8):
+        padding costs at most a quarter more rows, and seeds of similar lengths share a pass."""
         steps, envs = transitions.valid.shape[0], self.config.num_envs
         played = transitions.valid.view(steps, len(self.seeds), envs).any(dim=2)  # [T, S]
         longest = [
             int(played[:, row].nonzero().max()) + 1 if bool(played[:, row].any()) else 1
             for row in range(len(self.seeds))
         ]
-        return [min(self.longest, max(8, 1 << (n - 1).bit_length())) for n in longest]
+        return [min(self.longest, max(8, rounded_up(n))) for n in longest]
 
     def learn(self) -> dict[int, LearnResult]:
         lr = self.learning_rates()
         self.restart()
-        transitions, finished = self.play(self.longest, whole_episodes=True)
+        transitions, finished = self.play(self.longest, whole_episodes=True, log_probs=False)
         counts = transitions.valid.view(transitions.valid.shape[0], len(self.seeds), -1).sum(dim=(0, 2))
         results = self.count_steps(counts.tolist(), finished)
         lengths = self.update_lengths(transitions)
@@ -857,6 +862,13 @@ class PopulationReinforce(PopulationActorCritic):
             metrics[row] = {"train/policy_loss": policy, "train/entropy": entropy_value}
             if config.baseline:
                 metrics[row] |= {"train/value_loss": value, "train/explained_variance": explained[i]}
+
+
+def rounded_up(n: int) -> int:
+    """``n`` (>= 1) rounded up to a multiple of a quarter of the power of two at or below it: at most
+    a quarter more, and four lengths per doubling."""
+    quarter = max(1, (1 << (n.bit_length() - 1)) // 4)
+    return -(-n // quarter) * quarter
 
 
 def masked_variance(x: torch.Tensor, mask: torch.Tensor, count: torch.Tensor) -> torch.Tensor:
