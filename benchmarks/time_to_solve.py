@@ -6,6 +6,7 @@ Usage (from the repository root)::
     python benchmarks/time_to_solve.py --agents dqn --presets default,tutorial-keras,tutorial-pytorch \\
         --seeds 10 --sb3 dqn --max-seconds-per-run 600
     python benchmarks/time_to_solve.py --agents ppo,a2c,reinforce --seeds 10 --sb3 ppo,a2c
+    python benchmarks/time_to_solve.py --agents ppo,dqn --seeds 3 --sb3 ppo,dqn --tianshou ppo,dqn
 
 Each run is one fresh subprocess (so torch thread settings and imports of one run cannot speed up or
 slow down another) that calls :func:`cartpole.training.train` with the preset's own budget. Per run we
@@ -14,7 +15,9 @@ the in-training verified solve (the first full 100-episode evaluation on Gymnasi
 the threshold), the env steps at that moment, and the final verdict: the kept best checkpoint re-judged
 by ``evaluate`` on 100 fresh episodes. SB3's DQN, PPO and A2C (RL Zoo's CartPole-v1 hyperparameters)
 are judged by the same ``screened_evaluation`` at the cadence of our agent's default preset, with the
-same stop rule. Every run uses one torch thread (our CLI's default; SB3 runs are set the same way).
+same stop rule. Tianshou's DQN and PPO (the settings of its own CartPole test scripts) are judged the
+same way, after each of its trainer's collect-and-update steps. Every run uses one torch thread (our
+CLI's default; SB3's and Tianshou's runs are set the same way).
 """
 
 from __future__ import annotations
@@ -59,6 +62,30 @@ SB3_ZOO_ON_POLICY: dict[str, tuple[int, int, dict[str, Any]]] = {
         "ent_coef": 0.0, "learning_rate": "lin_0.001", "clip_range": "lin_0.2",
     }),
     "a2c": (8, 500_000, {"ent_coef": 0.0}),
+}  # fmt: skip
+
+TIANSHOU_AGENTS = ("dqn", "ppo")
+TIANSHOU_PRESET = "test-0.5.1"
+"""The preset column of Tianshou's rows: its own test scripts' settings, release 0.5.1."""
+
+# Tianshou 0.5.1 (the newest release that installs beside requirements.lock), test/discrete/test_dqn.py and
+# test/discrete/test_ppo.py, get_args() defaults: the library's own discrete CartPole scripts (its
+# examples/ has none for CartPole). Written for CartPole-v0 (--task), run here on CartPole-v1 unchanged.
+# The budget is epoch x step_per_epoch env steps.
+TIANSHOU_CARTPOLE: dict[str, dict[str, Any]] = {
+    "dqn": {
+        "hidden_sizes": [128, 128, 128, 128], "lr": 1e-3, "gamma": 0.9, "n_step": 3,
+        "target_update_freq": 320, "buffer_size": 20_000, "training_num": 10, "batch_size": 64,
+        "step_per_collect": 10, "update_per_step": 0.1, "eps_train": 0.1, "epoch": 20,
+        "step_per_epoch": 10_000,
+    },
+    "ppo": {
+        "hidden_sizes": [64, 64], "lr": 3e-4, "gamma": 0.99, "buffer_size": 20_000, "training_num": 20,
+        "step_per_collect": 2000, "repeat_per_collect": 10, "batch_size": 64, "epoch": 10,
+        "step_per_epoch": 50_000, "vf_coef": 0.5, "ent_coef": 0.0, "eps_clip": 0.2, "max_grad_norm": 0.5,
+        "gae_lambda": 0.95, "rew_norm": 0, "norm_adv": 0, "recompute_adv": 0, "dual_clip": None,
+        "value_clip": 0,
+    },
 }  # fmt: skip
 
 
@@ -306,6 +333,215 @@ def _sb3_linear_schedule(zoo: dict[str, Any], total_steps: int) -> Any:
     return LinearSchedule(1.0, zoo["exploration_final_eps"], fraction)
 
 
+def run_tianshou(algo: str, seed: int, max_seconds: float | None, env_id: str, eval_every: int,
+                 screen: int, total_steps: int | None) -> dict[str, Any]:  # fmt: skip
+    """Tianshou's DQN or PPO with its CartPole test scripts' settings, judged exactly like our agents.
+
+    Tianshou's own trainer runs the script's loop (its test collector left out); after each of the
+    trainer's collect-and-update steps the judge evaluates when ``eval_every`` env steps have passed.
+    """
+    import dataclasses
+
+    import torch
+    from tianshou.trainer import OffpolicyTrainer, OnpolicyTrainer
+
+    from cartpole.agents.registry import get_agent
+    from cartpole.envs import env_info
+    from cartpole.evaluation import evaluate
+    from cartpole.training.config import resolve_config
+
+    torch.set_num_threads(1)
+    _, settings = resolve_config(algo, get_agent(algo).config_cls, "default")
+    settings = dataclasses.replace(settings, eval_every=eval_every, eval_screen_episodes=screen)
+    settings_ts = TIANSHOU_CARTPOLE[algo]
+    epochs = -(-total_steps // settings_ts["step_per_epoch"]) if total_steps else settings_ts["epoch"]
+    judge = TianshouJudge(env_info(env_id), seed, settings, max_seconds)
+    warm_up(env_id)
+    judge.start_clock()
+    build = {"dqn": _tianshou_dqn, "ppo": _tianshou_ppo}[algo]
+    policy, collector, prefill, trainer_kwargs = build(env_id, seed, settings_ts)
+    trainer_cls = {"dqn": OffpolicyTrainer, "ppo": OnpolicyTrainer}[algo]
+    trainer = _judged_trainer(trainer_cls, judge, prefill)(
+        policy=policy, train_collector=collector, test_collector=None, max_epoch=epochs,
+        step_per_epoch=settings_ts["step_per_epoch"], step_per_collect=settings_ts["step_per_collect"],
+        batch_size=settings_ts["batch_size"], episode_per_test=0, verbose=False, show_progress=False,
+        **trainer_kwargs,
+    )  # fmt: skip
+    trainer.run()
+    cpu_total, elapsed = judge.clock()
+    if judge.best_params is not None:
+        policy.load_state_dict(judge.best_params)
+    policy.eval()
+    report = evaluate(TianshouGreedy(policy), env_id, 100)
+    return {
+        "agent": f"tianshou-{algo}", "preset": TIANSHOU_PRESET, "seed": seed,
+        "solved_in_training": bool(judge.solve), "solve_steps": judge.solve.get("steps"),
+        "solve_cpu": judge.solve.get("cpu"), "solve_wall": judge.solve.get("wall"),
+        "env_steps": prefill + trainer.env_step, "episodes": None, "cpu_total": cpu_total,
+        "elapsed": elapsed, "gradient_steps": float(trainer.gradient_step), "final_mean": report.mean,
+        "final_solved": report.solved, "stop_reason": "solved" if judge.solve else "budget",
+    }  # fmt: skip
+
+
+class TianshouGreedy:
+    """Tianshou policy -> our Policy: its greedy action (DQN's argmax Q, PPO's deterministic_eval)."""
+
+    def __init__(self, policy: Any):
+        self.policy = policy
+
+    def act(self, observations: Any) -> Any:
+        import torch
+        from tianshou.data import Batch, to_numpy
+
+        with torch.no_grad():
+            return to_numpy(self.policy(Batch(obs=observations, info=Batch())).act)
+
+
+class TianshouJudge:
+    """The SB3 callbacks' judge for a Tianshou policy: ``screened_evaluation`` every ``eval_every`` env
+    steps, the best parameters kept (``report_rank``), the clock read at the first verified solve."""
+
+    def __init__(self, env: Any, seed: int, settings: Any, max_seconds: float | None):
+        self.env, self.seed, self.settings, self.max_seconds = env, seed, settings, max_seconds
+        self.last, self.evals = 0, 0
+        self.best: Any = None
+        self.best_params: dict[str, Any] | None = None
+        self.solve: dict[str, float] = {}
+        self.cpu_start = self.wall_start = 0.0
+
+    def start_clock(self) -> None:
+        self.cpu_start, self.wall_start = time.process_time(), time.perf_counter()
+
+    def clock(self) -> tuple[float, float]:
+        """CPU and wall seconds since ``start_clock``."""
+        return time.process_time() - self.cpu_start, time.perf_counter() - self.wall_start
+
+    def should_stop(self, policy: Any, env_steps: int) -> bool:
+        """Judge the policy if ``eval_every`` env steps passed since the last evaluation."""
+        from cartpole.training.callbacks import report_rank
+
+        if env_steps - self.last < self.settings.eval_every:
+            return False
+        self.last = env_steps
+        report = self.evaluate(policy)
+        self.evals += 1
+        if self.best is None or report_rank(report) > report_rank(self.best):
+            self.best = report
+            self.best_params = {k: v.clone() for k, v in policy.state_dict().items()}
+        if report.solved:
+            cpu, wall = self.clock()
+            self.solve = {"cpu": cpu, "wall": wall, "steps": env_steps}
+            return True
+        return bool(self.max_seconds and self.clock()[1] > self.max_seconds)
+
+    def evaluate(self, policy: Any) -> Any:
+        """Our in-training evaluation of the greedy policy (Tianshou's train mode restored after)."""
+        from cartpole.training.callbacks import screened_evaluation
+
+        training = policy.training
+        policy.eval()
+        try:
+            return screened_evaluation(TianshouGreedy(policy), self.env, self.seed, self.evals, self.settings)
+        finally:
+            policy.train(training)
+
+
+def _judged_trainer(trainer_cls: Any, judge: TianshouJudge, prefill: int) -> Any:
+    """``trainer_cls`` whose every collect-and-update step ends with the judge (which may stop it)."""
+
+    class JudgedTrainer(trainer_cls):
+        def policy_update_fn(self, data: dict[str, Any], result: dict[str, Any]) -> None:
+            super().policy_update_fn(data, result)
+            if judge.should_stop(self.policy, prefill + self.env_step):
+                self.stop_fn_flag = True  # Tianshou's own flag: the epoch ends, then training
+
+    return JudgedTrainer
+
+
+def _tianshou_seeded_envs(env_id: str, seed: int, count: int) -> Any:
+    """test_*.py's seeding: NumPy's and torch's global seeds, then the training envs (seed + i)."""
+    import gymnasium as gym
+    import numpy as np
+    import torch
+    from tianshou.env import DummyVectorEnv
+
+    envs = DummyVectorEnv([lambda: gym.make(env_id) for _ in range(count)])
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+    envs.seed(seed)
+    return envs
+
+
+def _tianshou_dqn(env_id: str, seed: int, s: dict[str, Any]) -> tuple[Any, Any, int, dict[str, Any]]:
+    """test_dqn.py's policy and collector, its buffer prefilled as there; the trainer's extra arguments."""
+    import gymnasium as gym
+    import torch
+    from tianshou.data import Collector, VectorReplayBuffer
+    from tianshou.policy import DQNPolicy
+    from tianshou.utils.net.common import Net
+
+    space: Any = gym.make(env_id)  # its spaces, as the script reads them
+    envs = _tianshou_seeded_envs(env_id, seed, s["training_num"])
+    net = Net(
+        space.observation_space.shape, space.action_space.n, hidden_sizes=s["hidden_sizes"], device="cpu"
+    )
+    optim = torch.optim.Adam(net.parameters(), lr=s["lr"])
+    policy = DQNPolicy(net, optim, s["gamma"], s["n_step"], target_update_freq=s["target_update_freq"])
+    buffer = VectorReplayBuffer(s["buffer_size"], buffer_num=len(envs))
+    collector = Collector(policy, envs, buffer, exploration_noise=True)
+    prefill = s["batch_size"] * s["training_num"]
+    collector.collect(n_step=prefill)
+    train_fn = _tianshou_dqn_epsilon(policy, s["eps_train"])
+    return policy, collector, prefill, {"update_per_step": s["update_per_step"], "train_fn": train_fn}
+
+
+def _tianshou_dqn_epsilon(policy: Any, eps_train: float) -> Any:
+    """test_dqn.py's train_fn: epsilon eps_train to 10k env steps, then linear to a tenth of it at 50k."""
+
+    def train_fn(epoch: int, env_step: int) -> None:
+        if env_step <= 10_000:
+            policy.set_eps(eps_train)
+        elif env_step <= 50_000:
+            policy.set_eps(eps_train - (env_step - 10_000) / 40_000 * (0.9 * eps_train))
+        else:
+            policy.set_eps(0.1 * eps_train)
+
+    return train_fn
+
+
+def _tianshou_ppo(env_id: str, seed: int, s: dict[str, Any]) -> tuple[Any, Any, int, dict[str, Any]]:
+    """test_ppo.py's policy (CPU branch: shared trunk, orthogonal init) and collector; the trainer's extra
+    arguments."""
+    import gymnasium as gym
+    import torch
+    from tianshou.data import Collector, VectorReplayBuffer
+    from tianshou.policy import PPOPolicy
+    from tianshou.utils.net.common import ActorCritic, Net
+    from tianshou.utils.net.discrete import Actor, Critic
+
+    space: Any = gym.make(env_id)  # its spaces, as the script reads them
+    envs = _tianshou_seeded_envs(env_id, seed, s["training_num"])
+    net = Net(space.observation_space.shape, hidden_sizes=s["hidden_sizes"], device="cpu")
+    actor = Actor(net, space.action_space.n, device="cpu")
+    critic = Critic(net, device="cpu")
+    actor_critic = ActorCritic(actor, critic)
+    for module in actor_critic.modules():
+        if isinstance(module, torch.nn.Linear):
+            torch.nn.init.orthogonal_(module.weight)
+            torch.nn.init.zeros_(module.bias)
+    optim = torch.optim.Adam(actor_critic.parameters(), lr=s["lr"])
+    policy = PPOPolicy(
+        actor, critic, optim, torch.distributions.Categorical, discount_factor=s["gamma"],
+        max_grad_norm=s["max_grad_norm"], eps_clip=s["eps_clip"], vf_coef=s["vf_coef"],
+        ent_coef=s["ent_coef"], gae_lambda=s["gae_lambda"], reward_normalization=s["rew_norm"],
+        dual_clip=s["dual_clip"], value_clip=s["value_clip"], action_space=space.action_space,
+        deterministic_eval=True, advantage_normalization=s["norm_adv"],
+        recompute_advantage=s["recompute_adv"],
+    )  # fmt: skip
+    collector = Collector(policy, envs, VectorReplayBuffer(s["buffer_size"], len(envs)))
+    return policy, collector, 0, {"repeat_per_collect": s["repeat_per_collect"]}
+
+
 # ----------------------------------------------------------------------------------------------
 # The table
 # ----------------------------------------------------------------------------------------------
@@ -391,6 +627,30 @@ def run_in_subprocess(task: dict[str, Any]) -> dict[str, Any]:
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
+def tianshou_tasks(
+    parser: argparse.ArgumentParser, args: argparse.Namespace, seeds: range
+) -> list[dict[str, Any]]:
+    """--tianshou's runs, at our default preset's evaluation cadence (none if Tianshou is missing)."""
+    from cartpole.agents.registry import get_agent
+    from cartpole.training.config import resolve_config
+
+    try:
+        import tianshou  # noqa: F401
+    except ImportError:
+        print("Tianshou is not installed (pip install -e '.[bench]'); skipping it", file=sys.stderr)
+        return []
+    tasks: list[dict[str, Any]] = []
+    for algo in [a.strip() for a in args.tianshou.split(",") if a.strip()]:
+        if algo not in TIANSHOU_AGENTS:
+            parser.error(f"--tianshou takes {', '.join(TIANSHOU_AGENTS)}; got {algo!r}")
+        _, settings = resolve_config(algo, get_agent(algo).config_cls, "default")
+        base = {"agent": f"tianshou-{algo}", "preset": TIANSHOU_PRESET, "env": args.env,
+                "max_seconds": args.max_seconds_per_run, "eval_every": settings.eval_every,
+                "screen": settings.eval_screen_episodes, "total_steps": args.tianshou_steps}  # fmt: skip
+        tasks += [base | {"seed": s} for s in seeds]
+    return tasks
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--agents", default=",".join(ALL_AGENTS), help="comma-separated agent names")
@@ -409,6 +669,12 @@ def main(argv: list[str] | None = None) -> int:
                         help="SB3's env-step budget (default: DQN 100k, PPO/A2C the zoo's)")  # fmt: skip
     parser.add_argument("--sb3-eval-every", type=int, default=None,
                         help="SB3 evaluation cadence in env steps (default: ours)")  # fmt: skip
+    parser.add_argument("--tianshou", nargs="?", const="dqn,ppo", default=None, metavar="AGENTS",
+                        help="also measure Tianshou with its CartPole test scripts' settings: "
+                             "comma-separated dqn, ppo (--tianshou alone: both)")  # fmt: skip
+    parser.add_argument("--tianshou-steps", type=int, default=None,
+                        help="Tianshou's env-step budget, rounded up to whole epochs "
+                             "(default: its scripts' epoch x step-per-epoch)")  # fmt: skip
     parser.add_argument("--jobs", type=int, default=1,
                         help="runs at once (one torch thread each); CPU s include contention")  # fmt: skip
     parser.add_argument("--json", default=None,
@@ -421,6 +687,10 @@ def main(argv: list[str] | None = None) -> int:
         if task["agent"] == "sb3-dqn":
             result = run_sb3(task["seed"], task["max_seconds"], task["env"], task["eval_every"],
                              task["screen"], task["total_steps"] or 100_000)  # fmt: skip
+        elif task["agent"].startswith("tianshou-"):
+            algo = task["agent"].removeprefix("tianshou-")
+            result = run_tianshou(algo, task["seed"], task["max_seconds"], task["env"], task["eval_every"],
+                                  task["screen"], task["total_steps"])  # fmt: skip
         elif task["agent"].startswith("sb3-"):
             algo = task["agent"].removeprefix("sb3-")
             result = run_sb3_on_policy(algo, task["seed"], task["max_seconds"], task["env"],
@@ -459,6 +729,8 @@ def main(argv: list[str] | None = None) -> int:
                         "max_seconds": args.max_seconds_per_run, "eval_every": every,
                         "screen": settings.eval_screen_episodes, "total_steps": args.sb3_steps}  # fmt: skip
                 tasks += [base | {"seed": s} for s in seeds]
+    if args.tianshou:
+        tasks += tianshou_tasks(parser, args, seeds)
 
     print(f"# time_to_solve: {args.env}, {len(tasks)} runs, {platform.processor() or platform.machine()}, "
           f"{os.cpu_count()} CPUs, python {platform.python_version()}", file=sys.stderr)  # fmt: skip

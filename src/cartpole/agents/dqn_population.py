@@ -651,13 +651,15 @@ class PopulationDQN(SeedRows):
         """The Bellman targets [S, B] (:func:`~cartpole.agents.dqn.td_targets`, per row). Without a
         target network the online nets (without dropout) value s', as the single run does."""
         config, net = self.config, self.net
-        next_q_target = net.forward(net.target_params, next_observations, self.activation)
         next_q_online = None
-        if config.double_dqn:
-            same = net.target is None
-            next_q_online = (
-                next_q_target if same else net.forward(net.params, next_observations, self.activation)
-            )
+        if config.double_dqn and net.target is not None:  # both networks in one pass
+            both = torch.cat([net.target, net.flat])  # [2S, P]: the targets, then the online nets
+            q = net.forward(net.views(both), next_observations.repeat(2, 1, 1), self.activation)
+            next_q_target, next_q_online = q.chunk(2)
+        else:
+            next_q_target = net.forward(net.target_params, next_observations, self.activation)
+            if config.double_dqn:  # no target network: the online nets choose and value
+                next_q_online = next_q_target
         seeds, rows, n_actions = next_q_target.shape
         targets = td_targets(
             rewards.reshape(-1),

@@ -121,8 +121,8 @@ def add_parser(sub: Any) -> None:
         "--seeds",
         metavar="SEEDS",
         help="train these seeds in one process, a run folder each: a range (0-99), a list (3,5,8) or "
-        "both; for every agent (batched where it can be: CartPole on the fast simulator). --resume of "
-        "any of them continues them all",
+        "both; every agent on every env, batched (each seed bit for bit its run alone). --resume of any "
+        "of them continues them all",
     )
     parser.set_defaults(run=run)
 

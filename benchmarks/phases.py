@@ -2,9 +2,9 @@
 
 Usage (from the repository root)::
 
-    python benchmarks/profile.py                              # every neural agent, one seed, single runs
-    python benchmarks/profile.py --agents dqn,ppo --seeds 3   # seeds 0..2, summed
-    python benchmarks/profile.py --agents ppo --population 20 # also seeds 0..19 as one population (--seeds)
+    python benchmarks/phases.py                              # every neural agent, one seed, single runs
+    python benchmarks/phases.py --agents dqn,ppo --seeds 3   # seeds 0..2, summed
+    python benchmarks/phases.py --agents ppo --population 20 # also seeds 0..19 as one population (--seeds)
 
 Each (agent, mode) runs in its own subprocess with one torch thread (``cartpole train``'s default) and
 trains with the preset's own budget and stop rule, as ``cartpole train`` does. A sampling profiler
