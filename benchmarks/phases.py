@@ -151,7 +151,7 @@ def main() -> None:
         result = profile_run(agent, list(range(int(count))), mode == "population", args.interval / 1000)
         print(json.dumps(result))
         return
-    print(f"# profile: {describe_cpu()}, python {sys.version.split()[0]}; one torch thread; "
+    print(f"# phases: {describe_cpu()}, python {sys.version.split()[0]}; one torch thread; "
           f"CPU microseconds per env step in brackets")  # fmt: skip
     print("| agent | mode | CPU s | env steps | " + " | ".join(PHASES) + " |")
     print("|---|---|---|---|" + "---|" * len(PHASES))
