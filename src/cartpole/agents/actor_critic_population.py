@@ -548,7 +548,11 @@ class PopulationActorCritic(SeedRows):
     def load_seed_state_dict(self, seed: int, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None:
         """Restore what ``seed_state_dict(seed, resume=True)`` gave."""
         if not data.get("population"):
-            raise ConfigError("not a population checkpoint: resume it as a single run")
+            raise ConfigError(
+                "no batched population's training state (a policy-only checkpoint, or one written by a "
+                "seed's own learner: a single run, or seeds an earlier version trained side by side): "
+                "it cannot continue here; use --from-scratch"
+            )
         row = self.row(seed)
         model = self.model.template
         model.load_state_dict(
