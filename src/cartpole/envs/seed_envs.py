@@ -94,7 +94,7 @@ class FastSeedEnvs:
         """Envs whose episode ended on the last step: the next step resets them."""
 
     def observations(self) -> np.ndarray:
-        return np.ascontiguousarray(self.columns.T)
+        return self.columns.T.copy()  # a new array: the columns step in place
 
     def step(self, actions: np.ndarray) -> Step:
         terminated = step_cartpole_columns(self.columns, actions.astype(np.int64, copy=False))
