@@ -607,12 +607,13 @@ class PopulationPPO(PopulationActorCritic):
         seeds, rows = rollout.valid.shape
         size = config.minibatch_size
         has_rows = rollout.counts > 0
-        # Each seed's shuffles for all epochs from its own generator; invalid rows sort last.
-        keys = torch.stack(
-            [torch.rand(config.n_epochs, rows, generator=g, device="cpu") for g in self.generators]
-        ).to(self.device)
-        keys.masked_fill_(~rollout.valid.unsqueeze(1), 2.0)
-        orders = keys.argsort(dim=-1, stable=True)
+        whole = size >= rows  # one minibatch of every row, as the single run takes it: no shuffle
+        if not whole:  # each seed's shuffles for all epochs from its own generator; invalid rows last
+            keys = torch.stack(
+                [torch.rand(config.n_epochs, rows, generator=g, device="cpu") for g in self.generators]
+            ).to(self.device)
+            keys.masked_fill_(~rollout.valid.unsqueeze(1), 2.0)
+            orders = keys.argsort(dim=-1, stable=True)
         stopped = torch.zeros(seeds, dtype=torch.bool, device=self.device)
         sums = torch.zeros(seeds, len(ROW_METRICS), device=self.device)
         done_steps = torch.zeros(seeds, device=self.device)
@@ -620,9 +621,13 @@ class PopulationPPO(PopulationActorCritic):
         positions = torch.arange(size, device=self.device)
         for epoch in range(config.n_epochs):
             for start in range(0, batches * size, size):
-                index = orders[:, epoch, start : start + size]
-                mask = (positions[: index.shape[1]] + start < rollout.counts.unsqueeze(1)).float()
-                count = mask.sum(dim=1)
+                index: torch.Tensor | None = None
+                if whole:
+                    mask, count = rollout.valid.float(), rollout.counts
+                else:
+                    index = orders[:, epoch, start : start + size]
+                    mask = (positions[: index.shape[1]] + start < rollout.counts.unsqueeze(1)).float()
+                    count = mask.sum(dim=1)
                 active = (count > 0) & ~stopped
                 losses, row_metrics, kl = self.minibatch_loss(rollout, index, mask, count, clip)
                 if config.target_kl is not None:
@@ -653,15 +658,18 @@ class PopulationPPO(PopulationActorCritic):
     def minibatch_loss(
         self,
         rollout: Rollout,
-        index: torch.Tensor,
+        index: torch.Tensor | None,
         mask: torch.Tensor,
         count: torch.Tensor,
         clip: torch.Tensor,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Per-seed PPO loss [S], metrics [S, 5] (detached) and approximate KL [S] of one minibatch."""
+        """Per-seed PPO loss [S], metrics [S, 5] (detached) and approximate KL [S] of one minibatch:
+        each seed's rows ``index`` [S, B] (None: every row)."""
         config = self.config
 
         def take(x: torch.Tensor) -> torch.Tensor:
+            if index is None:
+                return x
             if x.dim() == 2:
                 return x.gather(1, index)
             return x.gather(1, index.unsqueeze(-1).expand(-1, -1, x.shape[-1]))
