@@ -356,10 +356,10 @@ class PopulationActorCritic(SeedRows):
         residual = masked_variance(rollout.returns - rollout.values, valid, rollout.counts)
         return torch.where(variance > 0, 1.0 - residual / variance, torch.full_like(variance, math.nan))
 
-    def collect(self) -> tuple[Rollout, list[tuple[list[float], list[int]]]]:
-        """``n_steps`` batched steps of all S x N envs; the rollout with GAE advantages, and each
-        seed's finished episodes (returns, lengths)."""
-        transitions, finished = self.play(self.config.n_steps)  # type: ignore[union-attr]  # PPO, A2C
+    def collect(self, log_probs: bool = True) -> tuple[Rollout, list[tuple[list[float], list[int]]]]:
+        """``n_steps`` batched steps of all S x N envs; the rollout with GAE advantages (and, with
+        ``log_probs``, the actions' log-probabilities), and each seed's finished episodes."""
+        transitions, finished = self.play(self.config.n_steps, log_probs=log_probs)  # type: ignore[union-attr]
         return self.advantages(transitions, self.model.params, len(self.seeds)), finished
 
     @torch.no_grad()
@@ -718,7 +718,7 @@ class PopulationA2C(PopulationActorCritic):
     def learn(self) -> dict[int, LearnResult]:
         config = self.config
         lr = self.learning_rates()
-        rollout, finished = self.collect()
+        rollout, finished = self.collect(log_probs=False)  # the loss's own forward pass gives them
         results = self.count_steps(rollout.counts.to(torch.int64).tolist(), finished)
         valid, count = rollout.valid.float(), rollout.counts
         logits, values = self.model.logits_and_values(rollout.observations)
@@ -737,7 +737,7 @@ class PopulationA2C(PopulationActorCritic):
         with torch.no_grad():  # how far the step moved each policy on its own batch
             new_log_probs = torch.log_softmax(self.model.logits(rollout.observations), dim=-1)
             log_ratio = (
-                new_log_probs.gather(-1, rollout.actions.unsqueeze(-1)).squeeze(-1) - rollout.log_probs
+                new_log_probs.gather(-1, rollout.actions.unsqueeze(-1)).squeeze(-1) - log_probs.detach()
             )
             approx_kl = masked_mean((log_ratio.exp() - 1.0) - log_ratio, valid, count)
             rows = torch.stack([policy_loss, value_loss, entropy, approx_kl], dim=1).tolist()
