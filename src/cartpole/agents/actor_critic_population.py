@@ -334,8 +334,8 @@ class PopulationActorCritic(SeedRows):
         self, results: dict[int, LearnResult], counts: torch.Tensor, metrics: list[dict[str, float]]
     ) -> None:
         """Give each seed that updated (``counts`` [S] of new transitions) its metrics row."""
-        for row, seed in enumerate(self.seeds):
-            if counts[row] == 0:
+        for row, (seed, count) in enumerate(zip(self.seeds, counts.tolist(), strict=True)):
+            if count == 0:
                 continue
             results[seed].scalars = metrics[row]
             results[seed].log_scalars = True
