@@ -70,7 +70,7 @@ from cartpole.agents.dqn import (
 )
 from cartpole.agents.learner import LearnResult
 from cartpole.agents.nn.fast_tanh import tanh
-from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step
+from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step, run_steps
 from cartpole.agents.nn.population_optimizers import PopulationAdam
 from cartpole.agents.nn.stacked_linear import stacked_linear
 from cartpole.agents.population import SeedRows
@@ -480,19 +480,33 @@ class PopulationDQN(SeedRows):
         """Q-values ``[S, B, n_actions]`` of ``x`` [S, B, obs_dim] as :meth:`StackedQNetwork.forward`
         computes them, in NumPy on views of the online weights (CPU only; no copies). ``np.matmul``
         multiplies each seed's slice on its own, so a seed's actions do not depend on its neighbours."""
-        params = {name: p.detach().numpy() for name, p in self.net.params.items()}
-        activation = NUMPY_ACTIVATIONS[ACTIVATIONS[self.config.activation]]
-
-        def linear(features: np.ndarray, name: str) -> np.ndarray:
-            weight, bias = params[f"{name}.weight"], params[f"{name}.bias"]
-            return np.matmul(features, weight.transpose(0, 2, 1)) + bias[:, None, :]
-
-        for weight, _ in self.net.hidden:
-            x = activation(linear(x, weight.removesuffix(".weight")))
-        q = linear(x, "head")
-        if self.net.dueling:
-            q = linear(x, "value") + q - q.mean(axis=2, keepdims=True)
+        body, head, value = self.numpy_plans(None, copy=False)
+        features = run_steps(body, x)
+        q = run_steps(head, features)
+        if value is not None:  # dueling, as QNetworkPolicy.scores
+            q = run_steps(value, features) + q - q.mean(axis=2, keepdims=True)
         return q
+
+    def numpy_plans(
+        self, rows: list[int] | None, copy: bool
+    ) -> tuple[list[Step], list[Step], list[Step] | None]:
+        """The online networks of ``rows`` (None: all) as NumPy plans: body, head and (dueling) value
+        head, weights ``[S, in, out]``; views of the weights (CPU, ``rows`` None) unless ``copy``."""
+        params = {name: p.detach() for name, p in self.net.params.items()}
+
+        def linear(name: str) -> tuple[np.ndarray, np.ndarray]:
+            weight, bias = params[f"{name}.weight"], params[f"{name}.bias"]
+            if rows is not None:
+                weight, bias = weight[rows], bias[rows]
+            step = (weight.cpu().numpy().transpose(0, 2, 1), bias.cpu().numpy()[:, None, :])
+            return (step[0].copy(), step[1].copy()) if copy else step
+
+        activation = NUMPY_ACTIVATIONS[ACTIVATIONS[self.config.activation]]
+        body: list[Step] = []
+        for weight, _ in self.net.hidden:
+            body += [linear(weight.removesuffix(".weight")), activation]
+        value: list[Step] | None = [linear("value")] if self.net.dueling else None
+        return body, [linear("head")], value
 
     def shape_rewards(self, rewards: np.ndarray, terminated: np.ndarray, done: np.ndarray) -> np.ndarray:
         return shaped_rewards(self.config, rewards, terminated, done, self.episode_lengths)
@@ -694,20 +708,7 @@ class PopulationDQN(SeedRows):
         """The greedy policies of ``seeds`` as one :data:`~cartpole.evaluation.BlockActor` (block i
         holds seed i's rows): one stacked NumPy forward pass per call, as
         :class:`~cartpole.agents.q_network.QNetworkPolicy` acts alone."""
-        rows = [self.row(seed) for seed in seeds]
-        params = {name: p.detach()[rows].cpu().numpy() for name, p in self.net.params.items()}
-
-        def linear(name: str) -> tuple[np.ndarray, np.ndarray]:
-            return params[f"{name}.weight"].transpose(0, 2, 1).copy(), params[f"{name}.bias"][
-                :, None, :
-            ].copy()
-
-        activation = NUMPY_ACTIVATIONS[ACTIVATIONS[self.config.activation]]
-        body: list[Step] = []
-        for weight, _ in self.net.hidden:
-            body += [linear(weight.removesuffix(".weight")), activation]
-        head: list[Step] = [linear("head")]
-        value: list[Step] | None = [linear("value")] if self.net.dueling else None
+        body, head, value = self.numpy_plans([self.row(seed) for seed in seeds], copy=True)
         return block_greedy_q_actor(body, head, value, self.env_info.obs_dim)
 
     def seed_state_dict(self, seed: int, resume: bool) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:

@@ -27,6 +27,7 @@ from cartpole.agents.actor_critic import stacked_greedy_actor
 from cartpole.agents.learner import Learner, LearnResult
 from cartpole.core.errors import ConfigError
 from cartpole.envs import EnvInfo
+from cartpole.envs.seed_envs import rows_of_envs
 from cartpole.evaluation import BlockActor, Policy
 
 if TYPE_CHECKING:
@@ -116,7 +117,7 @@ class SeedRows:
         if not len(rows):
             raise ConfigError("cannot remove every seed of a population")
         self.seeds = [self.seeds[i] for i in rows]
-        return rows, (rows[:, None] * num_envs + np.arange(num_envs)).reshape(-1)
+        return rows, rows_of_envs(rows, num_envs)
 
 
 def policies_actor(policies: list[Policy], obs_dim: int) -> BlockActor:

@@ -79,6 +79,11 @@ def env_rows(row: int, num_envs: int) -> slice:
     return slice(row * num_envs, (row + 1) * num_envs)
 
 
+def rows_of_envs(seed_rows: np.ndarray, num_envs: int) -> np.ndarray:
+    """The batch rows of the envs of seed rows ``seed_rows``, in that order."""
+    return (seed_rows[:, None] * num_envs + np.arange(num_envs)).reshape(-1)
+
+
 class FastSeedEnvs:
     """S x N CartPoles of the fast simulator, stepped by one kernel call; their states are kept as
     the kernel's ``(4, S * N)`` columns."""
@@ -124,7 +129,7 @@ class FastSeedEnvs:
         self.pending[envs] = False
 
     def keep(self, seed_rows: np.ndarray) -> None:
-        envs = (seed_rows[:, None] * self.num_envs + np.arange(self.num_envs)).reshape(-1)
+        envs = rows_of_envs(seed_rows, self.num_envs)
         self.rngs = [self.rngs[i] for i in seed_rows]
         self.columns = np.ascontiguousarray(self.columns[:, envs])
         self.steps, self.pending = self.steps[envs], self.pending[envs]
@@ -190,7 +195,7 @@ class GymnasiumSeedEnvs:
         self.pending[envs] = False
 
     def keep(self, seed_rows: np.ndarray) -> None:
-        envs = (seed_rows[:, None] * self.num_envs + np.arange(self.num_envs)).reshape(-1)
+        envs = rows_of_envs(seed_rows, self.num_envs)
         kept = set(seed_rows.tolist())
         for row, vector_env in enumerate(self.envs):
             if row not in kept:
@@ -226,4 +231,5 @@ __all__ = [
     "GymnasiumSeedEnvs",
     "SeedEnvs",
     "make_seed_envs",
+    "rows_of_envs",
 ]
