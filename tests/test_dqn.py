@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 import torch
+from one_seed import one_seed
 
 from cartpole.agents.dqn import DQNConfig, QNetwork, td_targets
 from cartpole.agents.registry import get_agent
@@ -32,18 +34,13 @@ def small_config(**changes: object) -> DQNConfig:
 
 def make_learner(config: DQNConfig, seed: int, env: object = CARTPOLE) -> Any:
     """A DQN learner through the registry, as the training loop builds one."""
-    return DQN.make_learner(config, env, seed, "cpu")
+    return one_seed(DQN, config, env, seed, "cpu")
 
 
 def flat_params(learner: Any) -> torch.Tensor:
     """The greedy policy's parameters (the tensors of a policy-only state dict), flattened."""
     tensors, _ = learner.state_dict(resume=False)
     return torch.cat([tensors[k].detach().flatten() for k in sorted(tensors)])
-
-
-def stored(learner: Any, field: str) -> np.ndarray:
-    """The written rows of one replay field, as a numpy array."""
-    return getattr(learner.buffer, field)[: len(learner.buffer)].cpu().numpy()
 
 
 # ----------------------------------------------------------------------------------------------
@@ -137,88 +134,24 @@ def test_double_dqn_target_lets_the_online_net_choose_the_action() -> None:
     torch.testing.assert_close(targets, torch.tensor([1.0, 2.0]))
 
 
-class ScriptedVectorEnv:
-    """A 2-env vector env with next-step autoreset: env 0 is truncated at step 3, env 1 terminates
-    at step 2. Observations encode (env, episode, step) so stored rows can be traced."""
-
-    def __init__(self) -> None:
-        self.steps = np.zeros(2, dtype=np.int64)
-        self.episodes = np.zeros(2, dtype=np.int64)
-        self.prev_done = np.zeros(2, dtype=bool)
-        self.unwrapped = self
-
-    def obs(self) -> np.ndarray:
-        rows = [[i, self.episodes[i], self.steps[i], 0.0] for i in range(2)]
-        return np.asarray(rows, dtype=np.float32)
-
-    def reset(self, seed: int | None = None) -> tuple[np.ndarray, dict]:
-        return self.obs(), {}
-
-    def step(self, actions: np.ndarray) -> tuple[np.ndarray, ...]:
-        rewards = np.ones(2, dtype=np.float32)
-        terminated, truncated = np.zeros(2, dtype=bool), np.zeros(2, dtype=bool)
-        for i in range(2):
-            if self.prev_done[i]:  # autoreset step: action ignored, reset observation
-                self.episodes[i] += 1
-                self.steps[i] = 0
-                rewards[i] = 0.0
-                continue
-            self.steps[i] += 1
-            truncated[i] = i == 0 and self.steps[i] == 3
-            terminated[i] = i == 1 and self.steps[i] == 2
-        self.prev_done = terminated | truncated
-        return self.obs(), rewards, terminated, truncated, {}
-
-
-def test_collection_skips_autoreset_rows_and_keeps_truncation_bootstrappable() -> None:
+def test_collection_stores_transitions_only_never_the_autoreset_step() -> None:
+    """With next-step autoreset the step after an episode's end only resets its env: it is no
+    transition, so no stored row starts from a final state; terminations are marked, every step
+    counted once, and the episodes reported with their raw returns."""
     learner = make_learner(small_config(num_envs=2, learning_starts=10_000), seed=0)
-    learner.envs = ScriptedVectorEnv()  # type: ignore[assignment]
-    learner.observations, _ = learner.envs.reset()
-    results = [learner.learn() for _ in range(8)]
-    buffer = learner.buffer
-    obs, next_obs = stored(learner, "observations"), stored(learner, "next_observations")
-    # no stored transition starts from a final state and ends in a reset state
-    assert np.all(next_obs[:, 2] == obs[:, 2] + 1)
-    assert np.all(next_obs[:, 1] == obs[:, 1])
-    # env 0's truncated transitions (step 2 -> 3) are not terminal; env 1's step 1 -> 2 are
-    env0_end = (obs[:, 0] == 0) & (next_obs[:, 2] == 3)
-    env1_end = (obs[:, 0] == 1) & (next_obs[:, 2] == 2)
-    assert env0_end.any() and env1_end.any()
-    assert np.all(stored(learner, "terminated")[env0_end] == 0.0)
-    assert np.all(stored(learner, "terminated")[env1_end] == 1.0)
-    # 8 calls x 2 envs = 16 rows minus the autoreset rows; episodes reported with raw returns
-    assert sum(r.env_steps for r in results) == len(buffer) == learner.env_steps
-    lengths = sorted(length for r in results for length in r.episode_lengths)
-    returns = sorted(ret for r in results for ret in r.episode_returns)
-    assert lengths == [2, 2, 2, 3, 3] and returns == [2.0, 2.0, 2.0, 3.0, 3.0]
-
-
-def test_reward_shaping_changes_stored_rewards_but_not_reported_returns() -> None:
-    config = small_config(num_envs=2, learning_starts=10_000, termination_reward=-10.0)
-    learner = make_learner(config, seed=0)
-    learner.envs = ScriptedVectorEnv()  # type: ignore[assignment]
-    learner.observations, _ = learner.envs.reset()
-    results = [learner.learn() for _ in range(8)]
-    terminal, rewards = stored(learner, "terminated") == 1.0, stored(learner, "rewards")
-    assert np.all(rewards[terminal] == -10.0)
-    assert np.all(rewards[~terminal] == 1.0)  # truncation keeps its reward
-    assert sorted(ret for r in results for ret in r.episode_returns) == [2.0, 2.0, 2.0, 3.0, 3.0]
-
-
-def test_short_episode_penalty() -> None:
-    config = small_config(
-        num_envs=2, learning_starts=10_000, short_episode_reward=-1.0, short_episode_length=3
-    )
-    learner = make_learner(config, seed=0)
-    learner.envs = ScriptedVectorEnv()  # type: ignore[assignment]
-    learner.observations, _ = learner.envs.reset()
-    for _ in range(8):
-        learner.learn()
-    obs, next_obs = stored(learner, "observations"), stored(learner, "next_observations")
-    ended_short = (obs[:, 0] == 1) & (next_obs[:, 2] == 2)  # env 1's episodes end at length 2 < 3
-    rewards = stored(learner, "rewards")
-    assert np.all(rewards[ended_short] == -1.0)
-    assert np.all(rewards[~ended_short] == 1.0)  # env 0 ends at 3: not short
+    results = [learner.learn() for _ in range(200)]
+    tensors, data = learner.state_dict(resume=True)
+    rows = {k.removeprefix("replay."): v.numpy() for k, v in tensors.items() if k.startswith("replay.")}
+    observations, terminated = rows["observations"], rows["terminated"] == 1.0
+    angle = 12 * 2 * math.pi / 360  # CartPole ends at |x| > 2.4 or |theta| > 12 degrees
+    assert np.all(np.abs(observations[:, 0]) <= 2.4) and np.all(np.abs(observations[:, 2]) <= angle)
+    after = rows["next_observations"]
+    np.testing.assert_array_equal(terminated, (np.abs(after[:, 0]) > 2.4) | (np.abs(after[:, 2]) > angle))
+    lengths = [length for r in results for length in r.episode_lengths]
+    assert len(lengths) == int(terminated.sum()) > 5
+    assert [r for res in results for r in res.episode_returns] == [float(n) for n in lengths]
+    assert sum(r.env_steps for r in results) == len(observations) == data["env_steps"]
+    assert 400 - len(lengths) <= len(observations) <= 400 - len(lengths) + 2  # an autoreset per episode
 
 
 # ----------------------------------------------------------------------------------------------

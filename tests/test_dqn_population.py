@@ -1,5 +1,5 @@
-"""DQN for a population of seeds (``PopulationDQN``): seeds independent bit for bit, the single run's
-algorithm with every setting, resume, the single run's checkpoint format, devices, and learning."""
+"""DQN for a population of seeds (``PopulationDQN``, a single run being a population of one): seeds
+independent bit for bit, every setting, resume, checkpoints, devices, and learning."""
 
 from __future__ import annotations
 
@@ -12,8 +12,13 @@ import numpy as np
 import pytest
 import torch
 
-from cartpole.agents.dqn import DQNConfig, DQNLearner, epsilon_at, policy_from_checkpoint
-from cartpole.agents.dqn_population import PopulationDQN, dqn_bytes_per_seed, q_network_parameters
+from cartpole.agents.dqn import DQNConfig, epsilon_at, policy_from_checkpoint
+from cartpole.agents.dqn_population import (
+    PopulationDQN,
+    dqn_bytes_per_seed,
+    q_network_parameters,
+    seeded_q_network,
+)
 from cartpole.agents.learner import LearnResult
 from cartpole.core.config import config_to_dict
 from cartpole.core.errors import ConfigError
@@ -132,67 +137,6 @@ def test_removing_a_seed_leaves_the_others_unchanged():
         assert_same_results(before[0] + after[0], before[1] + after[1], seed)
         assert_same_state(three, two, seed)
     assert set(after[0][-1]) == {3, 7}
-
-
-# -- the single run's algorithm, with every setting ------------------------------------------------
-
-# Each variant changes settings from the small defaults; together they touch every DQNConfig setting.
-SINGLE_RUN_VARIANTS = [
-    {},
-    {"dueling": True, "double_dqn": False, "activation": "elu"},
-    {"target_network": False, "loss": "mse", "max_grad_norm": 0.1, "gamma": 0.9},
-    {"dropout": 0.2, "activation": "tanh", "lr": 3e-3},
-    {"activation": "gelu", "hidden_sizes": (12,), "tau": 1.0, "target_update_interval": 4},
-    {"epsilon_schedule": "multiplicative", "epsilon_decay_rate": 0.9, "epsilon_end": 0.05},
-    {"epsilon_schedule": "exponential", "epsilon_start": 0.8, "epsilon_decay_steps": 50},
-    {"termination_reward": -10.0, "short_episode_reward": -1.0, "short_episode_length": 50},
-    {"gradient_steps": 3, "train_freq": 2, "num_envs": 3, "batch_size": 24, "buffer_size": 40},
-    {"buffer_size": 3, "batch_size": 2},  # fewer rows than one call's transitions
-]
-
-
-@pytest.mark.parametrize("changes", SINGLE_RUN_VARIANTS, ids=lambda c: ",".join(c) or "default")
-def test_a_seed_follows_its_single_run(changes):
-    """Seed 3 of a population plays the episodes ``DQNLearner`` with seed 3 plays (same start states,
-    the same exploration, replay and dropout draws) and learns the same weights but for the last bits
-    of the floats (batched kernels, a masked mean). From ``learning_starts=0`` on, so that the first
-    minibatches are smaller than ``batch_size`` (as many rows as the memory holds)."""
-    config = small_config(learning_starts=0, **changes)
-    population, single = PopulationDQN(config, CARTPOLE, [7, 3]), DQNLearner(config, CARTPOLE, 3)
-    assert_close_weights(
-        population.seed_state_dict(3, resume=False)[0], single.state_dict(resume=False)[0], 0.0
-    )
-    for call in range(40):
-        mine, theirs = population.learn()[3], single.learn()
-        assert (mine.env_steps, mine.episode_returns, mine.episode_lengths) == (
-            theirs.env_steps,
-            theirs.episode_returns,
-            theirs.episode_lengths,
-        ), call
-        assert mine.scalars.keys() == theirs.scalars.keys()
-        assert mine.scalars["train/epsilon"] == theirs.scalars["train/epsilon"]
-        assert mine.scalars["train/gradient_steps"] == theirs.scalars["train/gradient_steps"]
-        for key in ("train/loss", "train/q_mean"):
-            if key in mine.scalars:
-                assert mine.scalars[key] == pytest.approx(theirs.scalars[key], rel=1e-4, abs=1e-6), (
-                    call,
-                    key,
-                )
-    tensors, data = population.seed_state_dict(3, resume=True)
-    single_tensors, single_data = single.state_dict(resume=True)
-    assert_close_weights(tensors, single_tensors, 1e-5)
-    for key in single_tensors:
-        if key.startswith("replay."):  # the same transitions, in the same slots
-            assert torch.equal(tensors[key], single_tensors[key]), key
-    assert data["replay"] == single_data["replay"]
-    assert data["epsilon_multiplied"] == single_data["epsilon_multiplied"]
-
-
-def assert_close_weights(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor], atol: float) -> None:
-    networks = [k for k in b if k.startswith(("q_net.", "target_net."))]
-    assert networks and {k for k in a if k.startswith(("q_net.", "target_net."))} == set(networks)
-    for key in networks:
-        torch.testing.assert_close(a[key], b[key], rtol=0.0, atol=atol, msg=key)
 
 
 @functools.cache
@@ -397,26 +341,23 @@ def test_a_policy_only_checkpoint_is_refused_for_resume():
         population.load_seed_state_dict(3, tensors, data)
 
 
-# -- checkpoints and policies in the single run's format ------------------------------------------
+# -- checkpoints and policies ---------------------------------------------------------------------
 
 
 @pytest.mark.parametrize("changes", [{}, {"dueling": True, "dropout": 0.2, "activation": "tanh"}])
-def test_a_seed_checkpoint_is_a_single_run_checkpoint(changes):
+def test_a_seed_checkpoint_holds_its_network_and_loads_as_its_policy(changes):
     config = small_config(**changes)
     population = PopulationDQN(config, CARTPOLE, [3, 5, 7])
     learn(population, 100)
-    single = DQNLearner(config, CARTPOLE, 5)
-    single_tensors, single_data = single.state_dict(resume=True)
     tensors, data = population.seed_state_dict(5, resume=False)
-    assert tensors.keys() == single.state_dict(resume=False)[0].keys()
+    network = seeded_q_network(config, CARTPOLE, 5).state_dict()
+    assert tensors.keys() == {f"q_net.{k}" for k in network}
     assert data == {"obs_dim": 4, "n_actions": 2}
     resume_tensors, resume_data = population.seed_state_dict(5, resume=True)
-    for prefix in ("q_net.", "target_net.", "replay.", "rng."):
-        assert {k for k in resume_tensors if k.startswith(prefix)} == {
-            k for k in single_tensors if k.startswith(prefix)
-        }, prefix
+    assert {k for k in resume_tensors if k.startswith("target_net.")} == {f"target_net.{k}" for k in network}
+    assert {"replay.observations", "rng.dropout", "rng.replay"} <= resume_tensors.keys()
     shared = {"env_steps", "calls", "gradient_steps", "epsilon_multiplied", "replay", "rng_numpy"}
-    assert shared <= resume_data.keys() and shared <= single_data.keys()
+    assert shared <= resume_data.keys()
 
     meta = {"agent": "dqn", "env_id": "CartPole-v1", "config": config_to_dict(config), "learner": data}
     policy = policy_from_checkpoint(Checkpoint(meta=meta, tensors=tensors))
@@ -445,14 +386,15 @@ def test_the_greedy_actor_plays_the_policies_episodes():
         assert list(returns[3 * block : 3 * block + 3]) == list(report.returns)
 
 
-def test_seeds_start_as_their_single_runs():
+def test_seeds_start_from_their_own_network_and_envs():
     config = small_config()
     population = PopulationDQN(config, CARTPOLE, [4, 9])
-    single = DQNLearner(config, CARTPOLE, 9)
     tensors, _ = population.seed_state_dict(9, resume=False)
-    for name, value in single.q_net.state_dict().items():
+    for name, value in seeded_q_network(config, CARTPOLE, 9).state_dict().items():
         assert torch.equal(tensors[f"q_net.{name}"], value), name
-    assert np.array_equal(population.observations[config.num_envs :], single.observations)
+    alone = PopulationDQN(config, CARTPOLE, [9])
+    assert np.array_equal(population.observations[config.num_envs :], alone.observations)
+    assert not np.array_equal(population.observations[: config.num_envs], alone.observations)
 
 
 def test_bytes_per_seed_counts_the_replay_and_the_networks():
@@ -462,7 +404,7 @@ def test_bytes_per_seed_counts_the_replay_and_the_networks():
     assert replay + q_network_parameters(config, CARTPOLE) * 4 * 5 < estimate < replay + 16 * 1024**2
     assert dqn_bytes_per_seed(DQNConfig(buffer_size=100_000), CARTPOLE) - estimate == replay
     assert q_network_parameters(config, CARTPOLE) == sum(
-        p.numel() for p in DQNLearner(config, CARTPOLE, 0).q_net.parameters()
+        p.numel() for p in seeded_q_network(config, CARTPOLE, 0).parameters()
     )
 
 
@@ -551,7 +493,7 @@ def test_the_default_preset_solves_cartpole_for_most_seeds():
     over 20 episodes (about 10 s on one core).
 
     The margin is thin by nature, not by the batching: at 30k steps the preset gets about 3 seeds in
-    4 there (the single ``DQNLearner`` 7 of seeds 0-7, this population 12 of 16 runs of seeds 0-7 over
+    4 there (the retired single-seed learner 7 of seeds 0-7, this population 12 of 16 runs of seeds 0-7 over
     three float modes). Seeds 0-3 reach it 3 of 4 with AVX2 kernels but 2 of 4 under
     ``ATEN_CPU_CAPABILITY=default``; seeds 4-7 pass with AVX2, ``ATEN_CPU_CAPABILITY=default`` and
     ``MKL_CBWR=COMPATIBLE``."""

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
+from one_seed import one_seed
 
 from cartpole.agents.dqn import DQNConfig
 from cartpole.agents.registry import get_agent
@@ -45,11 +46,11 @@ def test_building_training_and_loading_a_dqn_changes_nothing_global(env_id: str)
     torch.manual_seed(1234), np.random.seed(1234), random.seed(1234)
     before = global_state()
     config = small_config(dropout=0.3, learning_starts=0)  # all streams: init, dropout, replay, explore
-    learner = DQN.make_learner(config, env_info(env_id), 7, "cpu")
+    learner = one_seed(DQN, config, env_info(env_id), 7, "cpu")
     for _ in range(30):
         learner.learn()
     tensors, data = learner.state_dict(resume=True)
-    other = DQN.make_learner(config, env_info(env_id), 8, "cpu")
+    other = one_seed(DQN, config, env_info(env_id), 8, "cpu")
     other.load_state_dict(tensors, data)
     other.learn()
     other.policy().act(np.zeros((2, env_info(env_id).obs_dim), dtype=np.float32))
@@ -59,7 +60,7 @@ def test_building_training_and_loading_a_dqn_changes_nothing_global(env_id: str)
 def test_the_global_generators_do_not_change_what_a_dqn_learns() -> None:
     def run(global_seed: int) -> dict[str, torch.Tensor]:
         torch.manual_seed(global_seed), np.random.seed(global_seed), random.seed(global_seed)
-        learner = DQN.make_learner(small_config(dropout=0.3), env_info("CartPole-v1"), 3, "cpu")
+        learner = one_seed(DQN, small_config(dropout=0.3), env_info("CartPole-v1"), 3, "cpu")
         for _ in range(40):
             learner.learn()
         return learner.state_dict(resume=False)[0]
@@ -74,7 +75,7 @@ def test_a_resume_checkpoint_holds_plain_data_and_tensors_only() -> None:
 
     for env_id in ("CartPole-v1", "Acrobot-v1", "MountainCar-v0"):
         for simulator in ("fast", "gymnasium"):
-            learner = DQN.make_learner(small_config(simulator=simulator), env_info(env_id), 0, "cpu")
+            learner = one_seed(DQN, small_config(simulator=simulator), env_info(env_id), 0, "cpu")
             for _ in range(5):
                 learner.learn()
             tensors, data = learner.state_dict(resume=True)
@@ -116,16 +117,16 @@ def test_resume_mid_episode_continues_the_episodes_in_progress(
     indices stay contiguous), no step lost and none counted twice."""
     config = small_config(num_envs=2, learning_starts=learning_starts, simulator=simulator)
     env = env_info(env_id)
-    whole, whole_steps = episodes_of(DQN.make_learner(config, env, 2, "cpu"), calls)
+    whole, whole_steps = episodes_of(one_seed(DQN, config, env, 2, "cpu"), calls)
 
-    first = DQN.make_learner(config, env, 2, "cpu")
+    first = one_seed(DQN, config, env, 2, "cpu")
     before, before_steps = episodes_of(first, stop_at)
     tensors, data = first.state_dict(resume=True)
     assert any(length > 0 for length in data["episode_lengths"]), "the stop must fall mid-episode"
     path = tmp_path / "latest.pt"
     save_checkpoint(path, Checkpoint(tensors=tensors, meta={"learner": data}))
     saved = load_checkpoint(path)
-    resumed = DQN.make_learner(config, env, 2, "cpu")
+    resumed = one_seed(DQN, config, env, 2, "cpu")
     resumed.load_state_dict(saved.tensors, saved.meta["learner"])
     after, after_steps = episodes_of(resumed, calls - stop_at)
 

@@ -1,7 +1,6 @@
-"""One engine for every run: every run trains as a population, and seed N trains bit for bit the same
-alone (``--seeds N``) as beside other seeds, for every agent, batched or not. A single run (``--seed
-N``) goes through the same engine with the seed's own learner: for the linear searches that is the
-same run bit for bit, for the neural agents the same algorithm in other floats."""
+"""One engine for every run: every run trains as a population, a single run (``--seed N``) being a
+population of one, and seed N trains bit for bit the same alone as beside other seeds, for every
+agent, on every env."""
 
 from __future__ import annotations
 
@@ -12,7 +11,6 @@ from typing import Any
 import pytest
 import torch
 
-from cartpole.agents.population import LearnerPopulation
 from cartpole.agents.registry import agent_names, build_population, get_agent
 from cartpole.cli.main import main
 from cartpole.envs import env_info
@@ -81,24 +79,15 @@ def test_seed_alone_is_bit_identical_to_the_seed_in_a_population(agent, tmp_path
     assert_same_run(alone.runs[4].path, among.runs[4].path, agent)
 
 
-@pytest.mark.parametrize("agent", ["cem", "random-search", "hill-climbing"])
-def test_a_single_run_of_a_linear_search_is_its_seed_in_a_population(agent, tmp_path):
+@pytest.mark.parametrize("agent", sorted(SMALL))
+def test_a_single_run_is_its_seed_in_a_population(agent, tmp_path):
+    """``cartpole train AGENT --seed 4`` and ``--seeds 9,4``: the same run of seed 4, bit for bit."""
     overrides, budget = SMALL[agent]
     options = {"overrides": dict(overrides), "budget": budget, "stop_when_solved": False}
     single = train(agent, seed=4, runs_dir=tmp_path / "single", **options)
     among = train_population(agent, [9, 4], runs_dir=tmp_path / "among", **options)
+    assert single.state.env_steps == among.states[4].env_steps > 0
     assert_same_run(single.run.path, among.runs[4].path, agent)
-
-
-@pytest.mark.parametrize("agent", ["ppo", "dqn"])
-def test_a_single_run_trains_its_own_learner_through_the_engine(agent, tmp_path):
-    """``--seed N`` keeps the seed's own (faster) learner; ``--seeds N`` batches."""
-    overrides, _ = SMALL[agent]
-    spec = get_agent(agent)
-    config, _ = resolve_config(agent, spec.config_cls, "default", dict(overrides))
-    cartpole = env_info("CartPole-v1")
-    assert isinstance(build_population(spec, config, cartpole, [4], batched=False), LearnerPopulation)
-    assert not isinstance(build_population(spec, config, cartpole, [4]), LearnerPopulation)
 
 
 OTHER_ENVS = [
@@ -114,12 +103,8 @@ OTHER_ENVS = [
 
 @pytest.mark.parametrize(("agent", "env_id", "preset"), OTHER_ENVS)
 def test_other_envs_batch_with_the_same_independence(agent, env_id, preset, tmp_path):
-    """On Gymnasium's envs the seeds are batched too (not a learner each), and seed N alone is bit for
-    bit seed N among others."""
+    """On Gymnasium's envs too, seed N alone is bit for bit seed N among others."""
     overrides = SMALL[agent][0]
-    spec = get_agent(agent)
-    config, _ = resolve_config(agent, spec.config_cls, preset, dict(overrides))
-    assert not isinstance(build_population(spec, config, env_info(env_id), [1, 2]), LearnerPopulation)
     budget = "2gen" if agent == "cem" else "600" if preset.startswith("tutorial") else "1500"
     options = {"overrides": dict(overrides), "budget": budget, "preset": preset, "stop_when_solved": False}
     alone = train_population(agent, [2], env_id, runs_dir=tmp_path / "alone", **options)

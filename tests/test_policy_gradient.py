@@ -11,20 +11,20 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
+from one_seed import OneSeed, one_seed
 
-from cartpole.agents.a2c import A2CConfig, A2CLearner
+from cartpole.agents.a2c import A2CConfig
 from cartpole.agents.actor_critic import (
     ActorCritic,
     CategoricalPolicy,
     schedule_value,
     stacked_greedy_actor,
 )
-from cartpole.agents.policy_gradient import PolicyGradientLearner
-from cartpole.agents.ppo import PPOConfig, PPOLearner, clipped_surrogate_loss, value_loss
+from cartpole.agents.policy_gradient import generalized_advantages
+from cartpole.agents.ppo import PPOConfig
 from cartpole.agents.presets import preset_names
 from cartpole.agents.registry import get_agent, load_policy
-from cartpole.agents.reinforce import ReinforceConfig, ReinforceLearner
-from cartpole.agents.rollout import explained_variance, generalized_advantages, normalize
+from cartpole.agents.reinforce import ReinforceConfig
 from cartpole.core.errors import ConfigError
 from cartpole.envs import env_info
 from cartpole.evaluation import ScoredPolicy
@@ -49,23 +49,26 @@ def small_reinforce(**changes: Any) -> ReinforceConfig:
     return dataclasses.replace(ReinforceConfig(hidden_sizes=(16, 16), num_envs=2), **changes)
 
 
-SMALL = {
-    "ppo": (small_ppo, PPOLearner),
-    "a2c": (small_a2c, A2CLearner),
-    "reinforce": (small_reinforce, ReinforceLearner),
-}
+SMALL = {"ppo": small_ppo, "a2c": small_a2c, "reinforce": small_reinforce}
 
 
-def make(agent: str, seed: int = 0, **changes: Any) -> PolicyGradientLearner:
-    config_fn, learner_cls = SMALL[agent]
-    return learner_cls(config_fn(**changes), CARTPOLE, seed, "cpu")  # type: ignore[arg-type]
+def make(agent: str, seed: int = 0, env: Any = CARTPOLE, **changes: Any) -> OneSeed:
+    """The learner of ``cartpole train AGENT --seed SEED`` with small settings: a population of one."""
+    return one_seed(agent, SMALL[agent](**changes), env, seed)
 
 
-def flat_params(learner: PolicyGradientLearner) -> torch.Tensor:
-    return torch.cat([p.detach().flatten() for p in learner.model.parameters()])
+def model_tensors(learner: OneSeed) -> dict[str, torch.Tensor]:
+    """The actor-critic's tensors (``model.*`` of its checkpoint), names unprefixed."""
+    tensors, _ = learner.state_dict(resume=False)
+    return {k.removeprefix("model."): v for k, v in tensors.items() if k.startswith("model.")}
 
 
-def run(learner: PolicyGradientLearner, calls: int) -> list[dict[str, float]]:
+def flat_params(learner: OneSeed) -> torch.Tensor:
+    tensors = model_tensors(learner)
+    return torch.cat([tensors[k].flatten() for k in sorted(tensors)])
+
+
+def run(learner: OneSeed, calls: int) -> list[dict[str, float]]:
     return [learner.learn().scalars for _ in range(calls)]
 
 
@@ -101,15 +104,6 @@ def test_gae_lambda_one_is_the_discounted_return_minus_value_and_zero_is_td() ->
     torch.testing.assert_close(mc[:, 0], torch.tensor([1.75 - 0.5, 1.5 - 0.25, 1.0 - 0.125]))
     td = generalized_advantages(rewards, values, terminated, zeros, valid, 0.5, 0.0)
     torch.testing.assert_close(td[:, 0], torch.tensor([1 + 0.125 - 0.5, 1 + 0.0625 - 0.25, 1 - 0.125]))
-
-
-def test_normalize_and_explained_variance() -> None:
-    x = torch.tensor([1.0, 2.0, 3.0, 6.0])
-    y = normalize(x)
-    assert abs(float(y.mean())) < 1e-6 and abs(float(y.std()) - 1.0) < 1e-4
-    assert explained_variance(x, x) == 1.0
-    assert abs(explained_variance(torch.full_like(x, float(x.mean())), x)) < 1e-6
-    assert math.isnan(explained_variance(x, torch.ones(4)))
 
 
 def test_schedules() -> None:
@@ -189,41 +183,6 @@ def test_building_a_learner_changes_no_global_state() -> None:
 
 
 # ----------------------------------------------------------------------------------------------
-# PPO's losses by hand
-# ----------------------------------------------------------------------------------------------
-
-
-def test_clipped_surrogate_loss_by_hand() -> None:
-    ratios = torch.tensor([1.5, 0.5, 1.1])
-    advantages = torch.tensor([1.0, 1.0, -2.0])
-    old = torch.log(torch.tensor([0.2, 0.4, 0.5]))
-    new = (old + ratios.log()).requires_grad_()
-    loss, approx_kl, clip_fraction = clipped_surrogate_loss(new, old, advantages, clip_range=0.2)
-    # per row max(-A r, -A clip(r)): max(-1.5, -1.2), max(-0.5, -0.8), max(2.2, 2.2)
-    assert float(loss.detach()) == pytest.approx((-1.2 - 0.5 + 2.2) / 3)
-    assert float(clip_fraction) == pytest.approx(2 / 3)
-    kl = sum((r - 1) - math.log(r) for r in (1.5, 0.5, 1.1)) / 3
-    assert float(approx_kl) == pytest.approx(kl, rel=1e-5)
-    loss.backward()
-    # Row 0 is clipped (no gradient); rows 1 and 2 give d(-A r)/d(log pi) / 3 = -A r / 3.
-    assert new.grad is not None
-    torch.testing.assert_close(new.grad, torch.tensor([0.0, -0.5 / 3, 2.2 / 3]))
-
-
-def test_value_loss_by_hand_with_and_without_clipping() -> None:
-    values, old, returns = torch.tensor([2.0, 0.0]), torch.tensor([1.0, 0.0]), torch.tensor([1.0, 1.0])
-    assert float(value_loss(values, old, returns, None)) == pytest.approx(0.5 * (1.0 + 1.0) / 2)
-    # clipped to old +- 0.5: row 0 -> 1.5 (loss .25 < 1: keep 1), row 1 -> 0 (loss 1 = 1)
-    assert float(value_loss(values, old, returns, 0.5)) == pytest.approx(0.5 * (1.0 + 1.0) / 2)
-    values = torch.tensor([1.2, 0.0])  # clipped to 1.1: (1.1-1)^2 = .01 < .04
-    assert float(value_loss(values, old, returns, 0.1)) == pytest.approx(0.5 * (0.04 + 1.0) / 2)
-    values = torch.tensor([0.0, 0.0])  # row 0 clipped to 0.9 -> .01, unclipped 1: max is 1
-    assert float(value_loss(values, old, returns, 0.1)) == pytest.approx(0.5 * (1.0 + 1.0) / 2)
-    old = torch.tensor([3.0, 0.0])  # row 0: V=0 clipped to 2.9 -> (1.9)^2 = 3.61 > 1
-    assert float(value_loss(values, old, returns, 0.1)) == pytest.approx(0.5 * (3.61 + 1.0) / 2)
-
-
-# ----------------------------------------------------------------------------------------------
 # Collection
 # ----------------------------------------------------------------------------------------------
 
@@ -237,9 +196,10 @@ def test_env_steps_are_transitions_and_episode_lengths_add_up(agent: str) -> Non
         steps += result.env_steps
         lengths += result.episode_lengths
         assert all(r == float(n) for r, n in zip(result.episode_returns, result.episode_lengths, strict=True))
-    assert learner.env_steps == steps
+    _, data = learner.state_dict(resume=True)
+    assert data["env_steps"] == steps
     assert lengths and sum(lengths) <= steps  # autoreset rows are not counted as env steps
-    in_progress = int(learner.collector.episode_lengths.sum())
+    in_progress = sum(data["collector"]["episode_lengths"])
     assert sum(lengths) + in_progress == steps or agent == "reinforce"  # reinforce restarts each batch
 
 
@@ -277,18 +237,17 @@ def test_resume_continues_exactly(agent: str, simulator: str) -> None:
     assert [r.episode_returns for r in results_a] == [r.episode_returns for r in results_b]
     assert [r.scalars for r in results_a] == [r.scalars for r in results_b]
     assert torch.equal(flat_params(a), flat_params(b))
-    assert torch.equal(a.generator.get_state(), b.generator.get_state())
+    assert torch.equal(a.state_dict(True)[0]["rng.torch"], b.state_dict(True)[0]["rng.torch"])
 
 
 @pytest.mark.parametrize("agent", AGENTS)
 def test_resume_on_another_env_continues_its_episodes_exactly(agent: str) -> None:
     """Acrobot's envs are put back mid-episode too (envs/resumable_envs.py), not restarted."""
-    config_fn, learner_cls = SMALL[agent]
     acrobot = env_info("Acrobot-v1")
-    a = learner_cls(config_fn(), acrobot, 3, "cpu")  # type: ignore[arg-type]
+    a = make(agent, seed=3, env=acrobot)
     run(a, 2)
     tensors, data = a.state_dict(resume=True)
-    b = learner_cls(config_fn(), acrobot, 999, "cpu")  # type: ignore[arg-type]
+    b = make(agent, seed=999, env=acrobot)
     b.load_state_dict({k: v.clone() for k, v in tensors.items()}, data)
     results_a = [a.learn() for _ in range(2)]
     results_b = [b.learn() for _ in range(2)]
@@ -298,13 +257,14 @@ def test_resume_on_another_env_continues_its_episodes_exactly(agent: str) -> Non
 
 @pytest.mark.parametrize("agent", AGENTS)
 def test_save_load_gives_the_same_action_probabilities(agent: str, tmp_path: Path) -> None:
-    learner = make(agent, seed=1, shared_trunk=agent == "a2c", activation="relu")
+    config = SMALL[agent](shared_trunk=agent == "a2c", activation="relu")
+    learner = one_seed(agent, config, CARTPOLE, 1)
     run(learner, 2)
     tensors, data = learner.state_dict(resume=False)
     meta = {
         "agent": agent,
         "env_id": "CartPole-v1",
-        "config": dataclasses.asdict(learner.config),
+        "config": dataclasses.asdict(config),
         "learner": data,
     }
     save_checkpoint(tmp_path / "best.pt", Checkpoint(meta=meta, tensors=tensors))
@@ -378,8 +338,7 @@ def test_each_preset_runs_a_few_steps(agent: str) -> None:
     spec = get_agent(agent)
     for preset in preset_names(agent):
         config, _ = resolve_config(agent, spec.config_cls, preset)
-        learner = spec.make_learner(config, CARTPOLE, 0, "cpu")
-        assert learner.learn().env_steps > 0
+        assert one_seed(spec, config, CARTPOLE, 0).learn().env_steps > 0
 
 
 @pytest.mark.parametrize(
@@ -451,9 +410,9 @@ def test_train_writes_metrics_rows_and_a_loadable_checkpoint(agent: str, tmp_pat
 # ----------------------------------------------------------------------------------------------
 
 
-def optimizer_steps(learner: PolicyGradientLearner) -> int:
-    tensors, _ = learner.state_dict(resume=True)
-    return int(tensors["optim.0.step"])
+def optimizer_steps(learner: OneSeed) -> int:
+    _, data = learner.state_dict(resume=True)
+    return int(data["optim_steps"])
 
 
 @pytest.mark.parametrize(("n_epochs", "minibatch_size"), [(1, 1000), (3, 1000), (2, 16), (4, 20)])
@@ -509,11 +468,9 @@ def test_ppo_value_clipping_limits_the_value_step() -> None:
 
     def critic_change(clip_range_vf: float | None) -> float:
         learner = make("ppo", seed=2, clip_range_vf=clip_range_vf, n_epochs=10, max_grad_norm=None)
-        before = {
-            k: v.clone() for k, v in learner.model.state_dict().items() if "critic" in k or "value" in k
-        }
+        before = {k: v for k, v in model_tensors(learner).items() if "critic" in k or "value" in k}
         learner.learn()
-        after = learner.model.state_dict()
+        after = model_tensors(learner)
         return sum(float((after[k] - v).abs().max()) for k, v in before.items())
 
     assert critic_change(1e-6) < 0.5 * critic_change(None)
@@ -542,10 +499,13 @@ def training_returns(agent: str, seed: int, env_steps: int, env_id: str = "CartP
     """Returns of the training episodes of ``agent``'s default preset over ``env_steps`` env steps."""
     spec = get_agent(agent)
     config, _ = resolve_config(agent, spec.config_cls, "default")
-    learner = spec.make_learner(config, env_info(env_id), seed, "cpu")
+    learner = one_seed(spec, config, env_info(env_id), seed)
     returns: list[float] = []
-    while learner.env_steps < env_steps:
-        returns += learner.learn().episode_returns
+    steps = 0
+    while steps < env_steps:
+        result = learner.learn()
+        returns += result.episode_returns
+        steps += result.env_steps
     return returns
 
 

@@ -20,6 +20,7 @@ import torch
 from cartpole.agents.a2c import A2CConfig
 from cartpole.agents.actor_critic_population import PopulationA2C, PopulationPPO, PopulationReinforce
 from cartpole.agents.learner import LearnResult
+from cartpole.agents.policy_gradient import seeded_actor_critic
 from cartpole.agents.ppo import PPOConfig
 from cartpole.agents.registry import build_population, get_agent, load_policy
 from cartpole.agents.reinforce import ReinforceConfig
@@ -190,18 +191,17 @@ def test_a_population_trains_on_cuda_and_its_checkpoints_load_on_the_cpu(agent, 
     assert_same(weights(on_cpu, 3), {k: v for k, v in tensors.items() if k in weights(on_cpu, 3)})
 
 
-def test_seeds_start_as_their_single_runs():
-    """Same initial network and the same start states of the envs as the single run of the seed."""
-    from cartpole.agents.ppo import PPOLearner
-
+def test_seeds_start_from_their_own_network_and_envs():
+    """A seed's initial network is its seeded actor-critic, and its envs start where they start
+    for the seed alone."""
     config = small_config()
     population = PopulationPPO(config, CARTPOLE, [4, 9])
-    single = PPOLearner(config, CARTPOLE, 9, "cpu")
     tensors, _ = population.seed_state_dict(9, resume=False)
-    for name, value in single.model.state_dict().items():
+    for name, value in seeded_actor_critic(config, CARTPOLE, 9).state_dict().items():
         assert torch.equal(tensors[f"model.{name}"], value), name
-    start = population.observations[config.num_envs :]
-    assert (start == single.collector.observations).all()
+    alone = PopulationPPO(config, CARTPOLE, [9])
+    assert (population.observations[config.num_envs :] == alone.observations).all()
+    assert not (population.observations[: config.num_envs] == alone.observations).all()
 
 
 SETTINGS = {
@@ -239,7 +239,7 @@ SETTINGS = {
 
 @pytest.mark.parametrize(("agent", "change"), [(a, c) for a, changes in SETTINGS.items() for c in changes])
 def test_settings_reach_the_batched_update(agent, change):
-    """A setting of the single run changes the population's run too."""
+    """Each setting changes a seed's run."""
 
     def trained(**change: object) -> torch.Tensor:
         population = small_population(agent, [1], **change)
@@ -249,17 +249,17 @@ def test_settings_reach_the_batched_update(agent, change):
     assert not torch.equal(trained(**change), trained())
 
 
-def test_reinforce_batches_start_where_the_single_run_starts_them():
-    from cartpole.agents.reinforce import ReinforceLearner
-
+def test_reinforce_batches_start_where_the_seed_alone_starts_them():
     config = ReinforceConfig(**REINFORCE_SMALL)  # type: ignore[arg-type]
-    population = small_population("reinforce", [2, 5])
-    single = ReinforceLearner(config, CARTPOLE, 5, "cpu")
+    population, alone = small_population("reinforce", [2, 5]), small_population("reinforce", [5])
     envs = slice(population.row(5) * config.num_envs, (population.row(5) + 1) * config.num_envs)
+    starts = []
     for _ in range(3):
         population.restart()
-        single.collector.restart(int(single.rng.integers(2**32)))
-        assert (population.observations[envs] == single.collector.observations).all()
+        alone.restart()
+        assert (population.observations[envs] == alone.observations).all()
+        starts.append(alone.observations.copy())
+    assert not (starts[0] == starts[1]).all()  # each batch starts fresh episodes
 
 
 def test_reinforce_batches_are_one_whole_episode_per_env():
@@ -388,14 +388,14 @@ def test_evaluations_played_together_are_each_seeds_own():
 
 
 @pytest.mark.parametrize("agent", ["random-search", "hill-climbing", "cem"])
-def test_a_linear_search_seed_is_its_single_run(agent):
+def test_a_linear_search_seed_is_the_seed_alone(agent):
     spec = get_agent(agent)
     config = spec.config_cls(population=6, episodes_per_candidate=2)
-    population = build_population(get_agent(agent), config, CARTPOLE, [3, 5])
-    single = spec.make_learner(config, CARTPOLE, 3, "cpu")
+    population = build_population(spec, config, CARTPOLE, [3, 5])
+    alone = build_population(spec, config, CARTPOLE, [3])
     for _ in range(4):
-        assert same(population.learn()[3], single.learn())
-    assert_same(population.seed_state_dict(3, resume=True)[0], single.state_dict(resume=True)[0])
+        assert same(population.learn()[3], alone.learn()[3])
+    assert_same(population.seed_state_dict(3, resume=True)[0], alone.seed_state_dict(3, resume=True)[0])
 
 
 def test_resume_of_a_linear_search_seed_continues_exactly():

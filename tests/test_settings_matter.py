@@ -10,8 +10,9 @@ A test that passes whatever a setting says cannot catch the setting being ignore
   ``gradient_steps``, the loss, the epsilon schedules, hill climbing's noise adaptation, and each
   ``TrainSettings`` field through :func:`cartpole.training.train`).
 
-Everything goes through public interfaces: the registry's ``config_cls`` and ``make_learner``, the
-Learner protocol (``learn``, ``policy``, ``state_dict``, ``load_state_dict``), ``train`` and run folders.
+Everything goes through public interfaces: the registry's ``config_cls`` and ``make_population`` (a
+single run is a population of one), the seed's ``learn``, ``policy``, ``state_dict`` and
+``load_state_dict``, ``train`` and run folders.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
+from one_seed import one_seed
 
 from cartpole.agents.registry import agent_names, get_agent
 from cartpole.core.seeding import MAX_TRAIN_SEED, eval_seed, final_eval_seed
@@ -191,11 +193,14 @@ def applicable_fields(agent: str) -> list[str]:
     return [name for name in CHANGES[agent] if name not in NOT_APPLICABLE[agent]]
 
 
-def make(agent: str, seed: int = 0, **changes: Any) -> Any:
-    spec = get_agent(agent)
-    config = dataclasses.replace(spec.config_cls(), **(BASES[agent] | changes))
+def config_of(agent: str, **changes: Any) -> Any:
+    config = dataclasses.replace(get_agent(agent).config_cls(), **(BASES[agent] | changes))
     config.validate()
-    return spec.make_learner(config, CARTPOLE, seed, "cpu")
+    return config
+
+
+def make(agent: str, seed: int = 0, **changes: Any) -> Any:
+    return one_seed(agent, config_of(agent, **changes), CARTPOLE, seed)
 
 
 def fingerprint(learner: Any, calls: int) -> tuple[list[Any], dict[str, np.ndarray], np.ndarray]:
@@ -245,7 +250,7 @@ def test_every_config_field_is_in_the_table(agent: str) -> None:
 def test_changing_one_setting_changes_the_learning(agent: str, field: str) -> None:
     shared, other = CHANGES[agent][field]
     base = make(agent, **shared)
-    assert getattr(base.config, field) != other, "the table's other value must differ from the base"
+    assert getattr(config_of(agent, **shared), field) != other, "the table's other value must differ"
     changed = make(agent, **(shared | {field: other}))
     reference = fingerprint(base, CALLS[agent])
     assert not same(reference, fingerprint(changed, CALLS[agent])), (
@@ -309,8 +314,11 @@ def test_gradient_steps_per_round_and_rounds_every_train_freq_calls(
 def zeroed_learner(loss: str) -> Any:
     """A learner whose Q-network answers 0 everywhere, with gamma 0: every TD error is exactly 1."""
     learner = make("dqn", loss=loss, gamma=0.0, learning_starts=0, gradient_steps=1)
-    tensors, data = learner.state_dict(resume=False)
-    learner.load_state_dict({k: torch.zeros_like(v) for k, v in tensors.items()}, data)
+    tensors, data = learner.state_dict(resume=True)
+    networks = ("q_net.", "target_net.")
+    learner.load_state_dict(
+        {k: torch.zeros_like(v) if k.startswith(networks) else v for k, v in tensors.items()}, data
+    )
     return learner
 
 
@@ -449,14 +457,14 @@ class Crash(Exception):
 
 @contextmanager
 def learners_that_crash_after(agent: str, calls: int) -> Iterator[None]:
-    """While active, ``agent``'s learners die at their ``calls + 1``-th learn() and can save nothing
+    """While active, ``agent``'s populations die at their ``calls + 1``-th learn() and can save nothing
     after that (as under kill -9: only what was already on disk is left)."""
     spec = get_agent(agent)
-    make_learner = spec.make_learner
+    make_population = spec.make_population
 
-    def crashing_learner(*args: Any) -> Any:
-        learner = make_learner(*args)
-        learn, state_dict, count = learner.learn, learner.state_dict, [0]
+    def crashing_population(*args: Any) -> Any:
+        population = make_population(*args)
+        learn, seed_state_dict, count = population.learn, population.seed_state_dict, [0]
 
         def learn_or_die() -> Any:
             count[0] += 1
@@ -464,19 +472,19 @@ def learners_that_crash_after(agent: str, calls: int) -> Iterator[None]:
                 raise Crash
             return learn()
 
-        def state_dict_unless_dead(resume: bool) -> Any:
+        def state_dict_unless_dead(seed: int, resume: bool) -> Any:
             if count[0] > calls:
                 raise Crash
-            return state_dict(resume)
+            return seed_state_dict(seed, resume)
 
-        learner.learn, learner.state_dict = learn_or_die, state_dict_unless_dead
-        return learner
+        population.learn, population.seed_state_dict = learn_or_die, state_dict_unless_dead
+        return population
 
-    object.__setattr__(spec, "make_learner", crashing_learner)  # the spec is frozen; put it back below
+    object.__setattr__(spec, "make_population", crashing_population)  # the spec is frozen: put it back
     try:
         yield
     finally:
-        object.__setattr__(spec, "make_learner", make_learner)
+        object.__setattr__(spec, "make_population", make_population)
 
 
 def latest_step_after_a_crash(runs_dir: Path, checkpoint_every: int, calls: int) -> int | None:

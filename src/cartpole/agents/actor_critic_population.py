@@ -43,19 +43,18 @@ import numpy as np
 import torch
 from torch import nn
 
-from cartpole.agents.a2c import A2CConfig, A2CLearner
+from cartpole.agents.a2c import A2CConfig
 from cartpole.agents.actor_critic import ActorCritic, CategoricalPolicy, block_greedy_actor, schedule_value
 from cartpole.agents.learner import LearnResult
 from cartpole.agents.nn.fast_tanh import tanh
 from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step
 from cartpole.agents.nn.population_optimizers import PopulationAdam, PopulationOptimizer, PopulationRMSprop
 from cartpole.agents.nn.stacked_linear import stacked_linear
-from cartpole.agents.policy_gradient import policy_loader, seeded_actor_critic
+from cartpole.agents.policy_gradient import generalized_advantages, policy_loader, seeded_actor_critic
 from cartpole.agents.population import SeedRows
-from cartpole.agents.ppo import PPOConfig, PPOLearner
+from cartpole.agents.ppo import PPOConfig
 from cartpole.agents.registry import AgentSpec
-from cartpole.agents.reinforce import ReinforceConfig, ReinforceLearner
-from cartpole.agents.rollout import generalized_advantages
+from cartpole.agents.reinforce import ReinforceConfig
 from cartpole.core.errors import ConfigError
 from cartpole.core.seeding import derived_seed
 from cartpole.envs import EnvInfo
@@ -193,8 +192,7 @@ def masked_mean(x: torch.Tensor, mask: torch.Tensor, count: torch.Tensor) -> tor
 
 
 def masked_normalize(x: torch.Tensor, mask: torch.Tensor, count: torch.Tensor) -> torch.Tensor:
-    """Per seed, ``(x - mean) / (std + 1e-8)`` over the masked rows (a single row is only centred),
-    as :func:`~cartpole.agents.rollout.normalize` does for one seed."""
+    """Per seed, ``(x - mean) / (std + 1e-8)`` over the masked rows (a single row is only centred)."""
     mean = masked_mean(x, mask, count).unsqueeze(1)
     centred = (x - mean) * mask
     variance = centred.square().sum(dim=1) / (count - 1.0).clamp(min=1.0)
@@ -549,9 +547,8 @@ class PopulationActorCritic(SeedRows):
         """Restore what ``seed_state_dict(seed, resume=True)`` gave."""
         if not data.get("population"):
             raise ConfigError(
-                "no batched population's training state (a policy-only checkpoint, or one written by a "
-                "seed's own learner: a single run, or seeds an earlier version trained side by side): "
-                "it cannot continue here; use --from-scratch"
+                "no batched population's training state (a policy-only checkpoint, or a run an earlier "
+                "version trained with a seed's own learner): it cannot continue here; use --from-scratch"
             )
         row = self.row(seed)
         model = self.model.template
@@ -703,7 +700,7 @@ class PopulationPPO(PopulationActorCritic):
 
 class PopulationA2C(PopulationActorCritic):
     """A2C for seeds ``seeds``, all with ``config``: one ``learn()`` = a rollout and one gradient step
-    on all of it for each seed, as :class:`~cartpole.agents.a2c.A2CLearner` does."""
+    on all of it for each seed."""
 
     config: A2CConfig
 
@@ -758,8 +755,7 @@ class PopulationA2C(PopulationActorCritic):
 
 class PopulationReinforce(PopulationActorCritic):
     """REINFORCE for seeds ``seeds``, all with ``config``: one ``learn()`` = one whole episode in each
-    of every seed's envs, all started fresh, then one gradient step each, as
-    :class:`~cartpole.agents.reinforce.ReinforceLearner` does.
+    of every seed's envs, all started fresh, then one gradient step each.
 
     Episodes have different lengths, and play lasts until the longest episode of *any* seed ends. So
     that a seed's arithmetic does not depend on its neighbours, its update runs on its own rows cut
@@ -943,7 +939,6 @@ AGENTS = [
             "Proximal Policy Optimization (PyTorch): clipped surrogate, GAE, minibatch epochs, vector envs"
         ),
         config_cls=PPOConfig,
-        make_learner=PPOLearner,
         policy_from_checkpoint=policy_loader("ppo", PPOConfig),
         bytes_per_seed=ppo_bytes_per_seed,
         make_population=ppo_population,
@@ -954,7 +949,6 @@ AGENTS = [
         name="a2c",
         summary="Advantage Actor-Critic (PyTorch): n-step rollouts from vector envs, GAE, RMSprop or Adam",
         config_cls=A2CConfig,
-        make_learner=A2CLearner,
         policy_from_checkpoint=policy_loader("a2c", A2CConfig),
         bytes_per_seed=a2c_bytes_per_seed,
         make_population=a2c_population,
@@ -967,7 +961,6 @@ AGENTS = [
             "REINFORCE (PyTorch): Monte-Carlo policy gradient on whole episodes, optional learned baseline"
         ),
         config_cls=ReinforceConfig,
-        make_learner=ReinforceLearner,
         policy_from_checkpoint=policy_loader("reinforce", ReinforceConfig),
         bytes_per_seed=reinforce_bytes_per_seed,
         make_population=reinforce_population,
@@ -975,8 +968,8 @@ AGENTS = [
         score_label="action probabilities",
     ),
 ]
-"""The actor-critic agents: each seed's own learner (ppo.py, a2c.py, reinforce.py) and their batched
-populations (above)."""
+"""The actor-critic agents: their settings (ppo.py, a2c.py, reinforce.py) and their learners, batched
+over seeds (above)."""
 
 
 __all__ = [

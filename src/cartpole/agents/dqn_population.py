@@ -12,8 +12,8 @@ arithmetic, along a leading seed axis:
   :func:`~cartpole.agents.nn.stacked_linear.stacked_linear`), their gradients in another, and the
   target networks in a third: a Polyak update is one ``lerp`` over the flat tensors.
 - ``StackedReplay``: the replay memories as one ``[S, capacity, 2 * obs_dim + 3]`` table (the row
-  layout of :class:`~cartpole.agents.replay_buffer.ReplayBuffer`) with a write position and a fill
-  count per seed; a minibatch of every seed is one ``index_select``.
+  layout: obs | next_obs | action | reward | terminated) with a write position and a fill count per
+  seed; a minibatch of every seed is one ``index_select``.
 - :func:`~cartpole.envs.seed_envs.make_seed_envs` gives each seed its own ``num_envs`` envs (on
   CartPole's fast simulator all S x ``num_envs`` step in one call), and
   :class:`~cartpole.agents.nn.population_optimizers.PopulationAdam` steps every seed's Adam in one pass.
@@ -62,7 +62,6 @@ import torch.nn.functional as F
 
 from cartpole.agents.dqn import (
     DQNConfig,
-    DQNLearner,
     epsilon_at,
     policy_from_checkpoint,
     shaped_rewards,
@@ -87,7 +86,7 @@ ALIGN = 32
 AVX-512 vectors, the widest step of torch's vectorized CPU loops (see the module docstring)."""
 
 ADAM_EPS = 1e-8
-"""Adam's epsilon: :class:`~cartpole.agents.nn.optimizers.FusedAdam`'s (torch's default)."""
+"""Adam's epsilon (torch's default)."""
 
 TORCH_ACTIVATIONS: dict[str, Callable[[torch.Tensor], torch.Tensor]] = {
     "relu": torch.relu,
@@ -109,7 +108,7 @@ def to_device(tensor: torch.Tensor, device: torch.device) -> torch.Tensor:
 
 
 def seeded_q_network(config: DQNConfig, env: EnvInfo, seed: int) -> QNetwork:
-    """Seed ``seed``'s initial Q-network on the CPU, as :class:`~cartpole.agents.dqn.DQNLearner` builds it."""
+    """Seed ``seed``'s initial Q-network on the CPU, from its own ``init`` generator."""
     with torch.device("cpu"):
         generator = torch.Generator(device="cpu").manual_seed(derived_seed(seed, "init"))
         return QNetwork(env.obs_dim, env.n_actions, config, generator).eval()
@@ -241,8 +240,8 @@ class StackedQNetwork:
 
 class StackedReplay:
     """S ring buffers of transitions in one ``[S, capacity, 2 * obs_dim + 3]`` table, each row laid
-    out as :class:`~cartpole.agents.replay_buffer.ReplayBuffer`'s (obs | next_obs | action | reward |
-    terminated); each seed has its own write position and fill count."""
+    out as obs | next_obs | action | reward | terminated; each seed has its own write position and
+    fill count."""
 
     def __init__(self, seeds: int, capacity: int, obs_dim: int, device: torch.device):
         self.capacity, self.obs_dim = capacity, obs_dim
@@ -262,7 +261,7 @@ class StackedReplay:
         d = self.obs_dim
         counts = valid.sum(axis=1)
         offsets = np.cumsum(valid, axis=1) - 1
-        # A seed with more new rows than capacity keeps its newest `capacity` (as ReplayBuffer does).
+        # A seed with more new rows than capacity keeps its newest `capacity` (a ring buffer's overwrite).
         kept = valid & (offsets >= (counts - self.capacity)[:, None])
         seed_rows, env_columns = np.nonzero(kept)
         if len(seed_rows):
@@ -300,7 +299,7 @@ class StackedReplay:
         self.host_view()
 
     def row_state(self, row: int) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
-        """Seed ``row``'s buffer as :meth:`ReplayBuffer.state_dict` gives a single run's."""
+        """Seed ``row``'s buffer: the rows it holds, oldest first, and its write position."""
         d, size = self.obs_dim, int(self.size[row])
         written = self.table[row, :size].to("cpu", copy=True)
         tensors = {
@@ -333,7 +332,7 @@ class StackedReplay:
 
 class PopulationDQN(SeedRows):
     """DQN for seeds ``seeds``, all with ``config``: one ``learn()`` = one batched env step of every
-    seed and its due gradient steps, as :meth:`~cartpole.agents.dqn.DQNLearner.learn` does."""
+    seed and its due gradient steps. A single run (``--seed N``) is a population of one."""
 
     def __init__(self, config: DQNConfig, env: EnvInfo, seeds: list[int], device: str = "cpu"):
         config.validate()
@@ -599,8 +598,8 @@ class PopulationDQN(SeedRows):
 
     def sample_slots(self, training: np.ndarray, counts: np.ndarray) -> torch.Tensor:
         """Each training seed's minibatch rows for every gradient step of this round, drawn uniformly
-        (with replacement) from the rows its buffer holds, from its own replay generator as
-        ``ReplayBuffer.sample`` draws them; [S, gradient_steps, batch rows] (padding: slot 0)."""
+        (with replacement) from the rows its buffer holds, from its own replay generator;
+        [S, gradient_steps, batch rows] (padding: slot 0)."""
         steps = self.config.gradient_steps
         slots = torch.zeros(len(self.seeds), steps, self.batch_rows, dtype=torch.int64, device="cpu")
         for row in np.flatnonzero(training):
@@ -712,7 +711,7 @@ class PopulationDQN(SeedRows):
         return block_greedy_q_actor(body, head, value, self.env_info.obs_dim)
 
     def seed_state_dict(self, seed: int, resume: bool) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
-        """Seed ``seed``'s checkpoint in ``DQNLearner.state_dict``'s format: ``q_net.*`` (what
+        """Seed ``seed``'s checkpoint: ``q_net.*`` (what
         :func:`~cartpole.agents.dqn.policy_from_checkpoint` reads) and, with ``resume``, everything
         to continue exactly: target, Adam, replay rows, generators, counters and envs."""
         row = self.row(seed)
@@ -758,9 +757,8 @@ class PopulationDQN(SeedRows):
         """Restore what ``seed_state_dict(seed, resume=True)`` gave."""
         if not data.get("population"):
             raise ConfigError(
-                "no batched population's training state (a policy-only checkpoint, or one written by a "
-                "seed's own learner: a single run, or seeds an earlier version trained side by side): "
-                "it cannot continue here; use --from-scratch"
+                "no batched population's training state (a policy-only checkpoint, or a run an earlier "
+                "version trained with a seed's own learner): it cannot continue here; use --from-scratch"
             )
         row = self.row(seed)
 
@@ -858,14 +856,13 @@ AGENT = AgentSpec(
     name="dqn",
     summary="Deep Q-Network (PyTorch): double DQN, replay, target network, vectorized collection",
     config_cls=DQNConfig,
-    make_learner=DQNLearner,
     policy_from_checkpoint=policy_from_checkpoint,
     bytes_per_seed=dqn_bytes_per_seed,
     make_population=PopulationDQN,
     iteration="step",
     score_label="Q-values",
 )
-"""DQN: each seed's own learner (dqn.py) and the batched population (above)."""
+"""DQN: its settings (dqn.py) and its learner, batched over seeds (above)."""
 
 
 __all__ = [

@@ -1,7 +1,9 @@
-"""What an agent gives the training loop: a learning step, a greedy policy and its state.
+"""What a seed's training loop sees: the result of each learning step, and the seed's greedy policy
+and state.
 
-The shared loop (:mod:`cartpole.training.loop`) drives any :class:`Learner`; agents return a
-:class:`LearnResult` from each step and know nothing of callbacks, run folders or budgets.
+A population (:mod:`cartpole.agents.population`) learns for all its seeds at once and returns a
+:class:`LearnResult` per seed; each seed's loop (:mod:`cartpole.training.loop`) and its callbacks see
+the seed as a :class:`Learner`. Agents know nothing of callbacks, run folders or budgets.
 """
 
 from __future__ import annotations

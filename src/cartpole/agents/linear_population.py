@@ -130,7 +130,6 @@ def _spec(cls: type[LinearSearch], summary: str) -> AgentSpec:
         name=cls.name,
         summary=summary,
         config_cls=LinearSearchConfig,
-        make_learner=cls,
         policy_from_checkpoint=policy_from_checkpoint,
         bytes_per_seed=linear_bytes_per_seed,
         make_population=make_population,

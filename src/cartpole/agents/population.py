@@ -1,20 +1,13 @@
 """Every run is a population: S seeds of one agent trained side by side, a single run being S = 1.
 
-:class:`Population` is what the training session drives (:mod:`cartpole.training.engine`). An agent's
-spec (:class:`~cartpole.agents.registry.AgentSpec`) says how to batch its seeds, and
-:func:`~cartpole.agents.registry.build_population` picks the form:
-
-- batched (``--seeds``, any env): one learner holds every seed on a leading seed axis (networks,
-  optimizers, replay or rollouts, envs, generators), one update for all. Each seed's envs are its own
-  (:mod:`cartpole.envs.seed_envs`): on CartPole's fast simulator all seeds' envs step in one call,
-  elsewhere (Acrobot, MountainCar, Gymnasium's own CartPole for the tutorial presets) each seed's
-  Gymnasium vector env steps in turn. Each seed's arithmetic does not depend on which seeds share
-  it, so seed N alone (``--seeds N``) and seed N among others train bit for bit the same
-  (``tests/test_one_engine.py``).
-- a single run (``--seed N``): :class:`LearnerPopulation`, the seed's own single-seed learner,
-  through the same engine. A single run keeps its own learner because the batched code is still
-  slower for one seed (benchmarks/README.md); the linear searches' batched seeds are bit for bit
-  their single runs, the neural agents' agree to float rounding.
+:class:`Population` is what the training session drives (:mod:`cartpole.training.engine`). One
+learner holds every seed on a leading seed axis (networks, optimizers, replay or rollouts, envs,
+generators), one update for all, on any env. Each seed's envs are its own
+(:mod:`cartpole.envs.seed_envs`): on CartPole's fast simulator all seeds' envs step in one call,
+elsewhere (Acrobot, MountainCar, Gymnasium's own CartPole for the tutorial presets) each seed's
+Gymnasium vector env steps in turn. Each seed's arithmetic does not depend on which seeds share it,
+so seed N alone (``--seed N``) and seed N among others train bit for bit the same
+(``tests/test_one_engine.py``).
 """
 
 from __future__ import annotations
@@ -24,9 +17,8 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from cartpole.agents.actor_critic import stacked_greedy_actor
-from cartpole.agents.learner import Learner, LearnResult
+from cartpole.agents.learner import LearnResult
 from cartpole.core.errors import ConfigError
-from cartpole.envs import EnvInfo
 from cartpole.envs.seed_envs import rows_of_envs
 from cartpole.evaluation import BlockActor, Policy
 
@@ -57,43 +49,13 @@ class Population(Protocol):
     def seed_policy(self, seed: int) -> Policy: ...
 
     def seed_state_dict(self, seed: int, resume: bool) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
-        """Seed ``seed``'s checkpoint, in the format its single learner writes."""
+        """Seed ``seed``'s checkpoint: its greedy policy's tensors and, with ``resume``, everything to
+        continue exactly."""
         ...
 
     def load_seed_state_dict(
         self, seed: int, tensors: dict[str, torch.Tensor], data: dict[str, Any]
     ) -> None: ...
-
-
-class LearnerPopulation:
-    """Seeds that cannot be batched: one single-seed :class:`~cartpole.agents.learner.Learner`
-    each, stepped in turn by ``learn()``."""
-
-    def __init__(self, learners: dict[int, Learner], env: EnvInfo):
-        self.learners, self.env = learners, env
-
-    @property
-    def active_seeds(self) -> list[int]:
-        return list(self.learners)
-
-    def learn(self) -> dict[int, LearnResult]:
-        return {seed: learner.learn() for seed, learner in self.learners.items()}
-
-    def remove(self, seeds: list[int]) -> None:
-        for seed in seeds:
-            del self.learners[seed]
-
-    def greedy_actor(self, seeds: list[int]) -> BlockActor:
-        return policies_actor([self.learners[seed].policy() for seed in seeds], self.env.obs_dim)
-
-    def seed_policy(self, seed: int) -> Policy:
-        return self.learners[seed].policy()
-
-    def seed_state_dict(self, seed: int, resume: bool) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
-        return self.learners[seed].state_dict(resume)
-
-    def load_seed_state_dict(self, seed: int, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None:
-        self.learners[seed].load_state_dict(tensors, data)
 
 
 class SeedRows:
@@ -132,4 +94,4 @@ def policies_actor(policies: list[Policy], obs_dim: int) -> BlockActor:
     return stacked_greedy_actor(list(policies), obs_dim) or act_one_by_one
 
 
-__all__ = ["LearnerPopulation", "Population", "SeedRows", "policies_actor"]
+__all__ = ["Population", "SeedRows", "policies_actor"]

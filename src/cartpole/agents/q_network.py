@@ -9,9 +9,9 @@ Public torch only. A private shortcut would stay only where it saves 20% of the 
 verified solve on the same trajectories (``benchmarks/time_to_solve.py --agents dqn`` measures that;
 benchmarks/README.md has the figures), and none of these does: a numpy forward over the parameters'
 memory keyed by ``data_ptr`` for small batches, calling ``module.forward`` to bypass
-``nn.Module.__call__``, and the target update through ``torch._foreach_lerp_``/``_foreach_copy_`` (in
-``DQNLearner.update_target``). The hand-written dropout stays only because ``nn.Dropout`` cannot draw
-from an owned generator.
+``nn.Module.__call__``, and the target update through ``torch._foreach_lerp_``/``_foreach_copy_`` (a
+population's target update is one public ``lerp`` over flat tensors). The hand-written dropout stays
+only because ``nn.Dropout`` cannot draw from an owned generator.
 
 The greedy policy (``QNetworkPolicy``) is a numpy snapshot of the weights, as PPO's is: training acts
 through torch, but evaluations and the web app's episodes act a few rows at a time, where torch's

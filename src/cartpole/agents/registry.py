@@ -15,7 +15,6 @@ from cartpole.evaluation import Policy
 from cartpole.runs import Checkpoint, CheckpointError, RunDir, load_checkpoint
 
 if TYPE_CHECKING:
-    from cartpole.agents.learner import Learner
     from cartpole.agents.population import Population
 
 
@@ -28,10 +27,9 @@ class AgentSpec:
     summary: str
     config_cls: type
     """Its settings (a dataclass with ``validate()``), built from presets and ``--set``."""
-    make_learner: Callable[[Any, EnvInfo, int, str], Learner]
-    """(config, env info, seed, device) -> one seed's own learner (``cartpole train --seed N``)."""
     make_population: Callable[[Any, EnvInfo, list[int], str], Population]
-    """(config, env info, seeds, device) -> every seed batched in one learner, on any env."""
+    """(config, env info, seeds, device) -> every seed batched in one learner, on any env (a single
+    run, ``--seed N``, is a population of one)."""
     policy_from_checkpoint: Callable[[Checkpoint], Policy]
     """Rebuild the greedy policy from a checkpoint's tensors and metadata."""
     bytes_per_seed: Callable[[Any, EnvInfo], int]
@@ -58,22 +56,16 @@ AGENT_MODULES = {
     "a2c": "cartpole.agents.actor_critic_population",
     "ppo": "cartpole.agents.actor_critic_population",
 }
-"""Agent name -> the module that defines its spec, above both of its forms: a seed's own learner and
-the batched population (imported only when the agent is used: torch is slow)."""
+"""Agent name -> the module that defines its spec and its learner, batched over seeds (imported only
+when the agent is used: torch is slow)."""
 
 
 def build_population(
-    spec: AgentSpec, config: Any, env: EnvInfo, seeds: list[int], device: str = "cpu", batched: bool = True
+    spec: AgentSpec, config: Any, env: EnvInfo, seeds: list[int], device: str = "cpu"
 ) -> Population:
-    """``seeds`` of agent ``spec`` with ``config`` on ``env``, batched (any env), or with ``batched``
-    False one seed's own learner each. ``cartpole train --seed N`` asks for the seed's own learner:
-    it is still faster than a batch of one (benchmarks/README.md); ``--seeds N`` is the batched
-    population of one, bit for bit seed N of any population."""
-    from cartpole.agents.population import LearnerPopulation  # torch: imported when training
-
-    if batched:
-        return spec.make_population(config, env, seeds, device)
-    return LearnerPopulation({seed: spec.make_learner(config, env, seed, device) for seed in seeds}, env)
+    """``seeds`` of agent ``spec`` with ``config`` on ``env``, batched in one learner. A single run is
+    a population of one, bit for bit that seed in any population (``tests/test_one_engine.py``)."""
+    return spec.make_population(config, env, seeds, device)
 
 
 def agent_names() -> list[str]:

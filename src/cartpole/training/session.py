@@ -169,7 +169,7 @@ def start(
     budget = budget or parse_budget(settings.budget)
     device = resolve_device(device, len(seeds))
     check_memory(spec.bytes_per_seed(config, env) * len(seeds), len(seeds))
-    learner = build_population(spec, config, env, seeds, device, batched=population)
+    learner = build_population(spec, config, env, seeds, device)
     population_record = {"population": {"id": uuid.uuid4().hex[:12], "seeds": list(seeds)}}
     with ExitStack() as stack:
         setups = []
@@ -304,9 +304,8 @@ def resume_members(
         setups = [check_resumable(run, from_scratch) for run in runs]
         first = setups[0]
         device = resolve_device(device, len(setups))
-        batched = bool(first.run.config().get("population"))
         seeds = [s.seed for s in setups]
-        learner = build_population(first.spec, first.config, first.env, seeds, device, batched)
+        learner = build_population(first.spec, first.config, first.env, seeds, device)
         states = {setup.seed: restore(setup, learner) for setup in setups}
         for setup in setups:
             state = states[setup.seed]
