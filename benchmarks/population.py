@@ -46,7 +46,7 @@ def peak_rss_mb() -> float:
 
 
 def run_population_part(
-    agent: str, seeds: int, preset: str, runs_dir: Path, device: str = "cpu"
+    agent: str, seeds: int, preset: str, runs_dir: Path, device: str = "cpu", first: int = 0
 ) -> dict[str, object]:
     import torch
 
@@ -54,7 +54,7 @@ def run_population_part(
 
     started = time.perf_counter()
     outcome = train_population(
-        agent, list(range(seeds)), preset=preset, runs_dir=runs_dir, quiet=False, device=device
+        agent, list(range(first, first + seeds)), preset=preset, runs_dir=runs_dir, quiet=False, device=device
     )
     wall = time.perf_counter() - started
     states = outcome.states.values()
@@ -71,13 +71,15 @@ def run_population_part(
     }
 
 
-def run_singles_part(agent: str, seeds: int, preset: str, runs_dir: Path) -> dict[str, object]:
+def run_singles_part(
+    agent: str, seeds: int, preset: str, runs_dir: Path, first: int = 0
+) -> dict[str, object]:
     import time as clock
 
     from cartpole.training import train
 
     cpu, solved_at, verified = [], [], 0
-    for seed in range(seeds):
+    for seed in range(first, first + seeds):
         before = clock.process_time()
         outcome = train(agent, seed=seed, preset=preset, runs_dir=runs_dir, device="cpu")
         cpu.append(clock.process_time() - before)
@@ -89,10 +91,12 @@ def run_singles_part(agent: str, seeds: int, preset: str, runs_dir: Path) -> dic
     return {"cpu_per_run": cpu, "solved_at": solved_at, "verified": verified, "rss_mb": peak_rss_mb()}
 
 
-def run_processes_part(agent: str, seeds: int, preset: str, runs_dir: Path) -> dict[str, object]:
+def run_processes_part(
+    agent: str, seeds: int, preset: str, runs_dir: Path, first: int = 0
+) -> dict[str, object]:
     """Each seed as its own ``cartpole train`` process; CPU seconds of each whole child process."""
     cpu = []
-    for seed in range(seeds):
+    for seed in range(first, first + seeds):
         before = resource.getrusage(resource.RUSAGE_CHILDREN)
         command = [sys.executable, "-m", "cartpole", "train", agent, "--seed", str(seed), "--preset", preset]
         command += ["--quiet", "--runs-dir", str(runs_dir)]
@@ -104,12 +108,20 @@ def run_processes_part(agent: str, seeds: int, preset: str, runs_dir: Path) -> d
 
 
 def child(
-    part: str, agent: str, seeds: int, preset: str, threads: int, out: Path, device: str = "cpu"
+    part: str,
+    agent: str,
+    seeds: int,
+    preset: str,
+    threads: int,
+    out: Path,
+    device: str = "cpu",
+    first: int = 0,
 ) -> dict[str, object]:
     """Run one part in its own process; its result is also kept as ``out/<part>.json``."""
     with tempfile.TemporaryDirectory() as tmp:
         command = [sys.executable, __file__, "--part", part, "--agent", agent, "--n", str(seeds)]
         command += ["--preset", preset, "--population-threads", str(threads), "--device", device]
+        command += ["--first-seed", str(first)]
         done = subprocess.run([*command, "--dir", tmp], stdout=subprocess.PIPE, text=True, check=True)
     result = json.loads(done.stdout.strip().splitlines()[-1])
     (out / f"{part}.json").write_text(json.dumps(result))
@@ -187,7 +199,7 @@ def main() -> None:
         "--processes",
         type=int,
         default=10,
-        help="single runs as separate `cartpole train` processes, seeds 0..N-1 (default 10; 0: none)",
+        help="single runs as separate `cartpole train` processes, the first N seeds (default 10; 0: none)",
     )
     parser.add_argument(
         "--agent",
@@ -195,6 +207,7 @@ def main() -> None:
         help="any agent: ppo, a2c, reinforce, dqn, cem, random-search, hill-climbing",
     )
     parser.add_argument("--preset", default="default")
+    parser.add_argument("--first-seed", type=int, default=0, help="seeds FIRST..FIRST+N-1 (default 0)")
     parser.add_argument(
         "--population-threads",
         type=int,
@@ -219,10 +232,12 @@ def main() -> None:
         if args.part == "singles" or args.population_threads:  # as `cartpole train` sets them
             torch.set_num_threads(1 if args.part == "singles" else args.population_threads)
         if args.part == "population":
-            result = run_population_part(args.agent, args.n, args.preset, Path(args.dir), args.device)
+            result = run_population_part(
+                args.agent, args.n, args.preset, Path(args.dir), args.device, args.first_seed
+            )
         else:
             run = run_singles_part if args.part == "singles" else run_processes_part
-            result = run(args.agent, args.n, args.preset, Path(args.dir))
+            result = run(args.agent, args.n, args.preset, Path(args.dir), args.first_seed)
         print(json.dumps(result))
         return
     out = Path(args.out)
@@ -236,11 +251,14 @@ def main() -> None:
         report(population, singles, processes, len(population["solved_at"]), runs)
         return
     threads = args.population_threads
-    population = child("population", args.agent, args.seeds, args.preset, threads, out, args.device)
-    singles = child("singles", args.agent, args.singles, args.preset, threads, out) if args.singles else None
+    first = args.first_seed
+    population = child("population", args.agent, args.seeds, args.preset, threads, out, args.device, first)
+    singles = None
+    if args.singles:
+        singles = child("singles", args.agent, args.singles, args.preset, threads, out, first=first)
     processes = None
     if args.processes:
-        processes = child("processes", args.agent, args.processes, args.preset, args.population_threads, out)
+        processes = child("processes", args.agent, args.processes, args.preset, threads, out, first=first)
     report(population, singles, processes, args.seeds, args.singles)
 
 

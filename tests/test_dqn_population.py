@@ -176,7 +176,7 @@ SETTING_CHANGES: list[tuple[dict[str, Any], dict[str, Any]]] = [
     ({"epsilon_schedule": "multiplicative"}, {"epsilon_decay_rate": 0.9}),
     ({}, {"termination_reward": -10.0}),
     ({}, {"short_episode_reward": -1.0, "short_episode_length": 100}),
-    ({"short_episode_reward": -1.0, "short_episode_length": 100}, {"short_episode_length": 30}),
+    ({"short_episode_reward": -1.0, "short_episode_length": 100}, {"short_episode_length": 15}),
 ]
 
 

@@ -54,7 +54,7 @@ class DQNConfig:
     dueling: bool = False
     """Dueling head: Q = V + A - mean(A)."""
     # learning
-    lr: float = 1e-3
+    lr: float = 2e-3
     """Adam learning rate."""
     gamma: float = 0.99
     """Discount factor."""
@@ -75,13 +75,13 @@ class DQNConfig:
     """Replay memory capacity (transitions)."""
     batch_size: int = 256
     """Minibatch size of a gradient step (smaller while the memory holds fewer rows)."""
-    learning_starts: int = 1000
+    learning_starts: int = 500
     """Env steps collected before the first gradient step."""
     num_envs: int = 8
     """Vector envs stepped together; one learn() call collects one transition from each."""
     train_freq: int = 1
     """learn() calls (batched env steps) between training rounds."""
-    gradient_steps: int = 2
+    gradient_steps: int = 4
     """Gradient steps per training round."""
     # exploration
     epsilon_schedule: str = "linear"
@@ -91,7 +91,7 @@ class DQNConfig:
     """Initial probability of a random action."""
     epsilon_end: float = 0.01
     """Final (minimum) probability of a random action."""
-    epsilon_decay_steps: int = 6000
+    epsilon_decay_steps: int = 3000
     """Env steps of the linear decay, or the time constant of the exponential one."""
     epsilon_decay_rate: float = 0.999
     """Factor applied per gradient step by the multiplicative schedule."""
