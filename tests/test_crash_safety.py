@@ -20,7 +20,15 @@ import pytest
 
 from cartpole.cli.main import main
 from cartpole.core.names import RunState
-from cartpole.runs import LiveStatus, RunDir, displayed_state, load_checkpoint, summarize_run
+from cartpole.runs import (
+    Checkpoint,
+    LiveStatus,
+    RunDir,
+    displayed_state,
+    load_checkpoint,
+    save_checkpoint,
+    summarize_run,
+)
 from cartpole.runs.run_dir import STALE_SECONDS
 from cartpole.training import resume, train
 
@@ -357,6 +365,36 @@ def test_a_resume_without_latest_is_refused_unless_from_scratch(population, tmp_
     assert main(["train", "--resume", str(run.path), "--from-scratch"]) == 0
     assert "resuming" in (err := capsys.readouterr().err) and "step 0 " in err  # where it resumes from
     assert run.status()["state"] == RunState.FINISHED and (run.path / "eval.json").exists()
+
+
+@pytest.mark.parametrize("agent", ["ppo", "dqn"])
+def test_a_latest_without_training_state_is_refused_unless_from_scratch(agent, tmp_path, capsys):
+    """A run whose latest.pt cannot continue (here its policy only, as a run an earlier version trained
+    with a seed's own learner left it) is refused in one line naming the file and saying what to do;
+    with --from-scratch it trains again from step 0, to a verdict."""
+    runs_dir = tmp_path / "runs"
+    argv = ["train", agent, "--seed", "0", "--budget", "1500", "--no-stop-when-solved", "--quiet"]
+    assert main([*argv, "--set", "hidden_sizes=16,16", "--runs-dir", str(runs_dir)]) == 0
+    capsys.readouterr()
+    run = RunDir(sorted(runs_dir.iterdir())[0])
+    latest = load_checkpoint(run.checkpoint_path("latest"))
+    policy_only = {k: v for k, v in latest.tensors.items() if k.startswith(("model.", "q_net."))}
+    data = {k: latest.meta["learner"][k] for k in ("obs_dim", "n_actions")}
+    save_checkpoint(
+        run.checkpoint_path("latest"), Checkpoint(meta=latest.meta | {"learner": data}, tensors=policy_only)
+    )
+    (run.path / "eval.json").unlink()
+    run.write_status(run.status() | {"state": "interrupted"})
+
+    assert main(["train", "--resume", str(run.path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "latest.pt: holds no training state" in err
+    assert "add --from-scratch" in err and not (run.path / "eval.json").exists()
+
+    assert main(["train", "--resume", str(run.path), "--from-scratch"]) == 0
+    assert "step 0 " in capsys.readouterr().err
+    assert run.status()["state"] == RunState.FINISHED and (run.path / "eval.json").exists()
+    assert load_checkpoint(run.checkpoint_path("latest")).meta["learner"]["population"]
 
 
 def test_from_scratch_goes_with_resume(tmp_path, capsys):

@@ -757,8 +757,9 @@ class PopulationDQN(SeedRows):
         """Restore what ``seed_state_dict(seed, resume=True)`` gave."""
         if not data.get("population"):
             raise ConfigError(
-                "no batched population's training state (a policy-only checkpoint, or a run an earlier "
-                "version trained with a seed's own learner): it cannot continue here; use --from-scratch"
+                "holds no training state to continue from (a policy-only checkpoint, or a run an "
+                "earlier version trained with a seed's own learner); to train it again from step 0, add "
+                "--from-scratch"
             )
         row = self.row(seed)
 

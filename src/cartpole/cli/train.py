@@ -106,8 +106,8 @@ def add_parser(sub: Any) -> None:
     parser.add_argument(
         "--from-scratch",
         action="store_true",
-        help="with --resume: train a run whose checkpoints/latest.pt is gone again from step 0 (without "
-        "it, such a resume is refused, so that no training is thrown away unasked)",
+        help="with --resume: train a run whose checkpoints/latest.pt is gone or cannot continue again "
+        "from step 0 (without it, such a resume is refused, so that no training is thrown away unasked)",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress output")
     # --- issue 5: TensorBoard (also passed to train() below) ---

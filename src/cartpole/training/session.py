@@ -306,7 +306,11 @@ def resume_members(
         device = resolve_device(device, len(setups))
         seeds = [s.seed for s in setups]
         learner = build_population(first.spec, first.config, first.env, seeds, device)
-        states = {setup.seed: restore(setup, learner) for setup in setups}
+        states, unusable = restore_all(setups, learner, from_scratch)
+        if unusable:  # a failed load may have left part of its seed's state: start again from a new one
+            learner = build_population(first.spec, first.config, first.env, seeds, device)
+            states, _ = restore_all([s for s in setups if s.seed not in unusable], learner, False)
+            states |= dict.fromkeys(unusable)
         for setup in setups:
             state = states[setup.seed]
             setup.run.truncate_metrics_after(state.env_steps if state else 0)
@@ -371,7 +375,7 @@ def resume_line(setups: list[RunSetup], states: dict[int, LoopState | None]) -> 
     if len(setups) == 1:
         name = setups[0].run.name
         if not steps[0]:
-            return f"resuming {name} from step 0 (no checkpoints/latest.pt yet)"
+            return f"resuming {name} from step 0 (no checkpoints/latest.pt to go on from)"
         return f"resuming {name} from env step {steps[0]:,} (checkpoints/latest.pt)"
     where = f"{min(steps):,}" if min(steps) == max(steps) else f"{min(steps):,} to {max(steps):,}"
     return (
@@ -389,6 +393,24 @@ def load_latest(latest: Path) -> Checkpoint:
             f"cannot resume: {latest} {err.reason}. A run resumes only from its latest.pt (best.pt and "
             "solved.pt hold policies, which `cartpole eval` still judges): train a new run to go on"
         ) from err
+
+
+def restore_all(
+    setups: list[RunSetup], population: Population, from_scratch: bool
+) -> tuple[dict[int, LoopState | None], list[int]]:
+    """Each run's loop counters after :func:`restore` (CheckpointError for a ``latest.pt`` that
+    cannot continue), and, with ``from_scratch``, the seeds whose ``latest.pt`` could not: they start
+    again from step 0 instead."""
+    states: dict[int, LoopState | None] = {}
+    unusable = []
+    for setup in setups:
+        try:
+            states[setup.seed] = restore(setup, population)
+        except CheckpointError:
+            if not from_scratch:
+                raise
+            unusable.append(setup.seed)
+    return states, unusable
 
 
 def restore(setup: RunSetup, population: Population) -> LoopState | None:
@@ -413,6 +435,8 @@ def restore(setup: RunSetup, population: Population) -> LoopState | None:
         seed.load_state_dict(checkpoint.tensors, checkpoint.meta["learner"])
         seed.policy().act(np.zeros((1, setup.env.obs_dim), dtype=np.float32))  # weights of the right size?
         state = LoopState.from_dict(checkpoint.meta["loop"])
+    except ConfigError as err:  # the learner says why, in one line
+        raise CheckpointError(f"{latest}: {err}") from err
     except (KeyError, IndexError, TypeError, ValueError, RuntimeError, AttributeError) as err:
         raise CheckpointError(
             f"{latest} does not fit run {run.name}'s config ({type(err).__name__}: {err!s:.100}); "
