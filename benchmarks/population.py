@@ -4,7 +4,7 @@
     python benchmarks/population.py --seeds 20 --singles 5
     python benchmarks/population.py --agent a2c       # also reinforce, cem, random-search, hill-climbing
     python benchmarks/population.py --population-threads 1
-    python benchmarks/population.py --seeds 2048 --device cuda --singles 0 --processes 0   # on a GPU
+    python benchmarks/population.py --seeds 400 --device cuda --singles 0 --processes 0   # on a GPU
 
 Each part runs in its own child process (so peak RSS and CPU are that part's alone), with the torch
 threads ``cartpole train`` uses by default: one, for the population (``--seeds``) and single runs alike.

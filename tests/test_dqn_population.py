@@ -439,7 +439,8 @@ def test_every_tensor_lives_on_the_population_device():
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
 def test_a_population_trains_on_cuda_and_its_checkpoints_load_on_the_cpu():
-    population = small_population([3, 5], device="cuda", dropout=0.1, max_grad_norm=1.0)
+    settings: dict[str, Any] = {"dropout": 0.1, "max_grad_norm": 1.0}
+    population = small_population([3, 5], device="cuda", **settings)
     assert all(t.device.type == "cuda" for t in population_tensors(population))
     results = learn(population, 100)
     assert all(r[3].env_steps > 0 for r in results) and "train/loss" in results[-1][3].scalars
@@ -448,7 +449,7 @@ def test_a_population_trains_on_cuda_and_its_checkpoints_load_on_the_cpu():
     assert all(t.device.type == "cuda" for t in population_tensors(population))
     tensors, data = population.seed_state_dict(3, resume=True)
     assert all(t.device.type == "cpu" for t in tensors.values())
-    on_cpu = small_population([3, 5])
+    on_cpu = small_population([3, 5], **settings)
     on_cpu.load_seed_state_dict(3, tensors, data)
     assert torch.equal(
         on_cpu.seed_state_dict(3, resume=False)[0]["q_net.head.weight"], tensors["q_net.head.weight"]
