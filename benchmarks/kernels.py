@@ -10,9 +10,9 @@ for ``torch.tanh``, ``np.tanh`` and ``cartpole.agents.nn.fast_tanh`` (the one th
 numpy greedy policies use), the largest relative difference of the last from float64 ``tanh``, and
 GFLOP/s of ``torch.bmm``; then the weight gradient of a 2-output head (``[seeds, width, rows] x
 [seeds, rows, 2]``, autograd's orientation for ``baddbmm``, against ``[seeds, 2, rows] x [seeds,
-rows, width]``, the one ``agents/stacked_linear.py`` takes), and one Adam step of ``[seeds, 9218]``
+rows, width]``, the one ``agents/nn/stacked_linear.py`` takes), and one Adam step of ``[seeds, 9218]``
 parameters (a 64x64 actor-critic) in torch's elementwise form and in the numba pass of
-``agents/population_optimizers.py``. Which kernels NumPy and torch pick depends on the CPU (AVX-512
+``agents/nn/population_optimizers.py``. Which kernels NumPy and torch pick depends on the CPU (AVX-512
 or not), so the CPU is printed first.
 """
 

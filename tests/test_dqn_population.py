@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 import torch
 
-from cartpole.agents.dqn import DQNConfig, epsilon_at, policy_from_checkpoint
-from cartpole.agents.dqn_population import (
+from cartpole.agents.dqn.algorithm import DQNConfig, epsilon_at, policy_from_checkpoint
+from cartpole.agents.dqn.population import (
     PopulationDQN,
     dqn_bytes_per_seed,
     q_network_parameters,

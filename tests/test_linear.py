@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from cartpole import evaluate, load_policy
-from cartpole.agents.linear import LinearPolicy
+from cartpole.agents.linear.search import LinearPolicy
 from cartpole.runs import load_checkpoint
 from cartpole.training import train
 

@@ -13,18 +13,18 @@ import pytest
 import torch
 from one_seed import OneSeed, one_seed
 
-from cartpole.agents.a2c import A2CConfig
-from cartpole.agents.actor_critic import (
+from cartpole.agents.actor_critic.a2c import A2CConfig
+from cartpole.agents.actor_critic.network import (
     ActorCritic,
     CategoricalPolicy,
     schedule_value,
     stacked_greedy_actor,
 )
-from cartpole.agents.policy_gradient import generalized_advantages
-from cartpole.agents.ppo import PPOConfig
+from cartpole.agents.actor_critic.policy_gradient import generalized_advantages
+from cartpole.agents.actor_critic.ppo import PPOConfig
+from cartpole.agents.actor_critic.reinforce import ReinforceConfig
 from cartpole.agents.presets import preset_names
 from cartpole.agents.registry import get_agent, load_policy
-from cartpole.agents.reinforce import ReinforceConfig
 from cartpole.core.errors import ConfigError
 from cartpole.envs import env_info
 from cartpole.evaluation import ScoredPolicy

@@ -17,13 +17,13 @@ import numpy as np
 import pytest
 import torch
 
-from cartpole.agents.a2c import A2CConfig
-from cartpole.agents.actor_critic_population import PopulationA2C, PopulationPPO, PopulationReinforce
+from cartpole.agents.actor_critic.a2c import A2CConfig
+from cartpole.agents.actor_critic.policy_gradient import seeded_actor_critic
+from cartpole.agents.actor_critic.population import PopulationA2C, PopulationPPO, PopulationReinforce
+from cartpole.agents.actor_critic.ppo import PPOConfig
+from cartpole.agents.actor_critic.reinforce import ReinforceConfig
 from cartpole.agents.learner import LearnResult
-from cartpole.agents.policy_gradient import seeded_actor_critic
-from cartpole.agents.ppo import PPOConfig
 from cartpole.agents.registry import build_population, get_agent, load_policy
-from cartpole.agents.reinforce import ReinforceConfig
 from cartpole.cli.main import main
 from cartpole.core.errors import InputError
 from cartpole.core.names import RunState

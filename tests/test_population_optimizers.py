@@ -1,4 +1,4 @@
-"""agents/population_optimizers.py: one optimizer step for every seed, the numba pass and torch's form."""
+"""agents/nn/population_optimizers.py: one optimizer step for every seed, the numba pass and torch's form."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""agents/stacked_linear.py: S linear layers at once, with the gradients of ``torch.baddbmm``."""
+"""agents/nn/stacked_linear.py: S linear layers at once, with the gradients of ``torch.baddbmm``."""
 
 from __future__ import annotations
 

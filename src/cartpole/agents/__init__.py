@@ -1,4 +1,5 @@
-"""Agents: each algorithm's settings (dqn.py, ppo.py, ...) and its one learner, batched over a seed
-axis, a single run being a population of one (dqn_population.py, actor_critic_population.py,
-linear_population.py, which also hold the agents' specs), the registry that finds them by name, and
-nn/, the building blocks they share."""
+"""Agents: every algorithm written once, batched over a leading seed axis, a single run being a
+population of one. Each algorithm is a folder (dqn/, actor_critic/, linear/: its settings, its one
+learner and its spec) standing on the parts they share here (registry.py, which finds an agent by
+name; population.py, what the training engine drives; learner.py, presets.py, memory.py) and on nn/,
+the building blocks, which know no agent. The algorithms do not import each other."""

@@ -16,7 +16,6 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from cartpole.agents.actor_critic import stacked_greedy_actor
 from cartpole.agents.learner import LearnResult
 from cartpole.core.errors import ConfigError
 from cartpole.envs.seed_envs import rows_of_envs
@@ -82,16 +81,4 @@ class SeedRows:
         return rows, rows_of_envs(rows, num_envs)
 
 
-def policies_actor(policies: list[Policy], obs_dim: int) -> BlockActor:
-    """``policies`` as one :data:`~cartpole.evaluation.BlockActor` (policy b acts for block b): the
-    stacked actors' one pass where they stack (actor-critics of one shape), else each in turn. Each
-    policy's actions are those it takes alone."""
-
-    def act_one_by_one(observations: np.ndarray, blocks: np.ndarray) -> np.ndarray:
-        rows = np.split(observations, len(blocks))
-        return np.concatenate([policies[b].act(mine) for b, mine in zip(blocks, rows, strict=True)])
-
-    return stacked_greedy_actor(list(policies), obs_dim) or act_one_by_one
-
-
-__all__ = ["Population", "SeedRows", "policies_actor"]
+__all__ = ["Population", "SeedRows"]

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from cartpole.envs import EnvInfo, env_info, resolve_simulator
-from cartpole.evaluation import Policy
+from cartpole.evaluation import BlockActor, Policy
 from cartpole.runs import Checkpoint, CheckpointError, RunDir, load_checkpoint
 
 if TYPE_CHECKING:
@@ -38,6 +38,17 @@ class AgentSpec:
     """What one ``learn()`` call is, in words: "generation" or "step"."""
     score_label: str = "score"
     """What its policy's ``scores()`` are, for people ("Q-values", "action probabilities", ...)."""
+    stacked_actor: Callable[[list[Policy], int], BlockActor | None] | None = None
+    """(policies from its checkpoints, observation size) -> one actor for all of them in one pass,
+    each acting as it does alone, or None where they do not stack: how a population's verdicts
+    are played (else each policy acts in turn)."""
+
+    def policies_actor(self, policies: list[Policy], obs_dim: int) -> BlockActor:
+        """``policies`` of this agent as one :data:`~cartpole.evaluation.BlockActor` (policy b acts
+        for block b): stacked where they stack, else each in turn. Each policy's actions are those
+        it takes alone."""
+        stacked = self.stacked_actor(policies, obs_dim) if self.stacked_actor else None
+        return stacked or one_by_one_actor(policies)
 
     def batches(self, config: Any, env: EnvInfo) -> bool:
         """Whether seeds of ``config`` on ``env`` also step their envs together (CartPole on the fast
@@ -47,14 +58,24 @@ class AgentSpec:
         return resolve_simulator(env.env_id, config.simulator) == "fast"
 
 
+def one_by_one_actor(policies: list[Policy]) -> BlockActor:
+    """``policies`` as one :data:`~cartpole.evaluation.BlockActor`, each acting for its block in turn."""
+
+    def act(observations: np.ndarray, blocks: np.ndarray) -> np.ndarray:
+        rows = np.split(observations, len(blocks))
+        return np.concatenate([policies[b].act(mine) for b, mine in zip(blocks, rows, strict=True)])
+
+    return act
+
+
 AGENT_MODULES = {
-    "random-search": "cartpole.agents.linear_population",
-    "hill-climbing": "cartpole.agents.linear_population",
-    "cem": "cartpole.agents.linear_population",
-    "dqn": "cartpole.agents.dqn_population",
-    "reinforce": "cartpole.agents.actor_critic_population",
-    "a2c": "cartpole.agents.actor_critic_population",
-    "ppo": "cartpole.agents.actor_critic_population",
+    "random-search": "cartpole.agents.linear.population",
+    "hill-climbing": "cartpole.agents.linear.population",
+    "cem": "cartpole.agents.linear.population",
+    "dqn": "cartpole.agents.dqn.population",
+    "reinforce": "cartpole.agents.actor_critic.population",
+    "a2c": "cartpole.agents.actor_critic.population",
+    "ppo": "cartpole.agents.actor_critic.population",
 }
 """Agent name -> the module that defines its spec and its learner, batched over seeds (imported only
 when the agent is used: torch is slow)."""

@@ -23,7 +23,7 @@ from typing import Any, TextIO
 import numpy as np
 
 from cartpole.agents.learner import LearnResult
-from cartpole.agents.population import Population, policies_actor
+from cartpole.agents.population import Population
 from cartpole.core.names import CheckpointName, RunState, StopReason
 from cartpole.core.seeding import eval_seed, final_eval_seed
 from cartpole.envs import EnvInfo, Simulator, check_simulator
@@ -381,7 +381,7 @@ def play_final_episodes(members: list[Member], checkpoint: CheckpointName) -> di
         for m in members
     ]
     episode_seeds = [[final_eval_seed(m.seed) + i for i in range(episodes)] for m in members]
-    act = policies_actor(policies, first.env.obs_dim)
+    act = first.spec.policies_actor(policies, first.env.obs_dim)
 
     flat_seeds = [s for row in episode_seeds for s in row]
     returns, lengths = (

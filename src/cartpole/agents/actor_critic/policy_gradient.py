@@ -3,7 +3,7 @@ the greedy policy of a checkpoint.
 
 ``PolicyGradientConfig`` holds the settings all three have (network, envs, discount, learning rate
 and its schedule, loss coefficients); each agent's config adds its own. The learners, batched over
-seeds, are in :mod:`cartpole.agents.actor_critic_population`.
+seeds, are in :mod:`cartpole.agents.actor_critic.population`.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from dataclasses import dataclass, fields
 
 import torch
 
-from cartpole.agents.actor_critic import (
+from cartpole.agents.actor_critic.network import (
     ACTIVATIONS,
     SCHEDULES,
     ActorCritic,

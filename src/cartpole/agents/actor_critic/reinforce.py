@@ -4,7 +4,7 @@ What it does, in order:
 
 1. ``ReinforceConfig``: every knob, with a one-line docstring each (presets in ``presets/reinforce.toml``).
 2. The learner, batched over seeds (a single run is a population of one):
-   :class:`~cartpole.agents.actor_critic_population.PopulationReinforce`. One ``learn()`` call =
+   :class:`~cartpole.agents.actor_critic.population.PopulationReinforce`. One ``learn()`` call =
    one whole episode in each of ``num_envs`` envs per seed, all started fresh and stepped together
    (one forward pass per step), then one gradient step on ``-mean(G_t log pi(a_t | s_t))``, where
    ``G_t`` is the discounted reward-to-go. Options: a learned baseline (``G_t - V(s_t)``; an episode
@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from cartpole.agents.policy_gradient import PolicyGradientConfig
+from cartpole.agents.actor_critic.policy_gradient import PolicyGradientConfig
 
 
 @dataclass

@@ -1,9 +1,9 @@
 """PPO, A2C and REINFORCE for a population of seeds in one process: S independent training runs, batched.
 
-Every seed is the single-run PPO of :mod:`cartpole.agents.ppo` with the same config: its own network
-(initialized as the single run initializes it), its own ``num_envs`` envs seeded as the single run
-seeds them, its own action sampling, minibatch shuffling and Adam state. What is shared is
-only the arithmetic:
+Every seed is the single-run PPO of :mod:`cartpole.agents.actor_critic.ppo` with the same config:
+its own network (initialized as the single run initializes it), its own ``num_envs`` envs seeded as
+the single run seeds them, its own action sampling, minibatch shuffling and Adam state. What is
+shared is only the arithmetic:
 
 - ``StackedActorCritic``: the parameters of all S actor-critics in one flat ``[S, P]`` tensor; each
   layer is a view ``[S, out, in]`` of it and runs as one ``torch.baddbmm`` over the seed axis
@@ -43,18 +43,28 @@ import numpy as np
 import torch
 from torch import nn
 
-from cartpole.agents.a2c import A2CConfig
-from cartpole.agents.actor_critic import ActorCritic, CategoricalPolicy, block_greedy_actor, schedule_value
+from cartpole.agents.actor_critic.a2c import A2CConfig
+from cartpole.agents.actor_critic.network import (
+    ActorCritic,
+    CategoricalPolicy,
+    block_greedy_actor,
+    schedule_value,
+    stacked_greedy_actor,
+)
+from cartpole.agents.actor_critic.policy_gradient import (
+    generalized_advantages,
+    policy_loader,
+    seeded_actor_critic,
+)
+from cartpole.agents.actor_critic.ppo import PPOConfig
+from cartpole.agents.actor_critic.reinforce import ReinforceConfig
 from cartpole.agents.learner import LearnResult
 from cartpole.agents.nn.fast_tanh import tanh
 from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step
 from cartpole.agents.nn.population_optimizers import PopulationAdam, PopulationOptimizer, PopulationRMSprop
 from cartpole.agents.nn.stacked_linear import stacked_linear
-from cartpole.agents.policy_gradient import generalized_advantages, policy_loader, seeded_actor_critic
 from cartpole.agents.population import SeedRows
-from cartpole.agents.ppo import PPOConfig
 from cartpole.agents.registry import AgentSpec
-from cartpole.agents.reinforce import ReinforceConfig
 from cartpole.core.errors import ConfigError
 from cartpole.core.seeding import derived_seed
 from cartpole.envs import EnvInfo
@@ -945,6 +955,7 @@ AGENTS = [
         make_population=ppo_population,
         iteration="update",
         score_label="action probabilities",
+        stacked_actor=stacked_greedy_actor,
     ),
     AgentSpec(
         name="a2c",
@@ -955,6 +966,7 @@ AGENTS = [
         make_population=a2c_population,
         iteration="update",
         score_label="action probabilities",
+        stacked_actor=stacked_greedy_actor,
     ),
     AgentSpec(
         name="reinforce",
@@ -967,6 +979,7 @@ AGENTS = [
         make_population=reinforce_population,
         iteration="update",
         score_label="action probabilities",
+        stacked_actor=stacked_greedy_actor,
     ),
 ]
 """The actor-critic agents: their settings (ppo.py, a2c.py, reinforce.py) and their learners, batched

@@ -4,7 +4,7 @@ What it does, in order:
 
 1. ``A2CConfig``: every knob, with a one-line docstring each (presets in ``presets/a2c.toml``).
 2. The learner, batched over seeds (a single run is a population of one):
-   :class:`~cartpole.agents.actor_critic_population.PopulationA2C`. One ``learn()`` call = one
+   :class:`~cartpole.agents.actor_critic.population.PopulationA2C`. One ``learn()`` call = one
    rollout of ``n_steps`` batched steps from ``num_envs`` envs per seed, GAE(lambda) advantages
    (bootstrapping at truncation, never at termination; lambda 1 with few steps is A2C's n-step
    return), then *one* gradient step on ``-mean(A log pi) + vf_coef * value loss - ent_coef *
@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from cartpole.agents.policy_gradient import PolicyGradientConfig
+from cartpole.agents.actor_critic.policy_gradient import PolicyGradientConfig
 from cartpole.core.config import require
 
 OPTIMIZERS = ("rmsprop", "adam")

@@ -4,21 +4,21 @@ What it does, in order:
 
 1. ``PPOConfig``: every knob, with a one-line docstring each (presets in ``presets/ppo.toml``).
 2. The learner, batched over seeds (a single run is a population of one):
-   :class:`~cartpole.agents.actor_critic_population.PopulationPPO`. One ``learn()`` call = one
+   :class:`~cartpole.agents.actor_critic.population.PopulationPPO`. One ``learn()`` call = one
    rollout of ``n_steps`` batched steps from ``num_envs`` envs per seed, GAE advantages
    (bootstrapping at truncation, never at termination), then ``n_epochs`` passes of shuffled
    minibatches with gradient-norm clipping and an optional early stop on a target KL.
 
 The greedy policy (``act`` = argmax of the action probabilities) is
-:class:`~cartpole.agents.actor_critic.CategoricalPolicy`.
+:class:`~cartpole.agents.actor_critic.network.CategoricalPolicy`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from cartpole.agents.actor_critic import SCHEDULES
-from cartpole.agents.policy_gradient import PolicyGradientConfig
+from cartpole.agents.actor_critic.network import SCHEDULES
+from cartpole.agents.actor_critic.policy_gradient import PolicyGradientConfig
 from cartpole.core.config import require
 
 # ----------------------------------------------------------------------------------------------

@@ -1,6 +1,6 @@
 """Linear-policy searches for a population of seeds in one process: a batch of populations.
 
-Every seed is its single run's search (:mod:`cartpole.agents.linear`): its own generator, its own
+Every seed is its single run's search (:mod:`cartpole.agents.linear.search`): its own generator, its own
 candidates, its own update, the same start states. What is shared is the simulation: each
 generation, the candidates of every seed play their episodes in one vector env of the fast
 simulator, stepped by one call per step (on other envs and simulators each search plays its own).
@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from cartpole.agents.learner import LearnResult
-from cartpole.agents.linear import (
+from cartpole.agents.linear.search import (
     CrossEntropyMethod,
     HillClimbing,
     LinearPolicy,

@@ -1,6 +1,6 @@
 """DQN for a population of seeds in one process: S independent training runs, batched.
 
-Every seed is the single-run DQN of :mod:`cartpole.agents.dqn` with the same config: its own
+Every seed is the single-run DQN of :mod:`cartpole.agents.dqn.algorithm` with the same config: its own
 Q-network (initialized as the single run initializes it), target network, Adam state and replay
 memory, its own ``num_envs`` CartPoles seeded as the single run seeds them, and its own random
 streams (exploration from ``derived_seed(seed, "explore")``, replay sampling from ``"replay"``,
@@ -60,20 +60,20 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from cartpole.agents.dqn import (
+from cartpole.agents.dqn.algorithm import (
     DQNConfig,
     epsilon_at,
     policy_from_checkpoint,
     shaped_rewards,
     td_targets,
 )
+from cartpole.agents.dqn.q_network import ACTIVATIONS, QNetwork, QNetworkPolicy
 from cartpole.agents.learner import LearnResult
 from cartpole.agents.nn.fast_tanh import tanh
 from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step, run_steps
 from cartpole.agents.nn.population_optimizers import PopulationAdam
 from cartpole.agents.nn.stacked_linear import stacked_linear
 from cartpole.agents.population import SeedRows
-from cartpole.agents.q_network import ACTIVATIONS, QNetwork, QNetworkPolicy
 from cartpole.agents.registry import AgentSpec
 from cartpole.core.errors import ConfigError
 from cartpole.core.seeding import derived_seed
@@ -179,7 +179,7 @@ class StackedQNetwork:
     ) -> torch.Tensor:
         """Q-values ``[S, B, n_actions]`` of observations ``x`` [S, B, obs_dim], as
         ``QNetwork.forward``; ``keeps`` (one bool mask ``[S, B, width]`` per hidden layer) applies
-        dropout as :class:`~cartpole.agents.q_network.GeneratorDropout` does."""
+        dropout as :class:`~cartpole.agents.dqn.q_network.GeneratorDropout` does."""
         for index, (weight, bias) in enumerate(self.hidden):
             x = activation(stacked_linear(x, params[weight], params[bias]))
             if keeps is not None:
@@ -661,7 +661,7 @@ class PopulationDQN(SeedRows):
     def targets(
         self, next_observations: torch.Tensor, rewards: torch.Tensor, terminated: torch.Tensor
     ) -> torch.Tensor:
-        """The Bellman targets [S, B] (:func:`~cartpole.agents.dqn.td_targets`, per row). Without a
+        """The Bellman targets [S, B] (:func:`~cartpole.agents.dqn.algorithm.td_targets`, per row). Without a
         target network the online nets (without dropout) value s', as the single run does."""
         config, net = self.config, self.net
         next_q_online = None
@@ -706,13 +706,13 @@ class PopulationDQN(SeedRows):
     def greedy_actor(self, seeds: list[int]) -> BlockActor:
         """The greedy policies of ``seeds`` as one :data:`~cartpole.evaluation.BlockActor` (block i
         holds seed i's rows): one stacked NumPy forward pass per call, as
-        :class:`~cartpole.agents.q_network.QNetworkPolicy` acts alone."""
+        :class:`~cartpole.agents.dqn.q_network.QNetworkPolicy` acts alone."""
         body, head, value = self.numpy_plans([self.row(seed) for seed in seeds], copy=True)
         return block_greedy_q_actor(body, head, value, self.env_info.obs_dim)
 
     def seed_state_dict(self, seed: int, resume: bool) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
         """Seed ``seed``'s checkpoint: ``q_net.*`` (what
-        :func:`~cartpole.agents.dqn.policy_from_checkpoint` reads) and, with ``resume``, everything
+        :func:`~cartpole.agents.dqn.algorithm.policy_from_checkpoint` reads) and, with ``resume``, everything
         to continue exactly: target, Adam, replay rows, generators, counters and envs."""
         row = self.row(seed)
         tensors = self.network_tensors("q_net.", self.net.flat, row)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Sequence
 
 import numpy as np
 import torch
@@ -170,7 +171,7 @@ def block_greedy_actor(logits: StackedNumpyMLP, obs_dim: int) -> BlockActor:
     return act
 
 
-def stacked_greedy_actor(policies: list[object], obs_dim: int) -> BlockActor | None:
+def stacked_greedy_actor(policies: Sequence[object], obs_dim: int) -> BlockActor | None:
     """:func:`block_greedy_actor` of ``policies`` when they are :class:`CategoricalPolicy` objects of
     one shape (a population's verdicts), else None. Each policy's actions are those it takes alone."""
     if not all(isinstance(p, CategoricalPolicy) for p in policies):

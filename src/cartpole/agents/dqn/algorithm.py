@@ -9,8 +9,8 @@ What it does, in order:
 4. The greedy policy rebuilt from a checkpoint.
 
 The learner itself, batched over seeds (a single run is a population of one), is
-:class:`~cartpole.agents.dqn_population.PopulationDQN`; the network and its greedy policy live in
-:mod:`cartpole.agents.q_network`.
+:class:`~cartpole.agents.dqn.population.PopulationDQN`; the network and its greedy policy live in
+:mod:`cartpole.agents.dqn.q_network`.
 
 The three exploration schedules are the ones the tutorials used: linear (ours), exponential per env
 step (the PyTorch tutorial), and multiplicative per gradient step (the Keras tutorial).
@@ -25,8 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from cartpole.agents.dqn.q_network import ACTIVATIONS, QNetwork, QNetworkPolicy
 from cartpole.agents.memory import dqn_memory_problem
-from cartpole.agents.q_network import ACTIVATIONS, QNetwork, QNetworkPolicy
 from cartpole.core.config import build_config, require
 from cartpole.envs import check_simulator
 from cartpole.runs import Checkpoint, CheckpointError

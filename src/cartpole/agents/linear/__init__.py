@@ -1,0 +1,3 @@
+"""Linear policies found by search, as the random-search tutorial does: random search, hill climbing
+and the cross-entropy method, one search per seed (search.py), every seed's candidates played in one
+vector env (population.py, with the specs)."""
