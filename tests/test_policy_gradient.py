@@ -21,6 +21,11 @@ from cartpole.agents.actor_critic.network import (
     stacked_greedy_actor,
 )
 from cartpole.agents.actor_critic.policy_gradient import generalized_advantages
+from cartpole.agents.actor_critic.population import (
+    clipped_surrogate_loss,
+    clipped_value_loss,
+    masked_normalize,
+)
 from cartpole.agents.actor_critic.ppo import PPOConfig
 from cartpole.agents.actor_critic.reinforce import ReinforceConfig
 from cartpole.agents.presets import preset_names
@@ -104,6 +109,69 @@ def test_gae_lambda_one_is_the_discounted_return_minus_value_and_zero_is_td() ->
     torch.testing.assert_close(mc[:, 0], torch.tensor([1.75 - 0.5, 1.5 - 0.25, 1.0 - 0.125]))
     td = generalized_advantages(rewards, values, terminated, zeros, valid, 0.5, 0.0)
     torch.testing.assert_close(td[:, 0], torch.tensor([1 + 0.125 - 0.5, 1 + 0.0625 - 0.25, 1 - 0.125]))
+
+
+def test_masked_normalize_per_seed_over_its_own_rows() -> None:
+    x = torch.tensor([[1.0, 2.0, 3.0, 6.0], [5.0, 7.0, 100.0, 100.0]])
+    mask = torch.tensor([[1.0, 1.0, 1.0, 1.0], [1.0, 1.0, 0.0, 0.0]])
+    y = masked_normalize(x, mask, mask.sum(dim=1))
+    assert abs(float(y[0].mean())) < 1e-6 and abs(float(y[0].std()) - 1.0) < 1e-4
+    # seed 1: mean 6, sample std sqrt(2) over its two rows; masked rows are zero
+    torch.testing.assert_close(y[1], torch.tensor([-1.0, 1.0, 0.0, 0.0]) / math.sqrt(2), rtol=1e-4, atol=1e-6)
+    one_row = torch.tensor([[4.0, 9.0]]), torch.tensor([[1.0, 0.0]])
+    torch.testing.assert_close(masked_normalize(*one_row, torch.tensor([1.0])), torch.tensor([[0.0, 0.0]]))
+
+
+# ----------------------------------------------------------------------------------------------
+# PPO's losses by hand, per seed over its own rows
+# ----------------------------------------------------------------------------------------------
+
+
+def test_clipped_surrogate_loss_by_hand() -> None:
+    # seed 0 clips at 0.2, seed 1 at 0.5 and has a fourth row that is masked out
+    ratio = torch.tensor([[1.5, 0.5, 1.1, 1.0], [1.2, 0.4, 1.0, 9.0]], requires_grad=True)
+    advantages = torch.tensor([[1.0, 1.0, -2.0, 0.0], [1.0, -1.0, 3.0, 5.0]])
+    clip = torch.tensor([[0.2], [0.5]])
+    mask = torch.tensor([[1.0, 1.0, 1.0, 0.0], [1.0, 1.0, 1.0, 0.0]])
+    loss = clipped_surrogate_loss(ratio, advantages, clip, mask, mask.sum(dim=1))
+    # per row max(-A r, -A clip(r)): seed 0: max(-1.5, -1.2), max(-0.5, -0.8), max(2.2, 2.2);
+    # seed 1 (clip 0.5): max(-1.2, -1.2), max(0.4, 0.5), max(-3, -3)
+    torch.testing.assert_close(loss, torch.tensor([(-1.2 - 0.5 + 2.2) / 3, (-1.2 + 0.5 - 3.0) / 3]))
+    loss.sum().backward()
+    # clipped rows (seed 0 row 0, seed 1 row 1) and masked rows get no gradient; others -A / 3
+    assert ratio.grad is not None
+    torch.testing.assert_close(
+        ratio.grad, torch.tensor([[0.0, -1 / 3, 2 / 3, 0.0], [-1 / 3, 0.0, -1.0, 0.0]])
+    )
+
+
+def test_value_loss_by_hand_with_and_without_clipping() -> None:
+    mask = torch.ones(1, 2)
+    count = mask.sum(dim=1)
+
+    def loss(values: list[float], old: list[float], clip: float | None) -> float:
+        returns = torch.tensor([[1.0, 1.0]])
+        return float(
+            clipped_value_loss(torch.tensor([values]), torch.tensor([old]), returns, clip, mask, count)
+        )
+
+    assert loss([2.0, 0.0], [1.0, 0.0], None) == pytest.approx(0.5 * (1.0 + 1.0) / 2)
+    # clipped to old +- 0.5: row 0 -> 1.5 (loss .25 < 1: keep 1), row 1 -> 0 (loss 1 = 1)
+    assert loss([2.0, 0.0], [1.0, 0.0], 0.5) == pytest.approx(0.5 * (1.0 + 1.0) / 2)
+    # clipped to 1.1: (1.1 - 1)^2 = .01 < .04, keep .04
+    assert loss([1.2, 0.0], [1.0, 0.0], 0.1) == pytest.approx(0.5 * (0.04 + 1.0) / 2)
+    # old 3, V = 0 clipped to 2.9: (1.9)^2 = 3.61 > 1, the clipped error counts
+    assert loss([0.0, 0.0], [3.0, 0.0], 0.1) == pytest.approx(0.5 * (3.61 + 1.0) / 2)
+    # a masked row counts for nothing
+    masked = clipped_value_loss(
+        torch.tensor([[0.0, 50.0]]),
+        torch.zeros(1, 2),
+        torch.ones(1, 2),
+        None,
+        torch.tensor([[1.0, 0.0]]),
+        count / 2,
+    )
+    assert float(masked) == pytest.approx(0.5)
 
 
 def test_schedules() -> None:

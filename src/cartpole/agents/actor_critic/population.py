@@ -210,6 +210,33 @@ def masked_normalize(x: torch.Tensor, mask: torch.Tensor, count: torch.Tensor) -
     return centred / std.unsqueeze(1)
 
 
+def clipped_surrogate_loss(
+    ratio: torch.Tensor, advantages: torch.Tensor, clip: torch.Tensor, mask: torch.Tensor, count: torch.Tensor
+) -> torch.Tensor:
+    """PPO's policy loss per seed [S]: the masked mean over rows of ``max(-A r, -A clip(r, 1 - c,
+    1 + c))``, ``ratio`` r and ``advantages`` A [S, B], ``clip`` c [S, 1] (each seed's own)."""
+    clipped_ratio = torch.minimum(torch.maximum(ratio, 1.0 - clip), 1.0 + clip)
+    return masked_mean(torch.max(-advantages * ratio, -advantages * clipped_ratio), mask, count)
+
+
+def clipped_value_loss(
+    values: torch.Tensor,
+    old_values: torch.Tensor,
+    returns: torch.Tensor,
+    clip_range_vf: float | None,
+    mask: torch.Tensor,
+    count: torch.Tensor,
+) -> torch.Tensor:
+    """Half the masked mean squared error of ``values`` against ``returns`` per seed [S]; with
+    ``clip_range_vf``, each row's error is the larger of the plain one and that of the value clipped
+    to ``old_values +- clip_range_vf`` (as SB3 and CleanRL clip)."""
+    squared = (values - returns).square()
+    if clip_range_vf is not None:
+        clipped_values = old_values + (values - old_values).clamp(-clip_range_vf, clip_range_vf)
+        squared = torch.max(squared, (clipped_values - returns).square())
+    return 0.5 * masked_mean(squared, mask, count)
+
+
 @dataclass
 class Transitions:
     """What the envs of every active seed did, time-major ``[T, S * N]`` (observations ``T + 1``)."""
@@ -693,14 +720,8 @@ class PopulationPPO(PopulationActorCritic):
             advantages = masked_normalize(advantages, mask, count)
         log_ratio = log_probs - old_log_probs
         ratio = log_ratio.exp()
-        clipped_ratio = torch.minimum(torch.maximum(ratio, 1.0 - clip), 1.0 + clip)
-        policy_loss = masked_mean(torch.max(-advantages * ratio, -advantages * clipped_ratio), mask, count)
-        squared = (values - returns).square()
-        if config.clip_range_vf is not None:
-            vf = config.clip_range_vf
-            clipped_values = old_values + (values - old_values).clamp(-vf, vf)
-            squared = torch.max(squared, (clipped_values - returns).square())
-        value_loss = 0.5 * masked_mean(squared, mask, count)
+        policy_loss = clipped_surrogate_loss(ratio, advantages, clip, mask, count)
+        value_loss = clipped_value_loss(values, old_values, returns, config.clip_range_vf, mask, count)
         loss = policy_loss - config.ent_coef * entropy + config.vf_coef * value_loss
         with torch.no_grad():
             approx_kl = masked_mean((ratio - 1.0) - log_ratio, mask, count)
