@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -49,3 +50,22 @@ def cem_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     outcome = train("cem", "CartPole-v1", seed=0, runs_dir=runs_dir, quiet=True)
     assert outcome.report is not None and outcome.report.solved, outcome.report
     return outcome.run.path
+
+
+CHROMIUM = "/usr/bin/chromium"
+"""Debian's Chromium, which the browser tests drive (Playwright cannot download its own here)."""
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[object]:
+    """Headless Chromium through Playwright, one per test module (its tests skip without either)."""
+    if not Path(CHROMIUM).exists():
+        pytest.skip(f"browser tests need Chromium at {CHROMIUM}")
+    playwright_api = pytest.importorskip("playwright.sync_api", reason="browser tests need playwright (pip)")
+    with playwright_api.sync_playwright() as p:
+        chromium = p.chromium.launch(
+            executable_path=CHROMIUM,
+            args=["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking"],
+        )
+        yield chromium
+        chromium.close()

@@ -96,17 +96,6 @@ def server(web_runs: WebRuns) -> Iterator[str]:
 
 
 @pytest.fixture(scope="module")
-def browser() -> Iterator[object]:
-    with playwright_api.sync_playwright() as p:
-        chromium = p.chromium.launch(
-            executable_path=CHROMIUM,
-            args=["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking"],
-        )
-        yield chromium
-        chromium.close()
-
-
-@pytest.fixture(scope="module")
 def shots(tmp_path_factory: pytest.TempPathFactory) -> Path:
     where = os.environ.get("CARTPOLE_WEB_SCREENSHOTS")
     path = Path(where) if where else tmp_path_factory.mktemp("screenshots")

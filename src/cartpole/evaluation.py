@@ -9,6 +9,7 @@ solved means a mean return >= the registry's ``reward_threshold`` over at least 
 
 from __future__ import annotations
 
+import html
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol, runtime_checkable
@@ -96,6 +97,15 @@ class EvalReport:
         if self.solved:
             return f"SOLVED: {summary} >= {rule} ({where})"
         return f"NOT SOLVED: {summary} < {rule} ({where})"
+
+    def _repr_html_(self) -> str:
+        """The verdict as Jupyter shows it: the line, colored by the outcome, and the spread."""
+        color = "#17804a" if self.solved else "#b03a2e"
+        spread = f"min {self.min:.0f}, max {self.max:.0f}, {self.episodes} episodes from seed {self.seeds[0]}"
+        return (
+            f'<div><b style="color:{color}">{html.escape(self.verdict)}</b>'
+            f"<br><small>{html.escape(spread)}</small></div>"
+        )
 
     def to_dict(self) -> dict[str, Any]:
         data = asdict(self)

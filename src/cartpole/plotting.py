@@ -20,13 +20,16 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
 from cartpole.core.errors import InputError
 from cartpole.runs import RunDir, RunError, summarize_run
 from cartpole.runs.atomic import replace_atomically
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 XAxis = Literal["steps", "episodes"]
 IMAGE_SUFFIXES = (".png", ".svg", ".pdf")
@@ -195,11 +198,27 @@ def plot_runs(
 
     A run that cannot be read raises RunError, or with ``on_skip`` is left out and its problem
     passed to ``on_skip`` (PlotError if no run is left)."""
-    from matplotlib.figure import Figure
-
     out = Path(out)
     if out.suffix.lower() not in IMAGE_SUFFIXES:
         raise PlotError(f"cannot write {out}: use a .png, .svg or .pdf file name")
+    figure = runs_figure(paths, x_axis=x_axis, window=window, title=title, on_skip=on_skip)
+    # Atomically, as every file we write: a full disk leaves no half figure, and its error names the file.
+    replace_atomically(out, lambda tmp: figure.savefig(tmp, dpi=dpi), suffix=out.suffix)
+    return out
+
+
+def runs_figure(
+    paths: Sequence[Path | str],
+    *,
+    x_axis: XAxis = "steps",
+    window: int | None = None,
+    title: str | None = None,
+    on_skip: Callable[[str], None] | None = None,
+) -> Figure:
+    """The runs' learning curves as a matplotlib Figure (one panel per env), as :func:`plot_runs`
+    draws them; PlotError when there is nothing to draw."""
+    from matplotlib.figure import Figure
+
     if x_axis not in ("steps", "episodes"):
         raise PlotError(f"x axis must be steps or episodes, got {x_axis!r}")
     runs = load_readable_runs(expand_run_paths(paths), on_skip)
@@ -221,9 +240,7 @@ def plot_runs(
         _draw_panel(ax, env_runs, groups, x_axis, window, own_title)
     if title and len(panels) > 1:
         figure.suptitle(title)
-    # Atomically, as every file we write: a full disk leaves no half figure, and its error names the file.
-    replace_atomically(out, lambda tmp: figure.savefig(tmp, dpi=dpi), suffix=out.suffix)
-    return out
+    return figure
 
 
 PANEL_HEIGHT = 5.2
@@ -409,4 +426,5 @@ __all__ = [
     "load_run",
     "moving_average",
     "plot_runs",
+    "runs_figure",
 ]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import html
 import math
 import sys
 import time
@@ -412,16 +413,43 @@ def require_tensorboard() -> None:
         raise ConfigError(f"--tensorboard needs the tensorboard package: {TENSORBOARD_EXTRA}") from None
 
 
+def in_notebook() -> bool:
+    """Whether this process is a Jupyter kernel (Jupyter, JupyterLab, VS Code, Colab): its cells
+    show HTML, and its stderr is no terminal."""
+    ipython = sys.modules.get("IPython")
+    shell = ipython.get_ipython() if ipython is not None else None
+    return shell is not None and getattr(shell, "kernel", None) is not None
+
+
+class NotebookBar:
+    """A progress bar in a notebook cell's output: an HTML ``<progress>`` replaced in place through
+    IPython's display handles (no widgets needed, so it shows wherever the notebook is opened)."""
+
+    def __init__(self) -> None:
+        from IPython.display import HTML, display
+
+        self.html = HTML
+        self.handle = display(HTML(""), display_id=True)
+
+    def show(self, fraction: float | None, text: str) -> None:
+        value = "" if fraction is None else f' value="{min(max(fraction, 0.0), 1.0):.4f}"'
+        bar = f'<progress max="1"{value} style="width:320px;vertical-align:middle"></progress>'
+        self.handle.update(self.html(f"<div>{bar} <small>{html.escape(text)}</small></div>"))
+
+
 class ProgressCallback(Callback):
-    """A rich progress bar on a terminal; a plain line every few seconds otherwise."""
+    """A rich progress bar on a terminal, an HTML bar in a notebook; a plain line every few seconds
+    otherwise."""
 
     PLAIN_SECONDS = 5.0
+    NOTEBOOK_SECONDS = 0.5
 
     def __init__(self, budget: Budget, unit: str, stream: TextIO | None = None):
         self.budget, self.unit = budget, unit
         self.stream = stream or sys.stderr
         self.progress: Any = None
         self.task: Any = None
+        self.notebook: NotebookBar | None = None
         self.last_line = 0.0
 
     def total_and_done(self, loop: TrainingLoop) -> tuple[float | None, float, str]:
@@ -453,6 +481,9 @@ class ProgressCallback(Callback):
     def on_start(self, loop: TrainingLoop) -> None:
         self.last_line = time.perf_counter()  # the first plain line comes after PLAIN_SECONDS
         if not self.stream.isatty():
+            if in_notebook():
+                self.notebook = NotebookBar()
+                self.show_in_notebook(loop)
             return
         from rich.console import Console
         from rich.progress import (
@@ -493,7 +524,11 @@ class ProgressCallback(Callback):
 
     def on_step(self, loop: TrainingLoop, result: LearnResult) -> bool:
         now = time.perf_counter()
-        if self.progress is not None:
+        if self.notebook is not None:
+            if now - self.last_line >= self.NOTEBOOK_SECONDS:
+                self.last_line = now
+                self.show_in_notebook(loop)
+        elif self.progress is not None:
             if now - self.last_line >= 0.2:
                 _, done, _ = self.total_and_done(loop)
                 sps = f"{loop.state.env_steps / max(loop.state.elapsed, 1e-9):,.0f}"
@@ -504,20 +539,27 @@ class ProgressCallback(Callback):
             self.print_line(loop)
         return True
 
-    def print_line(self, loop: TrainingLoop) -> None:
+    def line(self, loop: TrainingLoop) -> str:
+        """Where training is, in one line: time, budget spent, speed, returns and evaluations."""
         s = loop.state
         total, done, label = self.total_and_done(loop)
         number = "{:,.1f}" if label == "s" else "{:,.0f}"
         share = "/" + number.format(total) if total else ""
         sps = s.env_steps / max(s.elapsed, 1e-9)
         progress = f"{number.format(done)}{share} {label}"
-        print(
-            f"[{s.elapsed:7.1f}s] {progress}  {sps:,.0f} steps/s  {self.describe(loop)}",
-            file=self.stream,
-            flush=True,
-        )
+        return f"[{s.elapsed:7.1f}s] {progress}  {sps:,.0f} steps/s  {self.describe(loop)}"
+
+    def print_line(self, loop: TrainingLoop) -> None:
+        print(self.line(loop), file=self.stream, flush=True)
+
+    def show_in_notebook(self, loop: TrainingLoop) -> None:
+        assert self.notebook is not None
+        total, done, _ = self.total_and_done(loop)
+        self.notebook.show(done / total if total else None, self.line(loop).strip())
 
     def on_end(self, loop: TrainingLoop) -> None:
+        if self.notebook is not None:
+            self.show_in_notebook(loop)
         if self.progress is not None:
             _, done, _ = self.total_and_done(loop)
             self.progress.update(self.task, completed=done, info=self.describe(loop))

@@ -1,0 +1,250 @@
+"""Greedy episodes of any saved agent, animated inline in a notebook.
+
+On CartPole the episodes play on Gymnasium's own env and are drawn on a canvas by the web app's own
+drawing code (``web/static/cartpole-draw.js``), with the policy's per-action scores as bars under
+the cart: a few kilobytes of states, animated in the browser. Where scripts do not run (a notebook
+shown on a code host) or for other envs, ``mode="gif"`` embeds the rendered frames as an animated
+GIF (Gymnasium's ``rgb_array`` frames, through :mod:`cartpole.recording`).
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+import uuid
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from cartpole.core.errors import InputError
+from cartpole.envs import env_info
+from cartpole.evaluation import Policy
+
+Mode = Literal["auto", "canvas", "gif"]
+
+MAX_EPISODES = 20
+"""The most episodes one animation holds (each is kept in the notebook)."""
+
+GIF_WIDTH = 300
+"""Pixels across of a GIF's frames (Gymnasium renders 600): a 500-step episode stays near 1 MB."""
+
+GIF_MAX_FPS = 25
+"""A GIF keeps at most this many frames a second of play (every other frame of CartPole's 50)."""
+
+
+class ShowError(InputError, ValueError):
+    """What was asked to be shown cannot be: a bad count, mode or env."""
+
+
+@dataclass
+class PlayedEpisode:
+    """One greedy episode: the observations (one more than the actions), actions and scores."""
+
+    seed: int
+    observations: list[list[float]]
+    actions: list[int]
+    scores: list[list[float]] | None
+    episode_return: float
+
+
+@dataclass
+class Animation:
+    """Greedy episodes of one policy, shown inline by a notebook (``_repr_html_``)."""
+
+    env_id: str
+    mode: Literal["canvas", "gif"]
+    score_label: str
+    episodes: list[PlayedEpisode] = field(default_factory=list)
+    limits: dict[str, float] = field(default_factory=dict)
+    gif: bytes | None = None
+
+    @property
+    def returns(self) -> list[float]:
+        return [e.episode_return for e in self.episodes]
+
+    def __repr__(self) -> str:
+        returns = ", ".join(f"{r:g}" for r in self.returns)
+        return f"<Animation of {len(self.episodes)} {self.env_id} episodes ({self.mode}), returns {returns}>"
+
+    def _repr_html_(self) -> str:
+        if self.mode == "gif":
+            assert self.gif is not None
+            data = base64.b64encode(self.gif).decode("ascii")
+            caption = html.escape(f"{self.env_id}: returns {', '.join(f'{r:g}' for r in self.returns)}")
+            image = f'<img src="data:image/gif;base64,{data}" alt="{caption}">'
+            return f"<figure>{image}<figcaption>{caption}</figcaption></figure>"
+        return canvas_html(self)
+
+
+def show(
+    agent: Policy | str | Path,
+    env: str | None = None,
+    *,
+    episodes: int = 3,
+    seed: int = 0,
+    mode: Mode = "auto",
+) -> Animation:
+    """Play ``episodes`` greedy episodes of ``agent`` (a policy, a checkpoint file or a run folder)
+    from seeds ``seed, seed + 1, ...`` on Gymnasium's own ``env`` (default: the checkpoint's env,
+    else CartPole-v1), for a notebook to animate. ``mode``: ``canvas`` (CartPole: drawn in the
+    browser, with the per-action scores), ``gif`` (any env: rendered frames), ``auto`` (canvas on
+    CartPole, else gif)."""
+    if not 1 <= episodes <= MAX_EPISODES:
+        raise ShowError(f"episodes must be between 1 and {MAX_EPISODES}, got {episodes}")
+    if mode not in ("auto", "canvas", "gif"):
+        raise ShowError(f"mode must be auto, canvas or gif, got {mode!r}")
+    policy, env_id, score_label = resolve_agent(agent, env)
+    info = env_info(env_id)
+    if mode == "canvas" and not info.is_cartpole:
+        raise ShowError(f"mode canvas draws CartPole only; show {env_id} with mode='gif'")
+    chosen: Literal["canvas", "gif"] = "canvas" if mode != "gif" and info.is_cartpole else "gif"
+    if chosen == "gif":
+        return gif_animation(policy, env_id, episodes, seed, score_label)
+    played, limits = play_cartpole(policy, env_id, episodes, seed)
+    return Animation(env_id, "canvas", score_label, played, limits)
+
+
+def resolve_agent(agent: Policy | str | Path, env: str | None) -> tuple[Policy, str, str]:
+    """The policy to show, the env to show it on and what its scores are called."""
+    if isinstance(agent, str | Path):
+        from cartpole.agents.registry import get_agent, open_policy
+
+        opened = open_policy(agent, env)
+        spec = get_agent(opened.checkpoint.agent)
+        return opened.policy, env or opened.checkpoint.env_id, spec.score_label
+    if not callable(getattr(agent, "act", None)):
+        raise ShowError(f"cannot show a {type(agent).__name__}: pass a policy, a checkpoint or a run folder")
+    return agent, env or "CartPole-v1", "scores"
+
+
+def play_cartpole(
+    policy: Policy, env_id: str, episodes: int, seed: int
+) -> tuple[list[PlayedEpisode], dict[str, float]]:
+    """Greedy episodes on Gymnasium's own CartPole, each from ``reset(seed=seed + i)`` as
+    :func:`~cartpole.evaluation.evaluate` starts it, and the limits the drawing needs."""
+    import gymnasium as gym
+
+    env = gym.make(env_id.removeprefix("cartpole/"))
+    scored = callable(getattr(policy, "scores", None))
+    try:
+        played = [play_one(env, policy, seed + i, scored) for i in range(episodes)]
+        cartpole: Any = env.unwrapped
+        limits = {
+            "x_threshold": float(cartpole.x_threshold),
+            "theta_threshold": float(cartpole.theta_threshold_radians),
+            "length": float(cartpole.length),
+            "fps": round(1.0 / float(cartpole.tau), 6),
+        }
+    finally:
+        env.close()
+    return played, limits
+
+
+def play_one(env: Any, policy: Policy, seed: int, scored: bool) -> PlayedEpisode:
+    observation, _ = env.reset(seed=seed)
+    observations, actions, scores, total = [observation.tolist()], [], [], 0.0
+    while True:
+        batch = np.asarray(observation, dtype=np.float32)[None]
+        if scored:
+            row = np.asarray(policy.scores(batch))[0]  # type: ignore[attr-defined]
+            scores.append(row.tolist())
+            action = int(row.argmax())  # ScoredPolicy: act is the argmax of the scores
+        else:
+            action = int(np.asarray(policy.act(batch)).reshape(-1)[0])
+        observation, reward, terminated, truncated, _ = env.step(action)
+        observations.append(observation.tolist())
+        actions.append(action)
+        total += float(reward)
+        if terminated or truncated:
+            return PlayedEpisode(seed, observations, actions, scores if scored else None, total)
+
+
+def gif_animation(policy: Policy, env_id: str, episodes: int, seed: int, score_label: str) -> Animation:
+    """The episodes rendered by Gymnasium (captioned frames) and encoded as one looping GIF."""
+    from cartpole.recording import render_episodes
+
+    recording = render_episodes(policy, env_id, episodes, seed)
+    stride = max(1, round(recording.fps / GIF_MAX_FPS))
+    fps = recording.fps / stride
+    played = [
+        PlayedEpisode(s, [], [], None, float(r))
+        for s, r in zip(recording.seeds, recording.returns, strict=True)
+    ]
+    gif = encode_gif(recording.frames[::stride], fps)
+    return Animation(env_id, "gif", score_label, played, {"fps": fps}, gif)
+
+
+def encode_gif(frames: list[np.ndarray], fps: float) -> bytes:
+    """``frames`` (RGB arrays) scaled to :data:`GIF_WIDTH` across, as a looping GIF."""
+    from PIL import Image
+
+    images = []
+    for frame in frames:
+        image = Image.fromarray(frame)
+        height = round(image.height * GIF_WIDTH / image.width)
+        small = image.resize((GIF_WIDTH, height), Image.Resampling.BILINEAR)
+        images.append(small.convert("P", dither=Image.Dither.NONE))
+    buffer = io.BytesIO()
+    duration = round(1000 / fps)
+    images[0].save(buffer, format="GIF", save_all=True, append_images=images[1:], duration=duration, loop=0)
+    return buffer.getvalue()
+
+
+def static_text(package: str, name: str) -> str:
+    """A script of ``package``'s static folder: the web app's CartPole drawing
+    (``CartPoleDraw.draw``, shared so both look the same) or the notebook's player."""
+    return resources.files(package).joinpath("static", name).read_text(encoding="utf-8")
+
+
+def canvas_html(animation: Animation) -> str:
+    """A canvas, score bars and a caption, animated by a script that holds the episodes: each
+    output its own element id and its own function scope, so several can share a notebook."""
+    uid = f"cartpole-show-{uuid.uuid4().hex[:12]}"
+    data = {
+        "env_id": animation.env_id,
+        "score_label": animation.score_label,
+        "limits": animation.limits,
+        "episodes": [
+            {
+                "seed": e.seed,
+                "states": np.round(e.observations, 5).tolist(),  # far below a pixel
+                "actions": e.actions,
+                "scores": None if e.scores is None else np.round(e.scores, 4).tolist(),
+                "return": e.episode_return,
+            }
+            for e in animation.episodes
+        ],
+    }
+    payload = json.dumps(data, separators=(",", ":")).replace("</", "<\\/")
+    scripts = {
+        "__DRAW__": static_text("cartpole.web", "cartpole-draw.js"),
+        "__PLAYER__": static_text("cartpole.notebook", "player.js"),
+    }
+    page = PLAYER_HTML.replace("__UID__", uid)
+    for marker, text in scripts.items():
+        page = page.replace(marker, text)
+    return page.replace("__DATA__", payload)
+
+
+PLAYER_HTML = """<div id="__UID__" class="cartpole-show" style="max-width:600px;font:13px sans-serif">
+<canvas style="width:100%;display:block;border-radius:6px"></canvas>
+<div class="cp-bars" style="display:flex;gap:8px;margin:6px 0"></div>
+<div class="cp-caption" style="color:#3b4357"></div>
+<noscript>This animation needs JavaScript: show it with mode="gif" where scripts do not run.</noscript>
+</div>
+<script>
+(function (ROOT_ID, DATA) {
+__DRAW__
+__PLAYER__
+})("__UID__", __DATA__);
+</script>"""
+"""The output: the drawing code and the player in one function scope (so several outputs can share
+a notebook), called with this output's element id and its episodes."""
+
+
+__all__ = ["Animation", "PlayedEpisode", "ShowError", "show"]
