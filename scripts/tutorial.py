@@ -1,0 +1,56 @@
+"""Run docs/tutorial.ipynb top to bottom in a fresh kernel, as CI does (tests/test_tutorial.py).
+
+    python scripts/tutorial.py            # run it in a temporary folder; report the time and any error
+    python scripts/tutorial.py --write    # ... and save its outputs into docs/tutorial.ipynb
+
+Its run folders go to a temporary folder (the notebook's working directory), never to runs/.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+NOTEBOOK = Path(__file__).resolve().parents[1] / "docs" / "tutorial.ipynb"
+TIMEOUT_S = 600
+"""The most one cell may take (the whole notebook takes about three minutes on two cores)."""
+
+
+def execute(path: Path = NOTEBOOK, workdir: Path | None = None) -> Any:
+    """The notebook at ``path``, executed in a new kernel with ``workdir`` as its working folder."""
+    import nbclient
+    import nbformat
+
+    notebook = nbformat.read(path, as_version=4)
+    with tempfile.TemporaryDirectory() as tmp:
+        where = str(workdir or tmp)
+        client = nbclient.NotebookClient(
+            notebook, timeout=TIMEOUT_S, kernel_name="python3", resources={"metadata": {"path": where}}
+        )
+        client.execute()
+    return notebook
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--write", action="store_true", help="save the outputs into the notebook")
+    args = parser.parse_args()
+    import nbformat
+
+    start = time.perf_counter()
+    notebook = execute()
+    print(f"{NOTEBOOK.name}: ran top to bottom in {time.perf_counter() - start:.0f} s")
+    if args.write:
+        nbformat.write(notebook, NOTEBOOK)
+        print(f"wrote its outputs into {NOTEBOOK}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,28 @@
+"""docs/tutorial.ipynb runs top to bottom in a fresh kernel, and shows what it promises: verdicts,
+inline plots and an animation (slow: about two minutes; CI runs it with -m slow)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+import tutorial
+
+
+@pytest.mark.slow
+def test_the_tutorial_notebook_runs_and_shows_its_results(tmp_path: Path) -> None:
+    pytest.importorskip("nbclient")
+    notebook = tutorial.execute(workdir=tmp_path)
+    outputs = [o for cell in notebook.cells if cell.cell_type == "code" for o in cell.outputs]
+    assert not [o for o in outputs if o.output_type == "error"]
+    html = [o.data["text/html"] for o in outputs if "text/html" in o.get("data", {})]
+    verdicts = [page for page in html if "SOLVED" in page]
+    assert len(verdicts) >= 8  # random policy, each agent's run, the last evaluation
+    assert sum("image/png" in o.get("data", {}) for o in outputs) >= 3  # two curves and compare's
+    assert any("cartpole-show-" in page for page in html) and any("image/gif" in page for page in html)
+    assert (tmp_path / "runs" / "tutorial" / "experiments" / "ppo-vs-a2c" / "report.md").is_file()
+    streams = "".join(o.get("text", "") for o in outputs if o.output_type == "stream")
+    assert "the tutorial's recipe solves" in streams and "\x1b[" not in streams
