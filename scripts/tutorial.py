@@ -1,7 +1,8 @@
 """Run docs/tutorial.ipynb top to bottom in a fresh kernel, as CI does (tests/test_tutorial.py).
 
     python scripts/tutorial.py            # run it in a temporary folder; report the time and any error
-    python scripts/tutorial.py --write    # ... and save its outputs into docs/tutorial.ipynb
+    python scripts/tutorial.py --write    # ... and save its outputs into docs/tutorial.ipynb, and its
+                                          # replay GIF as docs/images/tutorial-replay.gif (the README's)
 
 Its run folders go to a temporary folder (the notebook's working directory), never to runs/.
 """
@@ -9,6 +10,8 @@ Its run folders go to a temporary folder (the notebook's working directory), nev
 from __future__ import annotations
 
 import argparse
+import base64
+import re
 import sys
 import tempfile
 import time
@@ -16,6 +19,8 @@ from pathlib import Path
 from typing import Any
 
 NOTEBOOK = Path(__file__).resolve().parents[1] / "docs" / "tutorial.ipynb"
+REPLAY = NOTEBOOK.parent / "images" / "tutorial-replay.gif"
+GIF_IN_HTML = re.compile(r"data:image/gif;base64,([A-Za-z0-9+/=]+)")
 TIMEOUT_S = 600
 """The most one cell may take (the whole notebook takes about three minutes on two cores)."""
 
@@ -35,6 +40,16 @@ def execute(path: Path = NOTEBOOK, workdir: Path | None = None) -> Any:
     return notebook
 
 
+def first_gif(notebook: Any) -> bytes:
+    """The first animated GIF among the notebook's outputs (``show(..., mode="gif")``)."""
+    for cell in notebook.cells:
+        for output in cell.get("outputs", []):
+            found = GIF_IN_HTML.search(output.get("data", {}).get("text/html", ""))
+            if found:
+                return base64.b64decode(found.group(1))
+    raise SystemExit("the notebook shows no GIF: it should (section 8, a replay)")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -49,6 +64,8 @@ def main() -> int:
     if args.write:
         nbformat.write(notebook, NOTEBOOK)
         print(f"wrote its outputs into {NOTEBOOK}")
+        REPLAY.write_bytes(first_gif(notebook))
+        print(f"wrote its replay to {REPLAY}")
     return 0
 
 
