@@ -40,7 +40,9 @@ class WebRuns:
 
     root: Path
     cem: str
+    other_env: str
     acrobot: str
+    mountaincar: str
     corrupt: str
     incomplete: str
     outside: Path
@@ -58,11 +60,18 @@ def make_dqn_run(runs_dir: Path) -> str:
     return outcome.run.name
 
 
-def make_acrobot_run(runs_dir: Path, cem_run: Path) -> str:
-    """A run folder that records another env: its curves show, but it cannot be watched."""
-    run = RunDir.create(runs_dir, "Acrobot-v1", "cem", 3)
+def make_classic_run(runs_dir: Path, env_id: str) -> str:
+    """A real, tiny CEM run on ``env_id`` (Acrobot-v1, MountainCar-v0): one generation of 8."""
+    settings = {"population": 8, "episodes_per_candidate": 1}
+    outcome = train("cem", env_id, seed=0, budget="1gen", overrides=settings, runs_dir=runs_dir, quiet=True)
+    return outcome.run.name
+
+
+def make_other_env_run(runs_dir: Path, cem_run: Path) -> str:
+    """A run folder that records an env Watch does not draw: its curves show, but it cannot be watched."""
+    run = RunDir.create(runs_dir, "Pendulum-v1", "cem", 3)
     config = RunDir(cem_run).config()
-    run.write_config({**config, "env_id": "Acrobot-v1", "seed": 3, "created": "2000-01-01T00:00:00+00:00"})
+    run.write_config({**config, "env_id": "Pendulum-v1", "seed": 3, "created": "2000-01-01T00:00:00+00:00"})
     run.write_status({"state": "finished", "env_steps": 100, "episodes": 2, "solved": False})
     run.append_metrics([{"step": 50, "episode": 1, "time": 0.1, "train/episode_return": -500.0}])
     shutil.copy(cem_run / "checkpoints" / "best.pt", run.checkpoint_path("best"))
@@ -85,11 +94,12 @@ def make_awkward_runs(runs_dir: Path, outside: Path) -> tuple[str, str]:
 
 def make_web_runs(base: Path) -> WebRuns:
     root = base / "runs"
-    cem = make_cem_run(root)
-    acrobot = make_acrobot_run(root, root / cem)
+    acrobot, mountaincar = (make_classic_run(root, env_id) for env_id in ("Acrobot-v1", "MountainCar-v0"))
+    cem = make_cem_run(root)  # the newest run
+    other_env = make_other_env_run(root, root / cem)
     outside = base / "elsewhere" / "secret-run"
     corrupt, incomplete = make_awkward_runs(root, outside)
-    return WebRuns(root, cem, acrobot, corrupt, incomplete, outside)
+    return WebRuns(root, cem, other_env, acrobot, mountaincar, corrupt, incomplete, outside)
 
 
 DOCS_EXPERIMENT = Path(__file__).parents[1] / "docs" / "experiments" / "cem-dqn-random-search"

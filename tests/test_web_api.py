@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 import signal
 import socket
 import subprocess
@@ -67,7 +68,10 @@ def test_runs_lists_every_run_newest_first_and_survives_bad_folders(client: Test
     assert cem["agent"] == "cem" and cem["state"] == "finished" and cem["solved"] is True
     assert cem["rule"].startswith("mean ") and ">= 475 over 100 episodes, CartPole-v1" in cem["rule"]
     assert cem["watchable"] is True
-    assert by_name[web_runs.acrobot]["watchable"] is False
+    assert by_name[web_runs.other_env]["watchable"] is False
+    assert (
+        by_name[web_runs.acrobot]["watchable"] is True and by_name[web_runs.mountaincar]["watchable"] is True
+    )
     assert by_name[web_runs.corrupt]["state"] == "unreadable" and by_name[web_runs.corrupt]["problem"]
     assert by_name[web_runs.incomplete]["state"] == "incomplete"
     assert "CartPole-v1__cem__s9__20200101-000000" not in by_name  # the symlink out is not listed
@@ -252,10 +256,52 @@ def test_a_policy_without_scores_plays_the_same_episode_as_the_plain_loop():
         assert got["score_label"] is None
 
 
-def test_non_cartpole_runs_cannot_be_watched(client: TestClient, web_runs: WebRuns):
-    response = client.get(episode_url(web_runs.acrobot))
-    assert response.status_code == 409 and "CartPole" in response.json()["detail"]
-    assert client.get(f"/api/runs/{web_runs.acrobot}/metrics").json()["rows"]  # curves still show
+def test_runs_on_envs_watch_does_not_draw_cannot_be_watched(client: TestClient, web_runs: WebRuns):
+    response = client.get(episode_url(web_runs.other_env))
+    assert response.status_code == 409 and "Pendulum-v1 cannot be drawn" in response.json()["detail"]
+    assert client.get(f"/api/runs/{web_runs.other_env}/metrics").json()["rows"]  # curves still show
+
+
+@pytest.mark.parametrize(
+    ("kind", "env_id", "scene"),
+    [("acrobot", "Acrobot-v1", "acrobot"), ("mountaincar", "MountainCar-v0", "mountaincar")],
+)
+def test_acrobot_and_mountaincar_episodes_are_gymnasiums_own(
+    client: TestClient, web_runs: WebRuns, kind: str, env_id: str, scene: str
+):
+    """The episode of a checkpoint on Acrobot or MountainCar: Gymnasium's env from reset(seed), the
+    env's own state at every step (what the drawing needs), the policy's scores, evaluate()'s return."""
+    import gymnasium as gym
+
+    run = getattr(web_runs, kind)
+    response = client.get(f"{episode_url(run)}?seed=11")
+    assert response.status_code == 200, response.text
+    got = response.json()
+    assert (got["env_id"], got["scene"], len(got["action_labels"])) == (env_id, scene, 3)
+    assert len(got["states"]) == got["length"] + 1 == len(got["actions"]) + 1 == len(got["scores"]) + 1
+    env = gym.make(env_id)
+    env.reset(seed=11)
+    assert got["states"][0] == pytest.approx(np.asarray(env.unwrapped.state).tolist())
+    policy = load_policy(web_runs.root / run)
+    assert got["return"] == evaluate(policy, env_id, 1, seed=11).returns[0] == sum(got["rewards"])
+    assert [int(np.argmax(s)) for s in got["scores"]] == got["actions"]
+    assert got["terminated"] or got["length"] == env.spec.max_episode_steps
+    for query in ("gravity=5", "nudge_at=3&nudge=1.0"):
+        refused = client.get(f"{episode_url(run)}?{query}")
+        assert refused.status_code == 422 and "CartPole only" in refused.json()["detail"]
+
+
+def test_a_checkpoint_that_does_not_fit_its_runs_env_is_refused(client: TestClient, web_runs: WebRuns):
+    """A CartPole agent's checkpoint in a run that says Acrobot: 409 naming both, never a 500."""
+    run = RunDir.create(web_runs.root, "Acrobot-v1", "cem", 5)
+    run.write_config({**RunDir(web_runs.root / web_runs.cem).config(), "env_id": "Acrobot-v1", "seed": 5})
+    shutil.copy(web_runs.root / web_runs.cem / "checkpoints" / "best.pt", run.checkpoint_path("best"))
+    try:
+        response = client.get(episode_url(run.name))
+        assert response.status_code == 409
+        assert "CartPole-v1" in response.json()["detail"] and "Acrobot-v1" in response.json()["detail"]
+    finally:
+        shutil.rmtree(run.path)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -363,7 +409,7 @@ def test_play_session_steps_on_the_server(client: TestClient):
     [
         "not json",
         "{}",
-        '{"type": "step", "action": 2}',
+        '{"type": "step", "action": 3}',
         '{"type": "step", "action": "left"}',
         '{"type": "step", "action": 1.0}',
         '{"type": "step", "action": true}',
@@ -394,13 +440,49 @@ def test_play_rejects_bad_physics_with_an_error_message(client: TestClient):
         assert reply["type"] == "error" and "gravity" in reply["message"]
 
 
-def test_play_refuses_other_envs(client: TestClient):
+def test_play_refuses_envs_it_cannot_draw(client: TestClient):
     with (
         pytest.raises(WebSocketDisconnect) as closed,
-        client.websocket_connect("/ws/play?env=Acrobot-v1") as ws,
+        client.websocket_connect("/ws/play?env=Pendulum-v1") as ws,
     ):
         ws.receive_json()
-    assert "not CartPole" in closed.value.reason
+    assert "cannot be played" in closed.value.reason and "Acrobot-v1" in closed.value.reason
+
+
+def test_cartpole_has_no_third_action(client: TestClient):
+    with client.websocket_connect("/ws/play") as ws:
+        ws.send_text(json.dumps({"type": "reset", "seed": 1}))
+        assert ws.receive_json()["scene"] == "cartpole"
+        ws.send_text(json.dumps({"type": "step", "action": 2}))
+        reply = ws.receive_json()
+        assert reply["type"] == "error" and "0 (push left) or 1 (push right)" in reply["message"]
+
+
+@pytest.mark.parametrize("env_id", ["Acrobot-v1", "MountainCar-v0"])
+def test_acrobot_and_mountaincar_play_gymnasiums_env_on_the_server(client: TestClient, env_id: str):
+    import gymnasium as gym
+
+    env = gym.make(env_id)
+    env.reset(seed=8)
+    with client.websocket_connect(f"/ws/play?env={env_id}") as ws:
+        ws.send_text(json.dumps({"type": "reset", "seed": 8}))
+        first = ws.receive_json()
+        assert (first["scene"], len(first["action_labels"]), first["step"]) == (
+            env_id.split("-")[0].lower(),
+            3,
+            0,
+        )
+        assert first["state"] == pytest.approx(np.asarray(env.unwrapped.state).tolist())
+        assert first["limits"]["fps"] > 0 and first["physics"] == {}
+        for action in (0, 1, 2, 2, 0):
+            ws.send_text(json.dumps({"type": "step", "action": action}))
+            reply = ws.receive_json()
+            env.step(action)
+            assert reply["state"] == pytest.approx(np.asarray(env.unwrapped.state).tolist())
+        assert reply["step"] == 5 and reply["return"] == -5.0
+        ws.send_text(json.dumps({"type": "reset", "physics": {"gravity": 5.0}}))
+        refused = ws.receive_json()
+        assert refused["type"] == "error" and "CartPole only" in refused["message"]
 
 
 def test_live_metrics_of_a_finished_run_sends_rows_then_ends(client: TestClient, web_runs: WebRuns):
@@ -440,10 +522,10 @@ def test_live_metrics_garbage_and_unknown_runs_close_with_a_reason(client: TestC
     ):
         ws.receive_json()
     assert closed.value.code == 1008 and "no run" in closed.value.reason
-    run = RunDir(web_runs.root / web_runs.acrobot)
+    run = RunDir(web_runs.root / web_runs.other_env)
     run.write_status({"state": "running"})  # keep it open
     try:
-        with client.websocket_connect(f"/ws/runs/{web_runs.acrobot}/metrics") as ws:
+        with client.websocket_connect(f"/ws/runs/{web_runs.other_env}/metrics") as ws:
             ws.send_text("garbage")
             with pytest.raises(WebSocketDisconnect) as closed:
                 while True:

@@ -5,6 +5,7 @@ Set CARTPOLE_WEB_SCREENSHOTS=DIR to keep screenshots of every page at 1280x800 a
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import socket
@@ -162,9 +163,9 @@ def test_run_page_shows_curve_checkpoints_and_config(desktop: Page, web_runs: We
     assert "population" in page.inner_text("#config")
 
 
-def test_run_page_of_another_env_says_watch_is_cartpole_only(desktop: Page, web_runs: WebRuns):
-    page = desktop.goto(f"/run?name={web_runs.acrobot}")
-    page.get_by_text("Watching and playing are for CartPole only").wait_for()
+def test_run_page_of_an_undrawn_env_says_which_envs_watch_draws(desktop: Page, web_runs: WebRuns):
+    page = desktop.goto(f"/run?name={web_runs.other_env}")
+    page.get_by_text("Watch draws CartPole, Acrobot-v1 and MountainCar-v0").wait_for()
     assert page.locator("#checkpoint-list a", has_text="Watch").count() == 0
 
 
@@ -252,7 +253,7 @@ def test_every_page_renders_without_console_errors(
         "run": f"/run?name={web_runs.cem}",
         "watch": watch_path(web_runs.cem),
         "play": "/play",
-        "run-acrobot": f"/run?name={web_runs.acrobot}",
+        "run-other-env": f"/run?name={web_runs.other_env}",
         "experiments": "/experiments",
         "experiment": f"/experiment?name={EXPERIMENT}",
         "sweep": f"/sweep?name={SWEEP}",
@@ -527,3 +528,294 @@ def test_live_pages_show_a_crashed_run_as_crashed(browser: object, web_runs: Web
         runs_page.close()
         run_page.close()
         srv.stop()
+
+
+# ---------------------------------------------------------------------------------------------------
+# Acrobot-v1 and MountainCar-v0 on Watch and Play
+# ---------------------------------------------------------------------------------------------------
+
+SCENE_ENVS = {"acrobot": "Acrobot-v1", "mountaincar": "MountainCar-v0"}
+SCENE_READOUTS = {"acrobot": ("link angles", "tip height"), "mountaincar": ("position", "velocity")}
+
+CANVAS_PIXELS = """(canvas) => {
+  const { width, height } = canvas;
+  const data = canvas.getContext("2d").getImageData(0, 0, width, height).data;
+  const colours = new Set();
+  let transparent = 0, ink = 0, inkX = 0, goal = 0;
+  for (let i = 0; i < data.length; i += 4) {
+    const [r, g, b, a] = [data[i], data[i + 1], data[i + 2], data[i + 3]];
+    if (a === 0) transparent++;
+    colours.add((r << 16) | (g << 8) | b);
+    if (r === 0x26 && g === 0x3a && b === 0x7a) { ink++; inkX += (i / 4) % width; }  // link / car
+    if (r === 0x17 && g === 0x80 && b === 0x4a) goal++;  // the goal line / the flag
+  }
+  return { width, height, transparent, colours: colours.size, ink, inkX: ink ? inkX / ink : null, goal };
+}"""
+"""What the canvas shows, read back from its pixels: how many are transparent (never drawn), how many
+colours, how many of the link/car colour #263a7a (and their mean x), how many of the goal's #17804a."""
+
+
+def assert_scene_drawn(pixels: dict[str, float]) -> None:
+    assert pixels["transparent"] == 0, f"parts of the canvas were never drawn: {pixels}"
+    assert pixels["colours"] > 8, f"a blank canvas: {pixels}"
+    assert pixels["ink"] > 200, f"no link or car (#263a7a) on the canvas: {pixels}"
+    assert pixels["goal"] > 20, f"no goal line or flag (#17804a) on the canvas: {pixels}"
+
+
+def drawn_x(scene: str, state: list[float]) -> float:
+    """Where the drawing's #263a7a pixels should be, horizontally (env units, larger = further right):
+    the car's position, or the mean of the two links' midpoints."""
+    if scene == "mountaincar":
+        return state[0]
+    t1, t2 = state[0], state[1]
+    return (1.5 * math.sin(t1) + 0.5 * math.sin(t1 + t2)) / 2
+
+
+def readout_labels(page: object) -> tuple[str, str]:
+    """The two state readouts' labels, as written (the page's CSS shows them in capitals)."""
+    return page.text_content("#readout-a"), page.text_content("#readout-b")  # type: ignore[attr-defined]
+
+
+def check_readouts(scene: str, state: list[float], angle: str, position: str) -> None:
+    """The page's two state readouts show ``state`` (MountainCar: position, velocity; Acrobot: both
+    link angles in degrees and the free end's height)."""
+    if scene == "mountaincar":
+        assert float(angle) == pytest.approx(state[0], abs=0.0005 + 1e-9)
+        assert float(position) == pytest.approx(state[1], abs=0.00005 + 1e-9)
+    else:
+        degrees = [int(d) for d in re.findall(r"-?\d+", angle)]
+        assert degrees == pytest.approx([math.degrees(state[0]), math.degrees(state[1])], abs=0.5 + 1e-9)
+        tip = -math.cos(state[0]) - math.cos(state[0] + state[1])
+        assert float(position) == pytest.approx(tip, abs=0.005 + 1e-9)
+
+
+@pytest.mark.parametrize("scene", list(SCENE_ENVS))
+def test_watch_draws_an_acrobot_or_mountaincar_episode(
+    desktop: Page, web_runs: WebRuns, shots: Path, scene: str
+):
+    from cartpole.web.physics import ACTION_LABELS
+
+    env_id, labels, run = SCENE_ENVS[scene], ACTION_LABELS[scene], getattr(web_runs, scene)
+    page = desktop.goto(watch_path(run))
+    page.locator("#loading").wait_for(state="hidden", timeout=60_000)  # a cold episode worker is slow
+    assert page.inner_text("#message") == ""
+    page.wait_for_function("() => watch.episode !== null")
+    e = page.evaluate(
+        """() => { const e = watch.episode; return { scene: e.scene, env_id: e.env_id, length: e.length,
+             ret: e.return, terminated: e.terminated, labels: e.action_labels, actions: e.actions,
+             states: e.states, scores: e.scores, fps: e.limits.fps }; }"""
+    )
+    assert (e["scene"], e["env_id"], e["labels"]) == (scene, env_id, labels)
+    length = e["length"]
+    assert length > 10 and len(e["states"]) == length + 1
+
+    # The step counter advances while playing, over the episode's length.
+    page.click("#restart")
+    page.wait_for_function("() => parseInt(document.querySelector('#step').textContent) >= 3")
+    done, total = step_counter(page)
+    assert total == length
+    page.wait_for_function(f"() => parseInt(document.querySelector('#step').textContent) > {done}")
+    page.click("#play-pause")  # pause, then show a known step
+    page.wait_for_function("() => watch.playing === false")
+    k = length // 2
+    page.evaluate("(k) => { watch.frame = k; render(); }", k)
+    assert step_counter(page) == (k, length)
+
+    # Three score bars named by the env's actions; the chosen one is the action shown.
+    prefs = page.locator("#prefs .pref")
+    assert prefs.count() == 3
+    assert [prefs.nth(a).locator("span").first.inner_text() for a in range(3)] == labels
+    values = [float(v) for v in page.locator("#prefs .pref .val").all_inner_texts()]
+    assert values == pytest.approx(e["scores"][k], abs=0.005 + 1e-9)
+    chosen = labels[e["actions"][k]]
+    assert page.locator("#prefs .pref.chosen").count() == 1
+    assert page.locator("#prefs .pref.chosen span").first.inner_text() == chosen
+    assert page.inner_text("#action") == chosen
+
+    # The env's readouts; CartPole's nudges and physics are not offered.
+    assert readout_labels(page) == SCENE_READOUTS[scene]
+    check_readouts(scene, e["states"][k], page.inner_text("#angle"), page.inner_text("#position"))
+    assert page.locator("#nudge-panel").is_hidden() and page.locator("#physics-panel").is_hidden()
+    subtitle = page.inner_text("#subtitle")
+    assert env_id in subtitle and f"{e['fps']:g} frames per second" in subtitle
+    assert page.inner_text("#title") == f"Watch best of {run}"
+
+    # The outcome in the env's own words.
+    ret = f"{e['ret']:.0f}"
+    if scene == "acrobot":
+        said = (
+            f"the free end swung above the line at step {length} (return {ret})."
+            if e["terminated"]
+            else f"the free end did not reach the line in {length} steps (return {ret})."
+        )
+    else:
+        said = (
+            f"the car reached the flag at step {length} (return {ret})."
+            if e["terminated"]
+            else f"the car did not reach the flag in {length} steps (return {ret})."
+        )
+    assert page.inner_text("#outcome") == f"This episode: {said}"
+
+    # The canvas shows the scene, and the link or car where the state says.
+    stage = page.locator("#stage")
+    assert_scene_drawn(stage.evaluate(CANVAS_PIXELS))
+    stage.screenshot(path=str(shots / f"watch-{scene}_1280x800.png"))
+    where = [drawn_x(scene, s) for s in e["states"]]
+    left, right = where.index(min(where)), where.index(max(where))
+    assert where[right] - where[left] > 0.05, "the episode hardly moves: pick another seed"
+    shown = {}
+    for i in (left, right):
+        page.evaluate("(i) => { watch.frame = i; render(); }", i)
+        pixels = stage.evaluate(CANVAS_PIXELS)
+        assert_scene_drawn(pixels)
+        shown[i] = pixels["inkX"]
+    assert shown[right] > shown[left] + 2, f"the drawing does not follow the state: {shown}"
+
+
+def gym_state(env_id: str, seed: int, actions: list[int]) -> list[float]:
+    """Gymnasium's env's own state after ``reset(seed=seed)`` and ``actions``."""
+    import gymnasium as gym
+
+    env = gym.make(env_id)
+    try:
+        env.reset(seed=seed)
+        for action in actions:
+            env.step(action)
+        return [float(v) for v in env.unwrapped.state]  # type: ignore[attr-defined]
+    finally:
+        env.close()
+
+
+def same_state(a: list[float], b: list[float]) -> bool:
+    return len(a) == len(b) and all(abs(x - y) <= 1e-9 for x, y in zip(a, b, strict=True))
+
+
+def played_until(page: object, steps: int) -> dict[str, object]:
+    """Wait until the game has played at least ``steps`` steps (its return is -1 a step); its step
+    count, state, score and readouts, read at one moment."""
+    handle = page.wait_for_function(  # type: ignore[attr-defined]
+        f"""() => -game.score >= {steps} && {{ steps: -game.score, seed: game.seed,
+             state: game.state.slice(), phase: game.phase,
+             score: document.querySelector('#score').textContent,
+             angle: document.querySelector('#angle').textContent,
+             position: document.querySelector('#position').textContent }}""",
+        timeout=30_000,
+    )
+    return handle.json_value()
+
+
+RECORD_ACTIONS = """() => {
+  window.sentActions = [];
+  const send = game.socket.send.bind(game.socket);
+  game.socket.send = (text) => {
+    const message = JSON.parse(text);
+    if (message.type === "step") window.sentActions.push(message.action);
+    return send(text);
+  };
+}"""
+"""Wraps the page's WebSocket send to keep every step's action, in order."""
+
+
+def sent_after(page: object, action: int) -> int:
+    """Wait until the page has sent ``action``; how many steps it had sent then (the first of them
+    that shows ``action`` is the last)."""
+    page.wait_for_function(f"() => window.sentActions.includes({action})", timeout=30_000)  # type: ignore[attr-defined]
+    return int(page.evaluate("() => window.sentActions.length"))  # type: ignore[attr-defined]
+
+
+def runs_of(actions: list[int]) -> list[int]:
+    """The actions with repeats collapsed: [2, 2, 0, 0, 0, 1] -> [2, 0, 1]."""
+    return [a for i, a in enumerate(actions) if i == 0 or actions[i - 1] != a]
+
+
+@pytest.mark.parametrize("scene", list(SCENE_ENVS))
+def test_play_acrobot_or_mountaincar_steps_gymnasiums_env_with_the_keys(
+    desktop: Page, web_runs: WebRuns, shots: Path, scene: str
+):
+    """→ is action 2, ← action 0, no key action 1: the page's states are exactly Gymnasium's env's
+    from the seed the server reset it with, for those actions."""
+    env_id = SCENE_ENVS[scene]
+    page = desktop.goto(f"/play?env={env_id}")
+    page.get_by_text("Press ← or → to start").wait_for()
+    name = "Acrobot" if scene == "acrobot" else "MountainCar"
+    assert page.inner_text("#title") == f"Play {name} yourself"
+    assert page.title() == f"Play · {env_id}"
+    assert page.input_value("#env-select") == env_id
+    assert page.locator("#physics-panel").is_hidden()
+    assert readout_labels(page) == SCENE_READOUTS[scene]
+    assert page.inner_text("#score") == "0"
+    run = getattr(web_runs, scene)  # only this env's run is offered to compare with
+    page.locator(f'#agent-select option[value="{run}"]').wait_for(state="attached")
+    assert page.eval_on_selector_all("#agent-select option", "(os) => os.map((o) => o.value)") == [run]
+
+    seed = page.evaluate("() => game.seed")
+    assert same_state(page.evaluate("() => game.state"), gym_state(env_id, seed, []))
+    stage = page.locator("#stage")
+    page.wait_for_function("() => game.sceneLimits !== undefined")
+    page.wait_for_timeout(100)  # a frame or two drawn
+    assert_scene_drawn(stage.evaluate(CANVAS_PIXELS))
+
+    # Every action the page sends is recorded: the keys decide them, Gymnasium's env must follow them.
+    page.evaluate(RECORD_ACTIONS)
+
+    def played(steps: int) -> tuple[dict[str, object], list[int]]:
+        reading = played_until(page, steps)
+        actions = page.evaluate("() => window.sentActions.slice()")[: int(reading["steps"])]  # type: ignore[call-overload]
+        assert same_state(reading["state"], gym_state(env_id, seed, actions))  # type: ignore[arg-type]
+        check_readouts(scene, reading["state"], reading["angle"], reading["position"])
+        return reading, actions
+
+    # → starts the game and pushes/turns one way (action 2); the score counts -1 a step.
+    page.keyboard.down("ArrowRight")
+    first, actions = played(4)
+    assert first["phase"] == "running" and page.locator("#overlay").is_hidden()
+    assert first["score"] == str(-len(actions)) and set(actions) == {2}
+    for other in (0, 1):
+        assert not same_state(first["state"], gym_state(env_id, seed, [other] * len(actions)))  # type: ignore[arg-type]
+    assert_scene_drawn(stage.evaluate(CANVAS_PIXELS))
+    stage.screenshot(path=str(shots / f"play-{scene}_1280x800.png"))
+
+    # ← (pressed before → is let go: no step without a key between) is action 0. Steps go on while
+    # the keys travel to the page, so the readings wait for the page to have sent the new action.
+    page.keyboard.down("ArrowLeft")
+    page.keyboard.up("ArrowRight")
+    _, actions = played(sent_after(page, 0))
+    assert runs_of(actions) == [2, 0], f"holding ← did not push/turn the other way (action 0): {actions}"
+
+    # No key: action 1 (no torque / no push).
+    page.keyboard.up("ArrowLeft")
+    third, actions = played(sent_after(page, 1))
+    assert third["seed"] == seed
+    assert runs_of(actions) == [2, 0, 1], f"with no key held the env did not get action 1: {actions}"
+
+    if scene == "mountaincar":  # to the time limit, fast: the car never reaches the flag this way
+        page.select_option("#speed", "2")
+        page.wait_for_function("() => game.phase === 'over'", timeout=30_000)
+        title = page.inner_text("#overlay-title")
+        assert title == "The car never reached the flag in 200 steps (return -200)"
+        assert page.inner_text("#score") == "-200" and page.inner_text("#best") == "-200"
+        link = page.get_attribute("#compare-link", "href")
+        assert link and f"run={run}" in link and f"seed={seed}" in link
+
+
+@pytest.mark.parametrize(
+    "start, switch_to",
+    [("Acrobot-v1", "MountainCar-v0"), ("MountainCar-v0", "CartPole-v1"), ("CartPole-v1", "Acrobot-v1")],
+)
+def test_play_env_select_switches_the_game(desktop: Page, start: str, switch_to: str):
+    titles = {
+        "CartPole-v1": "Play CartPole yourself",
+        "Acrobot-v1": "Play Acrobot yourself",
+        "MountainCar-v0": "Play MountainCar yourself",
+    }
+    page = desktop.goto(f"/play?env={start}")
+    page.get_by_text("Press ← or → to start").wait_for()  # connected: leaving now closes a live socket
+    assert page.inner_text("#title") == titles[start]
+    page.select_option("#env-select", switch_to)
+    page.wait_for_url(re.compile(rf".*/play\?env={re.escape(switch_to)}$"))
+    page.get_by_text("Press ← or → to start").wait_for()
+    assert page.inner_text("#title") == titles[switch_to]
+    assert page.input_value("#env-select") == switch_to
+    assert page.locator("#physics-panel").is_hidden() == (switch_to != "CartPole-v1")
+    scene = "cartpole" if switch_to == "CartPole-v1" else switch_to.split("-")[0].lower()
+    assert page.evaluate("() => ENV.scene") == scene

@@ -196,8 +196,9 @@ def test_a_checkpoint_linked_out_of_the_runs_folder_is_neither_listed_nor_read(
 # ---------------------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("action", ["1.0", "true", '"1"', "2", "-1", "null"])
-def test_an_action_must_be_the_integer_0_or_1(client: TestClient, action: str):
+@pytest.mark.parametrize("action", ["1.0", "true", '"1"', "3", "-1", "null"])
+def test_an_action_must_be_an_integer_from_0_to_2(client: TestClient, action: str):
+    """(2 is Acrobot's and MountainCar's third action: CartPole answers it with an error message.)"""
     with client.websocket_connect("/ws/play") as ws:
         ws.send_text('{"type": "reset", "seed": 1}')
         ws.receive_json()

@@ -16,7 +16,14 @@ from cartpole.core.version import __version__
 from cartpole.envs import env_info
 from cartpole.runs import CheckpointError, RunDir, RunError
 from cartpole.web.episodes import MAX_NUDGE, UNLIMITED_STEPS, EpisodesBusy, EpisodeWorkers
-from cartpole.web.physics import PHYSICS_LABELS, PHYSICS_LIMITS, PhysicsError, default_physics, is_cartpole
+from cartpole.web.physics import (
+    PHYSICS_LABELS,
+    PHYSICS_LIMITS,
+    SCENES,
+    PhysicsError,
+    default_physics,
+    scene_of,
+)
 from cartpole.web.runs_folder import NotFound, RunsFolder
 
 router = APIRouter(prefix="/api")
@@ -44,7 +51,7 @@ class RunRow(BaseModel):
     verdict: str | None
     rule: str | None = Field(description='e.g. "mean 498.2 >= 475 over 100 episodes, CartPole-v1"')
     problem: str | None
-    watchable: bool = Field(description="CartPole run: its checkpoints can be watched")
+    watchable: bool = Field(description="a run on an env Watch draws (CartPole, Acrobot-v1, MountainCar-v0)")
     has_checkpoint: bool = Field(
         default=False, description="it has a checkpoint to watch (a file, not a link)"
     )
@@ -63,12 +70,15 @@ class MetricsOut(BaseModel):
 
 
 class EpisodeOut(BaseModel):
-    """One greedy episode: ``states`` has length+1 rows (x, x_dot, theta, theta_dot)."""
+    """One greedy episode: ``states`` has length+1 rows, each the env's own state (CartPole: x, x_dot,
+    theta, theta_dot; Acrobot: theta1, theta2 and their speeds; MountainCar: position, velocity)."""
 
     run: str
     checkpoint: str
     agent: str | None
     env_id: str
+    scene: str = Field(description="which drawing shows it: cartpole, acrobot or mountaincar")
+    action_labels: list[str] = Field(description="what each action does, in the env's order")
     seed: int
     physics: dict[str, float]
     nudges: list[dict[str, float]]
@@ -197,7 +207,7 @@ NudgeChanges = Annotated[list[float] | None, Query(description="rad/s added to t
     response_model=EpisodeOut,
     responses={
         404: {"description": "no such run or checkpoint"},
-        409: {"description": "not CartPole, or the checkpoint cannot be loaded"},
+        409: {"description": "an env Watch does not draw, or the checkpoint cannot be loaded"},
         503: {"description": "too many episodes asked for at once: retry"},
     },
 )
@@ -222,12 +232,18 @@ async def episode(
     except NotFound as err:
         raise HTTPException(404, str(err)) from err
     env_id, agent = run_env(run)
-    if not is_cartpole(env_id):
-        raise HTTPException(409, f"{env_id} is not CartPole: only CartPole runs can be watched")
+    scene = scene_of(env_id)
+    if scene is None:
+        drawn = ", ".join(["CartPole-v1", "CartPole-v0", *SCENES])
+        raise HTTPException(409, f"{env_id} cannot be drawn: Watch shows runs on {drawn}")
     given = {"gravity": gravity, "length": length, "masspole": masspole, "masscart": masscart}
     overrides = {k: v for k, v in {**given, "force_mag": force_mag}.items() if v is not None}
     max_steps = max_episode_steps(env_id)
     nudges = nudges_from_query(nudge_at or [], nudge or [], max_steps)
+    if scene != "cartpole" and (overrides or nudges):
+        raise HTTPException(
+            422, f"physics and nudges change CartPole only; {env_id} plays as Gymnasium has it"
+        )
     workers: EpisodeWorkers = request.app.state.episodes
     try:
         header = {"run": run.name, "checkpoint": checkpoint, "agent": agent}

@@ -28,11 +28,11 @@ from typing import Any
 import numpy as np
 import torch
 
-from cartpole.agents.registry import load_policy
+from cartpole.agents.registry import open_policy
 from cartpole.envs import env_info
 from cartpole.envs.fast import CartPoleStepper
 from cartpole.evaluation import Policy
-from cartpole.web.physics import CartPoleSim, start_state
+from cartpole.web.physics import ACTION_LABELS, CartPoleSim, GymSim, scene_of, start_state
 
 MAX_NUDGE = 10.0
 """Largest nudge, in rad/s added to the pole's angular velocity (a hard slap is about 2)."""
@@ -50,16 +50,18 @@ class PolicyCache:
 
     def __init__(self, size: int = 16):
         self.size = size
-        self._items: OrderedDict[tuple[str, int], Policy] = OrderedDict()
+        self._items: OrderedDict[tuple[str, int, str | None], Policy] = OrderedDict()
         self._lock = threading.Lock()
 
-    def get(self, path: Path) -> Policy:
-        key = (str(path), path.stat().st_mtime_ns)
+    def get(self, path: Path, env_id: str | None = None) -> Policy:
+        """The policy of ``path``; with ``env_id``, CheckpointError unless it fits that env's
+        observations and actions."""
+        key = (str(path), path.stat().st_mtime_ns, env_id)
         with self._lock:
             if key in self._items:
                 self._items.move_to_end(key)
                 return self._items[key]
-        policy = load_policy(path)
+        policy = open_policy(path, env_id).policy
         with self._lock:
             self._items[key] = policy
             while len(self._items) > self.size:
@@ -69,7 +71,9 @@ class PolicyCache:
 
 @dataclass
 class Episode:
-    """Per-step arrays: ``states`` has one more row than ``actions`` (the start state first)."""
+    """Per-step arrays: ``states`` has one more row than ``actions`` (the start state first). A
+    state is what the scene's drawing needs: the env's own ``state`` (CartPole's x, x_dot, theta,
+    theta_dot; Acrobot's two link angles and their speeds; MountainCar's position and velocity)."""
 
     env_id: str
     seed: int
@@ -83,8 +87,11 @@ class Episode:
     truncated: bool = False
 
     def to_dict(self, limits: dict[str, float], score_label: str | None) -> dict[str, Any]:
+        scene = scene_of(self.env_id) or "cartpole"
         return {
             "env_id": self.env_id,
+            "scene": scene,
+            "action_labels": ACTION_LABELS[scene],
             "seed": self.seed,
             "physics": self.physics,
             "nudges": [{"step": k, "theta_dot_change": v} for k, v in sorted(self.nudges.items())],
@@ -136,6 +143,34 @@ def play_episode(
         truncated=length >= limit,  # as TimeLimit: both flags can be set on the last step
     )
     return episode, sim
+
+
+def play_gym_episode(policy: Policy, env_id: str, seed: int) -> tuple[Episode, dict[str, float]]:
+    """``policy`` greedily on Gymnasium's own ``env_id`` from ``reset(seed=seed)`` (as ``evaluate()``
+    starts it) until the episode ends: for the envs besides CartPole that Watch draws. Returns the
+    episode (the env's state at each step, for the drawing) and the limits the drawing needs."""
+    sim = GymSim(env_id)
+    scored = callable(getattr(policy, "scores", None))
+    try:
+        states, actions, rewards, scores = [sim.reset(seed).tolist()], [], [], []
+        while not sim.done:
+            batch = sim.observation[None]
+            if scored:
+                row = np.asarray(policy.scores(batch))[0]  # type: ignore[attr-defined]
+                scores.append(row.astype(float).tolist())
+                action = int(row.argmax())  # ScoredPolicy: act is the argmax of the scores
+            else:
+                action = int(np.asarray(policy.act(batch)).reshape(-1)[0])
+            result = sim.step(action)
+            states.append(result.state.tolist())
+            actions.append(action)
+            rewards.append(result.reward)
+        limits = sim.limits()
+    finally:
+        sim.close()
+    episode = Episode(env_id, seed, {}, {}, states, actions, rewards, scores if scored else None)
+    episode.terminated, episode.truncated = result.terminated, result.truncated
+    return episode, limits
 
 
 def _play_greedily(
@@ -208,9 +243,13 @@ def episode_body(
     global _worker_policies
     if _worker_policies is None:
         _worker_policies = PolicyCache()
-    policy = _worker_policies.get(Path(checkpoint))
-    episode, sim = play_episode(policy, env_id, seed, physics, nudges)
-    body = header | episode.to_dict(sim_limits(sim), score_label)
+    policy = _worker_policies.get(Path(checkpoint), env_id)
+    if scene_of(env_id) == "cartpole":
+        episode, sim = play_episode(policy, env_id, seed, physics, nudges)
+        limits = sim_limits(sim)
+    else:
+        episode, limits = play_gym_episode(policy, env_id, seed)
+    body = header | episode.to_dict(limits, score_label)
     return json.dumps(body, allow_nan=False, separators=(",", ":")).encode()
 
 

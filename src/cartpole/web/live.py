@@ -34,7 +34,16 @@ from cartpole.core.names import RunState
 from cartpole.runs import RunDir, displayed_state
 from cartpole.runs.run_dir import STOPPED_STATES
 from cartpole.web.api import MAX_SEED
-from cartpole.web.physics import CartPoleSim, PhysicsError, is_cartpole, start_state
+from cartpole.web.episodes import sim_limits
+from cartpole.web.physics import (
+    ACTION_LABELS,
+    SCENES,
+    CartPoleSim,
+    GymSim,
+    PhysicsError,
+    scene_of,
+    start_state,
+)
 from cartpole.web.runs_folder import NotFound, RunsFolder
 
 router = APIRouter()
@@ -125,7 +134,11 @@ class Reset(BaseModel):
 class Step(BaseModel):
     model_config = ConfigDict(strict=True, extra="forbid")
     type: Literal["step"]
-    action: int = Field(ge=0, le=1, description="0 pushes the cart left, 1 right")
+    action: int = Field(
+        ge=0,
+        le=2,
+        description="CartPole: 0 pushes the cart left, 1 right; Acrobot and MountainCar: 0, 1 or 2",
+    )
 
 
 PLAY_TYPES = ("reset", "step")
@@ -133,10 +146,12 @@ PlayMessage: TypeAdapter[Reset | Step] = TypeAdapter(Annotated[Reset | Step, Fie
 
 
 class PlaySession:
-    """One human's game: a server-side cart-pole and the running score."""
+    """One human's game: a server-side env (our cart-pole, or Gymnasium's Acrobot or MountainCar)
+    and the running score."""
 
     def __init__(self, env_id: str):
-        self.sim = CartPoleSim(env_id)
+        self.scene = scene_of(env_id) or "cartpole"
+        self.sim: CartPoleSim | GymSim = CartPoleSim(env_id) if self.scene == "cartpole" else GymSim(env_id)
         self.seed: int | None = None
         self.total = 0.0
 
@@ -150,12 +165,21 @@ class PlaySession:
         return self.reply(result.reward, result.terminated, result.truncated)
 
     def reset(self, message: Reset) -> dict[str, Any]:
-        if message.physics is not None:
-            self.sim.set_physics(message.physics)
+        sim = self.sim
+        if message.physics and not isinstance(sim, CartPoleSim):
+            raise PhysicsError(f"physics changes CartPole only; {sim.env_id} plays as Gymnasium has it")
         self.seed = random.randrange(2**31) if message.seed is None else message.seed
-        self.sim.reset(start_state(self.sim.env_id, self.seed))
         self.total = 0.0
-        return {**self.reply(0.0, False, False), "physics": self.sim.physics()}
+        if isinstance(sim, CartPoleSim):
+            if message.physics is not None:
+                sim.set_physics(message.physics)
+            sim.reset(start_state(sim.env_id, self.seed))
+            scene = {"physics": sim.physics(), "limits": sim_limits(sim)}
+        else:
+            sim.reset(self.seed)
+            scene = {"physics": {}, "limits": sim.limits()}
+        labels = ACTION_LABELS[self.scene]
+        return {**self.reply(0.0, False, False), **scene, "scene": self.scene, "action_labels": labels}
 
     def reply(self, reward: float, terminated: bool, truncated: bool) -> dict[str, Any]:
         return {
@@ -176,8 +200,9 @@ async def play(
     env: Annotated[str, Query(max_length=64)] = "CartPole-v1",
 ) -> None:
     """A live game: reset, then one step message per action; every reply is the new state."""
-    if not is_cartpole(env):
-        await websocket.close(code=POLICY_VIOLATION, reason=f"{env[:40]!r} is not CartPole; play CartPole")
+    if scene_of(env) is None:
+        playable = ", ".join(["CartPole-v1", "CartPole-v0", *SCENES])
+        await websocket.close(code=POLICY_VIOLATION, reason=f"{env[:40]!r} cannot be played; play {playable}")
         return
     await websocket.accept()
     session = PlaySession(env)

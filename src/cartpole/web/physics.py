@@ -56,6 +56,22 @@ def check_overrides(overrides: dict[str, Any]) -> dict[str, float]:
     return checked
 
 
+SCENES = {"Acrobot-v1": "acrobot", "MountainCar-v0": "mountaincar"}
+"""The envs besides CartPole whose episodes the Watch page draws (by the name of its drawing)."""
+
+ACTION_LABELS = {
+    "cartpole": ["\u2190 push left", "push right \u2192"],
+    "acrobot": ["torque \u22121", "no torque", "torque +1"],
+    "mountaincar": ["\u2190 push left", "no push", "push right \u2192"],
+}
+"""What each action of a scene's env does, in its order."""
+
+
+def scene_of(env_id: str) -> str | None:
+    """Which drawing shows ``env_id`` ("cartpole", "acrobot", "mountaincar"), None if none does."""
+    return "cartpole" if is_cartpole(env_id) else SCENES.get(env_id.removeprefix("cartpole/"))
+
+
 def is_cartpole(env_id: str) -> bool:
     """Watch and Play simulate CartPole only."""
     try:
@@ -135,3 +151,55 @@ class CartPoleSim:
         truncated = self.max_steps is not None and self.steps >= self.max_steps  # as TimeLimit
         self.done = terminated or truncated
         return StepResult(self.state, 1.0, bool(terminated), truncated)
+
+
+class GymSim:
+    """Gymnasium's own env (Acrobot-v1, MountainCar-v0) stepped one action at a time, as a person
+    plays it: the state is the env's own ``state`` (what its drawing needs)."""
+
+    def __init__(self, env_id: str):
+        import gymnasium as gym
+
+        if env_id.removeprefix("cartpole/") not in SCENES:
+            raise PhysicsError(f"{env_id} cannot be played here; play CartPole-v1, {', '.join(SCENES)}")
+        self.env_id = env_id
+        self.env = gym.make(env_id)
+        self.n_actions = int(self.env.action_space.n)  # type: ignore[attr-defined]
+        self.max_steps = self.env.spec.max_episode_steps if self.env.spec else None
+        self.state = np.zeros(0)  # the env has no state before its first reset
+        self.steps = 0
+        self.done = True
+
+    def limits(self) -> dict[str, float]:
+        unwrapped = self.env.unwrapped
+        limits = {
+            "fps": float(self.env.metadata.get("render_fps") or 30),
+            "max_steps": float(self.max_steps or 0),
+        }
+        for name in ("LINK_LENGTH_1", "LINK_LENGTH_2", "min_position", "max_position", "goal_position"):
+            if hasattr(unwrapped, name):
+                limits[name.lower()] = float(getattr(unwrapped, name))
+        return limits
+
+    def reset(self, seed: int) -> np.ndarray:
+        """Gymnasium's ``reset(seed=seed)``, the start state ``evaluate()`` plays from."""
+        observation, _ = self.env.reset(seed=seed)
+        self.observation = np.asarray(observation, dtype=np.float32)
+        self.state = np.asarray(self.env.unwrapped.state, dtype=np.float64).copy()  # type: ignore[attr-defined]
+        self.steps, self.done = 0, False
+        return self.state
+
+    def step(self, action: int) -> StepResult:
+        if self.done:
+            raise PhysicsError("the episode is over: reset first")
+        if not 0 <= action < self.n_actions:
+            raise PhysicsError(f"action must be between 0 and {self.n_actions - 1}, got {action!r}")
+        observation, reward, terminated, truncated, _ = self.env.step(action)
+        self.observation = np.asarray(observation, dtype=np.float32)
+        self.state = np.asarray(self.env.unwrapped.state, dtype=np.float64).copy()  # type: ignore[attr-defined]
+        self.steps += 1
+        self.done = bool(terminated or truncated)
+        return StepResult(self.state, float(reward), bool(terminated), bool(truncated))
+
+    def close(self) -> None:
+        self.env.close()

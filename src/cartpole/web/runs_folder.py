@@ -16,7 +16,7 @@ from typing import Any
 
 from cartpole.envs import env_info
 from cartpole.runs import RunDir, RunError, RunSummary, displayed_state, list_runs, summarize_run
-from cartpole.web.physics import is_cartpole
+from cartpole.web.physics import scene_of
 
 SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,199}$")
 
@@ -78,7 +78,7 @@ class RunsFolder:
                 continue  # a link to elsewhere is not one of our runs
             row = _as_shown(summary)
             row["rule"] = solved_rule(RunDir(path).eval_report())
-            row["watchable"] = bool(summary.env_id and is_cartpole(summary.env_id))
+            row["watchable"] = bool(summary.env_id and scene_of(summary.env_id))
             row["has_checkpoint"] = bool(self.checkpoints(RunDir(path)))
             rows.append(row)
         return rows
@@ -107,7 +107,7 @@ class RunsFolder:
             "rule": solved_rule(report),
             "threshold": threshold,
             "max_episode_steps": max_steps,
-            "watchable": bool(env_id and is_cartpole(env_id)),
+            "watchable": bool(env_id and scene_of(env_id)),
             "checkpoints": [self._checkpoint_info(run, name) for name in self.checkpoints(run)],
         }
 

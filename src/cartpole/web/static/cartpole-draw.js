@@ -155,5 +155,5 @@ const CartPoleDraw = (() => {
     ctx.closePath();
   }
 
-  return { draw, COLORS };
+  return { draw, fit, COLORS };
 })();

@@ -40,7 +40,7 @@ function renderCheckpoints(d) {
     return;
   }
   const note = d.watchable ? "" :
-    `<p class="notice">Watching and playing are for CartPole only; this run trains ${CP.escapeHTML(d.env_id ?? "another env")}, so only its curves are shown.</p>`;
+    `<p class="notice">Watch draws CartPole, Acrobot-v1 and MountainCar-v0; this run trains ${CP.escapeHTML(d.env_id ?? "another env")}, so only its curves are shown.</p>`;
   const seed = d.eval && d.eval.seeds && d.eval.seeds.length ? d.eval.seeds[0] : 0;
   const rows = d.checkpoints.map((c) => {
     const href = `/watch?run=${encodeURIComponent(d.name)}&checkpoint=${encodeURIComponent(c.name)}&seed=${seed}`;

@@ -54,8 +54,45 @@ async function load(keepFrame) {
   render();
 }
 
+// The color of action a among n: left, (none,) right.
+function actionColor(a, n) {
+  if (a === null) return "";
+  if (n === 3 && a === 1) return SceneDraw.COLORS.none;
+  return a === 0 ? CartPoleDraw.COLORS.left : CartPoleDraw.COLORS.right;
+}
+
+// Acrobot and MountainCar: Gymnasium's envs as they are (no nudges, no physics to change).
+function describeOtherOutcome(e) {
+  const total = e.return.toFixed(0);
+  if (e.scene === "acrobot") {
+    return e.terminated
+      ? `the free end swung above the line at step ${e.length} (return ${total}).`
+      : `the free end did not reach the line in ${e.length} steps (return ${total}).`;
+  }
+  return e.terminated
+    ? `the car reached the flag at step ${e.length} (return ${total}).`
+    : `the car did not reach the flag in ${e.length} steps (return ${total}).`;
+}
+
+function showSceneControls(e) {
+  const cartpole = e.scene === "cartpole";
+  if (!cartpole) canvas.setAttribute("aria-label", e.scene === "acrobot" ? "the acrobot's two links" : "the car on the hill");
+  el("nudge-panel").hidden = !cartpole;
+  el("physics-panel").hidden = !cartpole;
+  el("readout-a").textContent = cartpole ? "pole angle" : e.scene === "acrobot" ? "link angles" : "position";
+  el("readout-b").textContent = cartpole ? "cart position" : e.scene === "acrobot" ? "tip height" : "velocity";
+  el("subtitle").textContent = cartpole
+    ? "The greedy policy plays one episode, simulated on the server at the env's own 50 steps per second."
+    : `The greedy policy plays one episode of Gymnasium's ${e.env_id} on the server, shown at its own ${e.limits.fps} frames per second.`;
+}
+
 function describeOutcome() {
   const e = watch.episode;
+  showSceneControls(e);
+  if (e.scene !== "cartpole") {
+    el("outcome").textContent = `This episode: ${describeOtherOutcome(e)}`;
+    return;
+  }
   const nudged = e.nudges.length ? ` with ${e.nudges.length} nudge${e.nudges.length > 1 ? "s" : ""}` : "";
   const changed = Object.keys(watch.physics).length ? " under changed physics" : "";
   let text;
@@ -75,21 +112,34 @@ function render() {
   const i = Math.min(Math.floor(watch.frame), e.length);
   const state = e.states[i];
   const action = i < e.length ? e.actions[i] : null;
-  const recentNudge = e.nudges.find((n) => i >= n.step && i < n.step + 12);
-  CartPoleDraw.draw(canvas, state, {
-    xThreshold: e.limits.x_threshold,
-    thetaThreshold: e.limits.theta_threshold,
-    length: e.physics.length,
-    action,
-    nudge: recentNudge ? recentNudge.theta_dot_change : 0,
-    caption: `${e.agent ?? "agent"} · ${checkpoint} · seed ${e.seed}`,
-  });
+  const caption = `${e.agent ?? "agent"} · ${checkpoint} · seed ${e.seed}`;
+  if (e.scene === "cartpole") {
+    const recentNudge = e.nudges.find((n) => i >= n.step && i < n.step + 12);
+    CartPoleDraw.draw(canvas, state, {
+      xThreshold: e.limits.x_threshold,
+      thetaThreshold: e.limits.theta_threshold,
+      length: e.physics.length,
+      action,
+      nudge: recentNudge ? recentNudge.theta_dot_change : 0,
+      caption,
+    });
+    el("angle").textContent = `${((state[2] * 180) / Math.PI).toFixed(1)}°`;
+    el("position").textContent = `${state[0].toFixed(2)} m`;
+  } else {
+    SceneDraw[e.scene](canvas, state, { limits: e.limits, action, caption });
+    if (e.scene === "acrobot") {
+      const degrees = (v) => `${((v * 180) / Math.PI).toFixed(0)}°`;
+      el("angle").textContent = `${degrees(state[0])}, ${degrees(state[1])}`;
+      el("position").textContent = (-Math.cos(state[0]) - Math.cos(state[0] + state[1])).toFixed(2);
+    } else {
+      el("angle").textContent = state[0].toFixed(3);
+      el("position").textContent = state[1].toFixed(4);
+    }
+  }
   el("step").textContent = `${i} / ${e.length}`;
   el("timeline").value = String(i);
-  el("action").textContent = action === null ? "–" : action === 1 ? "push →" : "← push";
-  el("action").style.color = action === null ? "" : action === 1 ? CartPoleDraw.COLORS.right : CartPoleDraw.COLORS.left;
-  el("angle").textContent = `${((state[2] * 180) / Math.PI).toFixed(1)}°`;
-  el("position").textContent = `${state[0].toFixed(2)} m`;
+  el("action").textContent = action === null ? "–" : e.action_labels[action] ?? String(action);
+  el("action").style.color = actionColor(action, e.action_labels.length);
   renderPrefs(i);
 }
 
@@ -108,7 +158,7 @@ function renderPrefs(i) {
   const scale = watch.maxScore || 1;
   const signed = row.some((v) => v < 0);
   const label = CP.escapeHTML(e.score_label);
-  const bars = ["← left", "right →"].map((side, a) => {
+  const bars = e.action_labels.map((side, a) => {
     return `<div class="pref ${e.actions[i] === a ? "chosen" : ""}" title="${label} of ${side}"><span>${side}</span>
       <div class="track"><div class="fill"></div></div>
       <span class="val">${row[a].toFixed(2)}</span></div>`;
@@ -120,7 +170,7 @@ function renderPrefs(i) {
     const w = Math.min(50, (Math.abs(v) / scale) * 50) * (signed ? 1 : 2);
     fill.style.left = `${signed ? (v >= 0 ? 50 : 50 - w) : 0}%`;
     fill.style.width = `${w}%`;
-    fill.style.background = a === 1 ? CartPoleDraw.COLORS.right : CartPoleDraw.COLORS.left;
+    fill.style.background = actionColor(a, row.length);
   });
 }
 
