@@ -282,3 +282,92 @@ def test_pages_are_served(client: TestClient):
         response = client.get(page)
         assert response.status_code == 200 and "<script" in response.text
         assert "content-security-policy" in response.headers
+
+
+# ---------------------------------------------------------------------------------------------------
+# A comparison shared through a database (`cartpole compare --storage`): shown live from the database
+# ---------------------------------------------------------------------------------------------------
+
+
+def finished_record(seed: int, solved: bool) -> dict[str, object]:
+    """What a worker stores for one finished run (the fields the report reads)."""
+    return {
+        "agent": "cem", "preset": "default", "seed": seed, "run": f"/elsewhere/machine{seed}/runs/r{seed}",
+        "state": "finished", "solved_in_training": solved, "solve_steps": 1000 if solved else None,
+        "solve_wall_seconds": 1.0 if solved else None, "solve_cpu_seconds": 1.5 if solved else None,
+        "env_steps": 1000 if solved else 5000, "wall_seconds": 2.0, "cpu_seconds": 3.0,
+        "stop_reason": "solved",
+        "final_mean": 500.0 if solved else 100.0, "final_solved": solved, "final_verdict": "",
+    }  # fmt: skip
+
+
+def shared_experiment(runs_dir: Path, url: str, name: str = "shared-cmp", finished: int = 1):  # type: ignore[no-untyped-def]
+    """A comparison of cem over 3 seeds in the database at ``url``, ``finished`` of them done, and the
+    local experiment folder a machine that took part in it keeps (its experiment.json names the storage)."""
+    from cartpole.experiments.entries import Entry
+    from cartpole.experiments.shared import SharedComparison
+
+    shared = SharedComparison.join(
+        url, name, {"env_id": "CartPole-v1", "budget": "3gen"}, [Entry("cem")], [0, 1, 2]
+    )
+    for seed in range(finished):
+        shared.claim("m", 1, {"cem": False}, set(), ["cem"], [seed])
+        curve = {
+            "steps": [0.0, 500.0, 1000.0],
+            "means": [20.0, 200.0, 500.0],
+            "solved": True,
+            "threshold": 475.0,
+        }
+        shared.finish("m", Entry("cem"), seed, finished_record(seed, solved=seed % 2 == 0), curve)
+    folder = runs_dir / "experiments" / name
+    folder.mkdir(parents=True)
+    command = ["cartpole", "compare", "cem", "--seeds", "3", "--storage", url, "--name", name]
+    setup = {"env_id": "CartPole-v1", "budget": "3gen", "command": command, "storage": url}
+    (folder / "experiment.json").write_text(json.dumps(setup), "utf-8")
+    return shared
+
+
+def test_a_shared_comparison_is_shown_live_from_its_database(tmp_path: Path):
+    from cartpole.experiments.entries import Entry
+
+    runs_dir = tmp_path / "runs"
+    shared = shared_experiment(runs_dir, f"sqlite:///{tmp_path / 'shared.db'}")
+    client = local_client(runs_dir)
+    body = client.get("/api/experiments/shared-cmp").json()
+    assert body["problem"] is None
+    assert body["shared"] == {"storage": f"sqlite at {tmp_path / 'shared.db'}", "total": 3, "finished": 1,
+                              "running": 0, "pending": 2}  # fmt: skip
+    [entry] = body["report"]["entries"]
+    assert entry["runs"] == 1 and entry["solved"] == 1 and entry["run_folders"] == ["r0"]
+    assert body["figures"] == ["curves", "solve_steps"]
+    png = client.get("/api/experiments/shared-cmp/figures/curves.png")
+    assert png.status_code == 200 and png.content.startswith(b"\x89PNG")
+    assert not (runs_dir / "experiments" / "shared-cmp" / "curves.png").exists()  # nothing written there
+
+    shared.claim("m", 1, {"cem": False}, set(), ["cem"], [1])
+    shared.finish("m", Entry("cem"), 1, finished_record(1, solved=False), {})
+    body = client.get("/api/experiments/shared-cmp").json()
+    assert body["shared"]["finished"] == 2
+    [entry] = body["report"]["entries"]
+    assert entry["runs"] == 2 and entry["solved"] == 1
+    [row] = client.get("/api/experiments").json()["experiments"]
+    assert row["name"] == "shared-cmp" and row["runs"] == 2 and row["problem"] is None
+
+
+def test_a_shared_comparison_whose_database_cannot_be_reached_is_a_problem_without_its_password(
+    tmp_path: Path,
+):
+    folder = tmp_path / "experiments" / "gone"
+    folder.mkdir(parents=True)
+    url = "postgresql://someone:secret@127.0.0.1:1/db"
+    (folder / "experiment.json").write_text(
+        json.dumps({"env_id": "CartPole-v1", "budget": None, "storage": url})
+    )
+    client = local_client(tmp_path)
+    response = client.get("/api/experiments/gone")
+    assert response.status_code == 200
+    body = response.json()
+    assert body["report"] is None and body["shared"] is None
+    assert "cannot read the shared comparison" in body["problem"]
+    assert "secret" not in response.text
+    assert client.get("/api/experiments/gone/figures/curves.png").status_code == 404

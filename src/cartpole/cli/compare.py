@@ -7,6 +7,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from cartpole.experiments.shared import DEFAULT_CLAIM_TIMEOUT
+
 
 def add_parser(sub: Any) -> None:
     parser = sub.add_parser(
@@ -18,10 +20,18 @@ def add_parser(sub: Any) -> None:
             "IQRs and bootstrap 95% CIs of env steps, CPU and wall seconds to the first verified solve, "
             "unsolved runs censored at their budget; IQM of the final returns) and PNG curves. Every run "
             "is an ordinary run folder. Re-running the same command resumes; Ctrl-C stops every worker "
-            "cleanly."
+            "cleanly. With --storage URL the comparison NAME lives in that database and the same command "
+            "run on many machines shares it: each (entry, seed) run is claimed by one worker, runs of a "
+            "worker that dies are taken over after --claim-timeout, and every run's results are stored "
+            "as it ends, so `--report --storage URL --name NAME` builds the whole report on any machine."
         ),
     )
-    parser.add_argument("entries", nargs="+", metavar="ENTRY", help="agent, agent:preset or agent:FILE.toml")
+    parser.add_argument(
+        "entries",
+        nargs="*",
+        metavar="ENTRY",
+        help="agent, agent:preset or agent:FILE.toml (not with --report)",
+    )
     parser.add_argument("--seeds", type=int, default=5, metavar="N", help="seeds per entry (default: 5)")
     parser.add_argument("--first-seed", type=int, default=0, metavar="S", help="seeds S..S+N-1 (default: 0)")
     parser.add_argument("--jobs", type=int, default=1, metavar="J", help="runs at a time (default: 1)")
@@ -33,6 +43,34 @@ def add_parser(sub: Any) -> None:
         "--name", metavar="NAME", help="experiment name (default: the entries joined by '_vs_')"
     )
     parser.add_argument("--runs-dir", default="runs", metavar="DIR", help="(default: runs)")
+    parser.add_argument(
+        "--storage",
+        metavar="URL",
+        help="share the comparison through this database, e.g. postgresql://USER@HOST:PORT/DB "
+        "(needs the postgres extra); the same command on other machines joins it",
+    )
+    parser.add_argument(
+        "--chunk",
+        type=int,
+        default=10,
+        metavar="K",
+        help="with --storage: seeds of an entry a worker claims together and trains as one population "
+        "(default: 10)",
+    )
+    parser.add_argument(
+        "--claim-timeout",
+        type=float,
+        default=DEFAULT_CLAIM_TIMEOUT,
+        metavar="SECONDS",
+        help="with --storage, when the comparison is created: seconds without a heartbeat after which a "
+        f"worker's claims are taken over (default: {DEFAULT_CLAIM_TIMEOUT:g})",
+    )
+    parser.add_argument(
+        "--report",
+        action="store_true",
+        help="train nothing: write the report of experiment NAME from its records (with --storage: from "
+        "the database, every machine's runs)",
+    )
     parser.set_defaults(run=run)
 
 
@@ -41,14 +79,63 @@ def default_name(entries: list[Any]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from cartpole.experiments.entries import ExperimentError
+
+    if args.report:
+        return report_only(args)
+    if not args.entries:
+        raise ExperimentError("name at least one ENTRY to compare (or pass --report --name NAME)")
+    if args.jobs < 1:
+        raise ExperimentError(f"--jobs must be >= 1, got {args.jobs}")
+    if args.chunk < 1:
+        raise ExperimentError(f"--chunk must be >= 1, got {args.chunk}")
+    return train_and_report(args)
+
+
+def report_only(args: argparse.Namespace) -> int:
+    """``--report``: the report of an existing experiment, from its folder or its database."""
+    from rich.console import Console
+
+    from cartpole.experiments.compare import Experiment, check_name
+    from cartpole.experiments.entries import ExperimentError
+    from cartpole.experiments.report import Results, write_report
+    from cartpole.experiments.shared import SharedComparison
+    from cartpole.runs.atomic import write_json_atomic
+
+    if args.entries:
+        raise ExperimentError("--report takes no ENTRY: it reports what experiment NAME holds (give --name)")
+    if not args.name:
+        raise ExperimentError("--report needs --name NAME, the experiment to report")
+    folder = Path(args.runs_dir) / "experiments" / check_name(args.name, "experiment")
+    if args.storage:
+        shared = SharedComparison.open(args.storage, args.name)
+        results = Results.of_shared(shared)
+        folder.mkdir(parents=True, exist_ok=True)
+        write_json_atomic(
+            folder / "experiment.json",
+            {**shared.setup, "command": ["cartpole", *sys.argv[1:]], "storage": args.storage},
+        )
+    else:
+        results = Results.of_experiment(Experiment.from_folder(Path(args.runs_dir), args.name))
+    _, written = write_report(results, folder)
+    print_report(Console(soft_wrap=True), folder, written)
+    return 0
+
+
+def print_report(out: Any, folder: Path, written: list[Path]) -> None:
+    out.print((folder / "report.md").read_text(encoding="utf-8"), markup=False, highlight=False)
+    out.print("wrote " + ", ".join(str(p) for p in written), highlight=False)
+
+
+def train_and_report(args: argparse.Namespace) -> int:
+    """Train the pending runs (this machine's share, with --storage), then write the report."""
     from rich.console import Console
 
     from cartpole.experiments.compare import Experiment
-    from cartpole.experiments.entries import ExperimentError, parse_entries
-    from cartpole.experiments.report import write_report
+    from cartpole.experiments.entries import parse_entries
+    from cartpole.experiments.report import Results, write_report
+    from cartpole.experiments.shared import SharedComparison
 
-    if args.jobs < 1:
-        raise ExperimentError(f"--jobs must be >= 1, got {args.jobs}")
     entries = parse_entries(args.entries)
     experiment = Experiment.open(
         Path(args.runs_dir),
@@ -60,20 +147,32 @@ def run(args: argparse.Namespace) -> int:
         args.budget,
         command=["cartpole", *sys.argv[1:]],
     )
+    shared = None
+    if args.storage:
+        shared = SharedComparison.join(
+            args.storage,
+            experiment.folder.name,
+            experiment.setup,
+            entries,
+            experiment.seeds,
+            args.claim_timeout,
+        )
     console = Console(soft_wrap=True, stderr=True)
     console.print(f"experiment: {experiment.folder}", highlight=False)
     interrupted = False
     with ExperimentProgress(console) as progress:
         try:
-            problems = experiment.run(args.jobs, progress.update)
+            if shared is None:
+                problems = experiment.run(args.jobs, progress.update)
+            else:
+                problems = experiment.run_shared(shared, args.jobs, args.chunk, progress.update)
         except KeyboardInterrupt:
             interrupted, problems = True, []
     for line in problems:
         console.print(f"[red]{line}[/]", highlight=False)
-    _, written = write_report(experiment)
-    out = Console(soft_wrap=True)
-    out.print((experiment.folder / "report.md").read_text(encoding="utf-8"), markup=False, highlight=False)
-    out.print("wrote " + ", ".join(str(p) for p in written), highlight=False)
+    results = Results.of_experiment(experiment) if shared is None else Results.of_shared(shared)
+    _, written = write_report(results, experiment.folder)
+    print_report(Console(soft_wrap=True), experiment.folder, written)
     if interrupted:
         console.print("interrupted: every run is saved; re-run the same command to resume", highlight=False)
         return 130

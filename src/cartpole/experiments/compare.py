@@ -24,7 +24,8 @@ from typing import Any
 
 from cartpole.agents.registry import get_agent
 from cartpole.experiments.entries import Entry, ExperimentError
-from cartpole.experiments.processes import Job, python_module, run_jobs
+from cartpole.experiments.processes import Job, python_module, run_job_source, run_jobs
+from cartpole.experiments.shared import SharedComparison, new_owner
 from cartpole.experiments.worker import FINISHED, Task, read_record
 from cartpole.runs.atomic import write_json_atomic
 from cartpole.runs.run_dir import read_json
@@ -80,6 +81,31 @@ class Experiment:
         experiment = cls(folder, entries, list(range(first_seed, first_seed + seeds)), env_id, budget)
         experiment.command = command or []
         experiment.check_same_setup()
+        return experiment
+
+    @classmethod
+    def from_folder(cls, runs_dir: Path, name: str) -> Experiment:
+        """The experiment ``name`` as its folder holds it (for ``--report``): its setup from
+        experiment.json, its entries and seeds from its records; ExperimentError if there is none."""
+        folder = runs_dir / "experiments" / check_name(name, "experiment")
+        try:
+            setup = read_json(folder / "experiment.json")
+        except FileNotFoundError:
+            raise ExperimentError(f"no experiment named {name!r} in {runs_dir / 'experiments'}") from None
+        except (OSError, ValueError) as err:
+            raise ExperimentError(f"{folder / 'experiment.json'} is unreadable ({err})") from None
+        entries: list[Entry] = []
+        seeds: set[int] = set()
+        for path in sorted((folder / "records").glob("*.json")):
+            record = read_record(path)
+            if not record or "agent" not in record or "seed" not in record:
+                continue
+            entry = Entry(str(record["agent"]), str(record.get("preset", "default")))
+            if entry not in entries:
+                entries.append(entry)
+            seeds.add(int(record["seed"]))
+        experiment = cls(folder, entries, sorted(seeds), str(setup.get("env_id")), setup.get("budget"))
+        experiment.command = list(setup.get("command") or [])
         return experiment
 
     @property
@@ -200,3 +226,155 @@ class Experiment:
 
         run_jobs(self.jobs(), jobs, on_done)
         return problems
+
+    def run_shared(
+        self,
+        shared: SharedComparison,
+        jobs: int,
+        chunk: int,
+        progress: Callable[[str, int, int, int], None] | None = None,
+    ) -> list[str]:
+        """Run this machine's share of a comparison shared through a database: claim pending runs of
+        this request (a chunk of one entry's seeds at a time, trained as one population where the
+        entry batches its seeds), ``jobs`` claims at a time, and store each run's record and curve in
+        the database as it ends. Waits while other workers hold claims, taking over those whose
+        heartbeat stops. Returns problems (failed runs) as lines."""
+        if jobs < 1:
+            raise ExperimentError(f"--jobs must be >= 1, got {jobs}")
+        if chunk < 1:
+            raise ExperimentError(f"--chunk must be >= 1, got {chunk}")
+        self.folder.mkdir(parents=True, exist_ok=True)
+        write_json_atomic(
+            self.folder / "experiment.json", {**self.setup, "command": self.command, "storage": shared.url}
+        )
+        runner = SharedRunner(self, shared, chunk, progress)
+        runner.report("start")
+        run_job_source(runner.next_job, jobs, runner.on_done, runner.tick, runner.more)
+        return runner.problems
+
+
+class SharedRunner:
+    """One machine's claims on a shared comparison: jobs from claims, heartbeats, results stored."""
+
+    def __init__(
+        self,
+        experiment: Experiment,
+        shared: SharedComparison,
+        chunk: int,
+        progress: Callable[[str, int, int, int], None] | None,
+    ):
+        import time
+
+        self.experiment, self.shared, self.chunk, self.progress = experiment, shared, chunk, progress
+        self.owner = new_owner()
+        self.labels = [e.label for e in experiment.entries]
+        self.batches = {e.label: experiment.trains_populations(e) for e in experiment.entries}
+        self.failed: set[tuple[str, int]] = set()
+        self.problems: list[str] = []
+        self.period = min(30.0, shared.claim_timeout / 4)
+        """Seconds between heartbeats."""
+        self.look_period = min(2.0, self.period)
+        """Seconds between looks for work when there was none."""
+        self.last_beat = time.monotonic()
+        self.next_look = 0.0
+        self.unstored: list[tuple[Entry, int, dict[str, Any], dict[str, Any]]] = []
+        """Finished runs whose results the database did not take yet (it failed): retried each beat."""
+        self.warned: set[str] = set()
+
+    def database(self, what: str, action: Callable[[], Any], default: Any) -> Any:
+        """``action()``, or ``default`` when the database fails (it is retried later): a line is printed
+        once per kind of failure, and training goes on."""
+        import sys
+
+        from sqlalchemy.exc import SQLAlchemyError
+
+        try:
+            return action()
+        except SQLAlchemyError as err:
+            reason = str(getattr(err, "orig", None) or err).strip().splitlines()
+            if what not in self.warned:
+                self.warned.add(what)
+                print(f"warning: the shared storage failed to {what} ({reason[0] if reason else err}); "
+                      "retrying", file=sys.stderr)  # fmt: skip
+            return default
+
+    def next_job(self) -> Job | None:
+        import time
+
+        if time.monotonic() < self.next_look:
+            return None
+        claim = self.database(
+            "give work",
+            lambda: self.shared.claim(
+                self.owner, self.chunk, self.batches, self.failed, self.labels, self.experiment.seeds
+            ),
+            None,
+        )
+        if claim is None:
+            self.next_look = time.monotonic() + self.look_period
+            return None
+        return self.experiment.job(claim.entry, claim.seeds, population=self.batches[claim.entry.label])
+
+    def more(self) -> bool:
+        """Whether to wait: runs of this request are not finished, and some are claimed by other
+        workers (who may finish them, or die and leave them to this one) or are claimable again."""
+        import time
+
+        time.sleep(max(0.0, self.next_look - time.monotonic()))
+        progress = self.database(
+            "count runs", lambda: self.shared.progress(self.labels, self.experiment.seeds), None
+        )
+        if progress is None or self.unstored:
+            return True
+        return bool(progress.finished + len(self.failed) < progress.total)
+
+    def tick(self) -> None:
+        import time
+
+        if time.monotonic() - self.last_beat >= self.period:
+            self.last_beat = time.monotonic()
+            self.database("renew claims", lambda: self.shared.heartbeat(self.owner), 0)
+            self.store(self.unstored)
+
+    def store(self, finished: list[tuple[Entry, int, dict[str, Any], dict[str, Any]]]) -> None:
+        """Put finished runs' results in the database; those it does not take wait in ``unstored``."""
+        from functools import partial
+
+        def stored(run: tuple[Entry, int, dict[str, Any], dict[str, Any]]) -> bool:
+            finish = partial(self.shared.finish, self.owner, *run)
+            return self.database("store results", lambda: finish() or True, False) is True
+
+        self.unstored = [run for run in finished if not stored(run)]
+
+    def on_done(self, job: Job, code: int) -> None:
+        from functools import partial
+
+        from cartpole.experiments.figures import EvalCurve
+        from cartpole.runs import RunError
+
+        entry, seeds = job.key
+        finished = []
+        for seed in seeds:
+            record = read_record(self.experiment.record_path(entry, seed))
+            if record and record.get("state") == FINISHED:
+                try:
+                    curve = EvalCurve.of_run(record["run"]).to_json()
+                except (RunError, OSError, KeyError):
+                    curve = {}
+                finished.append((entry, seed, record, curve))
+                continue
+            self.database("give a claim back", partial(self.shared.release, self.owner, entry, seed), None)
+            if code not in (0, 130, -2):
+                self.failed.add((entry.label, seed))
+                self.problems.append(f"{entry.label} seed {seed} failed (exit {code}); see {job.log}")
+        self.store(self.unstored + finished)
+        self.next_look = 0.0  # a slot is free: look for work at once
+        self.report("run")
+
+    def report(self, kind: str) -> None:
+        if self.progress:
+            progress = self.database(
+                "count runs", lambda: self.shared.progress(self.labels, self.experiment.seeds), None
+            )
+            if progress is not None:
+                self.progress(kind, progress.finished, progress.solved, progress.total)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -13,6 +14,41 @@ from cartpole.plotting import load_run
 
 GRID_POINTS = 300
 COLORS = ["C0", "C1", "C2", "C3", "C4", "C5", "C6", "C8", "C9"]
+
+
+@dataclass(frozen=True)
+class EvalCurve:
+    """One run's evaluation returns against env steps, and whether its final verdict solved: what the
+    curves figure draws, read from a run folder or (shared comparisons) from the database."""
+
+    steps: np.ndarray
+    means: np.ndarray
+    solved: bool
+    threshold: float | None
+
+    @classmethod
+    def of_run(cls, path: Path | str) -> EvalCurve:
+        """The curve of a run folder (RunError if it is not one)."""
+        run = load_run(path)
+        return cls(run.eval_steps, run.eval_mean, bool(run.solved), run.threshold)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "steps": [float(s) for s in self.steps],
+            "means": [float(m) for m in self.means],
+            "solved": self.solved,
+            "threshold": self.threshold,
+        }
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> EvalCurve:
+        threshold = data.get("threshold")
+        return cls(
+            np.asarray(data.get("steps", []), dtype=np.float64),
+            np.asarray(data.get("means", []), dtype=np.float64),
+            bool(data.get("solved")),
+            None if threshold is None else float(threshold),
+        )
 
 
 def mean_band(curves: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -37,7 +73,7 @@ def mean_band(curves: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return mean, low, high
 
 
-def plot_curves(groups: dict[str, list[Path]], out: Path, env_id: str) -> Path | None:
+def plot_curves(groups: dict[str, list[EvalCurve]], out: Path, env_id: str) -> Path | None:
     """Evaluation return (the greedy policy's mean over its evaluation episodes) against env steps:
     per entry the mean over its runs and a 95% CI band. A run that stopped early (solved) keeps its
     last value, so early finishers stay in the mean."""
@@ -47,14 +83,13 @@ def plot_curves(groups: dict[str, list[Path]], out: Path, env_id: str) -> Path |
     ax = figure.add_subplot()
     drawn = False
     threshold = None
-    for index, (label, paths) in enumerate(groups.items()):
-        runs = [load_run(p) for p in paths]
-        runs = [r for r in runs if r.eval_mean.size]
+    for index, (label, all_runs) in enumerate(groups.items()):
+        runs = [r for r in all_runs if r.means.size]
         if not runs:
             continue
         threshold = threshold or runs[0].threshold
-        grid = np.linspace(0, max(r.eval_steps[-1] for r in runs), GRID_POINTS)
-        curves = np.stack([np.interp(grid, r.eval_steps, r.eval_mean) for r in runs])
+        grid = np.linspace(0, max(r.steps[-1] for r in runs), GRID_POINTS)
+        curves = np.stack([np.interp(grid, r.steps, r.means) for r in runs])
         mean, low, high = mean_band(curves)
         color = COLORS[index % len(COLORS)]
         ax.fill_between(grid, low, high, color=color, alpha=0.2, linewidth=0)
@@ -78,7 +113,8 @@ def plot_curves(groups: dict[str, list[Path]], out: Path, env_id: str) -> Path |
     ax.set_title(f"{env_id}: mean over runs, {CONFIDENCE:.0%} bootstrap CI")
     ax.grid(True, alpha=0.3)
     ax.set_xlim(left=0)
-    ax.set_ylim(bottom=0)
+    if all(r.means.min() >= 0 for runs in groups.values() for r in runs if r.means.size):
+        ax.set_ylim(bottom=0)  # CartPole's returns; Acrobot's and MountainCar's are negative
     ax.legend(loc="lower right", fontsize=9)
     out.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(out, dpi=120)

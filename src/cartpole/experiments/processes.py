@@ -84,20 +84,35 @@ def run_jobs(
     """Run ``jobs``, ``workers`` at a time (workers inherit this environment, PYTHONPATH included).
 
     ``on_done(job, exit code)`` is called in this process as each ends, ``tick()`` every poll (about
-    five times a second). KeyboardInterrupt (Ctrl-C,
-    SIGTERM) stops every worker cleanly, then propagates.
+    five times a second). KeyboardInterrupt (Ctrl-C, SIGTERM) stops every worker cleanly, then
+    propagates.
     """
     queue = list(jobs)
+    run_job_source(lambda: queue.pop(0) if queue else None, workers, on_done, tick)
+
+
+def run_job_source(
+    next_job: Callable[[], Job | None],
+    workers: int,
+    on_done: Callable[[Job, int], None],
+    tick: Callable[[], None] | None = None,
+    more: Callable[[], bool] = lambda: False,
+) -> None:
+    """:func:`run_jobs` over jobs made as slots free up: ``next_job()`` gives the next one, or None when
+    it has none now; the loop ends when nothing runs, ``next_job()`` has none and ``more()`` says none
+    will come (a shared comparison waits while other machines hold runs they may give up)."""
     running: dict[subprocess.Popen[bytes], Job] = {}
     with sigterm_as_interrupt():
         try:
             while True:
+                exhausted = False
                 while len(running) < workers:
-                    if not queue:
+                    job = next_job()
+                    if job is None:
+                        exhausted = True
                         break
-                    job = queue.pop(0)
                     running[start(job)] = job
-                if not running:
+                if not running and exhausted and not more():
                     return
                 time.sleep(POLL_SECONDS)
                 if tick:
@@ -109,3 +124,20 @@ def run_jobs(
             for process, job in running.items():
                 on_done(job, int(process.returncode))
             raise
+
+
+def stop_when_orphaned(period: float = 1.0) -> None:
+    """In a worker: stop cleanly (SIGTERM to itself, which training handles by saving and exiting) when
+    the process that started it is gone, killed with SIGKILL or lost with its machine, so that no
+    orphan trains on for nobody."""
+    import os
+    import threading
+
+    parent = os.getppid()
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(period)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    threading.Thread(target=watch, name="stop-when-orphaned", daemon=True).start()

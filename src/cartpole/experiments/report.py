@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from cartpole.experiments.compare import Experiment
 from cartpole.experiments.entries import Entry
+from cartpole.experiments.figures import EvalCurve
+from cartpole.experiments.shared import SharedComparison
 from cartpole.experiments.stats import CONFIDENCE, censored_summary, iqm_summary
 from cartpole.runs.atomic import write_json_atomic, write_text_atomic
 
@@ -38,12 +41,52 @@ def entry_summary(entry: Entry, records: list[dict[str, Any]]) -> dict[str, Any]
     return summary
 
 
-def build_report(experiment: Experiment) -> dict[str, Any]:
-    records = experiment.records()
+@dataclass
+class Results:
+    """What a report is built from: the finished runs' records and evaluation curves, per entry, read
+    from a local experiment's folder or from a shared comparison's database rows."""
+
+    env_id: str
+    budget: str | None
+    seeds: list[int]
+    records: dict[Entry, list[dict[str, Any]]]
+    curves: dict[Entry, list[EvalCurve]]
+
+    @classmethod
+    def of_experiment(cls, experiment: Experiment) -> Results:
+        """A local experiment's results: its records, and the curves of their run folders."""
+        from cartpole.runs import RunError
+
+        records = experiment.records()
+        curves: dict[Entry, list[EvalCurve]] = {}
+        for entry, found in records.items():
+            curves[entry] = []
+            for record in found:
+                try:
+                    curves[entry].append(EvalCurve.of_run(record["run"]))
+                except (RunError, OSError, KeyError):  # a run folder deleted or damaged since
+                    continue
+        return cls(experiment.env_id, experiment.budget, experiment.seeds, records, curves)
+
+    @classmethod
+    def of_shared(cls, shared: SharedComparison) -> Results:
+        """A shared comparison's results: every finished row in its database, whichever machine ran it."""
+        records, curves = shared.finished()
+        return cls(
+            str(shared.setup.get("env_id")),
+            shared.setup.get("budget"),
+            shared.seeds(),
+            records,
+            {entry: [EvalCurve.from_json(c) for c in found if c] for entry, found in curves.items()},
+        )
+
+
+def build_report(results: Results) -> dict[str, Any]:
+    records = results.records
     return {
-        "env_id": experiment.env_id,
-        "budget": experiment.budget or "each preset's own",
-        "seeds": experiment.seeds,
+        "env_id": results.env_id,
+        "budget": results.budget or "each preset's own",
+        "seeds": results.seeds,
         "confidence": CONFIDENCE,
         "method": (
             "medians and IQRs of times to the first verified solve (a full 100-episode evaluation at the "
@@ -80,6 +123,14 @@ def _return_cell(stats: dict[str, Any]) -> str:
     return text
 
 
+def seed_range(seeds: list[int]) -> str:
+    if not seeds:
+        return "No runs yet."
+    if seeds == list(range(seeds[0], seeds[-1] + 1)):
+        return f"Seeds {seeds[0]}-{seeds[-1]}."
+    return f"{len(seeds)} seeds: {', '.join(map(str, seeds))}."
+
+
 def markdown(report: dict[str, Any], figures: list[str]) -> str:
     """``report.md``: the table, how to read it, and the figures."""
     lines = [
@@ -101,24 +152,22 @@ def markdown(report: dict[str, Any], figures: list[str]) -> str:
         f"100-episode evaluation at the threshold during training). A run that never solved counts at "
         f"what it used (its budget: {report['budget']}), censored, not dropped; ≥ marks a median that "
         f"such runs hold up (at least half unsolved). Final return: interquartile mean [95% CI] of each "
-        f"run's final verdict (its kept best policy on 100 fresh episodes). Seeds "
-        f"{report['seeds'][0]}-{report['seeds'][-1]}.",
+        f"run's final verdict (its kept best policy on 100 fresh episodes). {seed_range(report['seeds'])}",
         "",
     ]
     lines += [f"![{Path(f).stem}]({Path(f).name})" for f in figures]
     return "\n".join(lines) + "\n"
 
 
-def write_report(experiment: Experiment) -> tuple[dict[str, Any], list[Path]]:
-    """Write report.json, report.md and the two PNGs; return the report and the files written."""
+def write_report(results: Results, folder: Path) -> tuple[dict[str, Any], list[Path]]:
+    """Write report.json, report.md and the two PNGs into ``folder``; return the report and the files."""
     from cartpole.experiments.figures import plot_curves, plot_solve_steps
 
-    report = build_report(experiment)
-    folder = experiment.folder
-    groups = {e["entry"]: [Path(p) for p in e["run_folders"]] for e in report["entries"]}
+    report = build_report(results)
+    groups = {entry.label: curves for entry, curves in results.curves.items()}
     figures = [
         plot_curves(groups, folder / "curves.png", report["env_id"]),
-        plot_solve_steps(report["entries"], experiment.records(), folder / "solve_steps.png"),
+        plot_solve_steps(report["entries"], results.records, folder / "solve_steps.png"),
     ]
     written = [p for p in figures if p is not None]
     write_json_atomic(folder / "report.json", report)

@@ -36,6 +36,7 @@ from cartpole.experiments.compare import check_name
 from cartpole.experiments.entries import ExperimentError
 from cartpole.experiments.processes import Job, python_module, run_jobs
 from cartpole.experiments.space import load_space, preset_point, space_description
+from cartpole.experiments.storage import describe_url, driver_url, engine_options, missing_driver, unreachable
 from cartpole.experiments.sweep_spec import SweepSpec
 from cartpole.runs.atomic import write_json_atomic
 from cartpole.training import Callback, TrainingLoop
@@ -105,28 +106,6 @@ def make_spec(
 # ----------------------------------------------------------------------------------------------
 
 
-def describe_url(url: str) -> tuple[str, str]:
-    """(backend, "host:port") of a database URL, for messages; ExperimentError if it is malformed."""
-    from sqlalchemy.engine import make_url
-    from sqlalchemy.exc import ArgumentError
-
-    try:
-        parsed = make_url(url)
-    except (ArgumentError, ValueError):  # ValueError: a port that is not a number
-        raise ExperimentError(
-            f"malformed --storage URL {url!r}; use postgresql://USER@HOST:PORT/DB (or sqlite:///FILE.db)"
-        ) from None
-    backend = parsed.get_backend_name()
-    if backend not in ("postgresql", "sqlite", "mysql"):
-        raise ExperimentError(f"--storage {backend}:// is not supported; use postgresql://USER@HOST:PORT/DB")
-    if backend == "sqlite":
-        return backend, parsed.database or ":memory:"
-    if not parsed.host:
-        raise ExperimentError(f"--storage URL {url!r} names no host; use postgresql://USER@HOST:PORT/DB")
-    port = parsed.port or {"postgresql": 5432, "mysql": 3306}[backend]
-    return backend, f"{parsed.host}:{port}"
-
-
 def open_storage(spec: SweepSpec, attempts: int = 5) -> Any:
     """Optuna storage of the sweep: the journal file, or the database at ``spec.storage``."""
     import time
@@ -140,12 +119,7 @@ def open_storage(spec: SweepSpec, attempts: int = 5) -> Any:
         spec.path.mkdir(parents=True, exist_ok=True)
         return optuna.storages.JournalStorage(JournalFileBackend(str(spec.path / "journal.log")))
     backend, where = describe_url(spec.storage)
-    url = spec.storage
-    if url.startswith("postgresql://"):  # psycopg 3 (the postgres extra), also where SQLAlchemy < 2.1
-        url = "postgresql+psycopg://" + url.removeprefix("postgresql://")
-    engine: dict[str, Any] = {"pool_pre_ping": True}
-    if backend == "postgresql":
-        engine["connect_args"] = {"connect_timeout": 10}
+    url, engine = driver_url(spec.storage), engine_options(spec.storage)
     for attempt in range(attempts):
         try:
             with warnings.catch_warnings():  # heartbeats are "experimental" in Optuna, and what we need
@@ -154,29 +128,15 @@ def open_storage(spec: SweepSpec, attempts: int = 5) -> Any:
                     url, engine_kwargs=engine, heartbeat_interval=30, grace_period=120
                 )
         except ImportError as err:  # Optuna re-raises the driver's ModuleNotFoundError as ImportError
-            raise ExperimentError(
-                f"--storage {backend}:// needs its driver ({missing_module(err)}), which is not installed"
-                + (
-                    "; use postgresql://USER@HOST:PORT/DB and pip install 'cartpole[postgres]'"
-                    if backend == "postgresql"
-                    else ""
-                )
-            ) from None
+            raise missing_driver(spec.storage, err) from None
         except OperationalError as err:  # no server there, or a wrong host, port, user or database
-            reason = str(err.orig or err).strip().splitlines()[0]
-            raise ExperimentError(f"cannot reach the {backend} study storage at {where}: {reason}") from None
+            raise unreachable(spec.storage, err) from None
         except SQLAlchemyError as err:
             reason = str(getattr(err, "orig", None) or err).strip().splitlines()[0]
             if attempt == attempts - 1:  # e.g. two machines creating the tables at the same moment
                 raise ExperimentError(f"the {backend} study storage at {where} failed: {reason}") from None
             time.sleep(1.0 + attempt)
     raise AssertionError("unreachable")
-
-
-def missing_module(err: ImportError) -> str:
-    """The name of the module whose import failed, looking through Optuna's re-raise."""
-    cause = err.__cause__ if isinstance(err.__cause__, ImportError) else err
-    return cause.name or str(cause)
 
 
 def open_study(spec: SweepSpec, storage: Any) -> Any:
@@ -467,6 +427,9 @@ class SweepFailed(Exception):
 
 def main(argv: list[str]) -> int:
     """Worker entry: ``python -m cartpole.experiments.sweep SWEEP.json``."""
+    from cartpole.experiments.processes import stop_when_orphaned
+
+    stop_when_orphaned()
     data = json.loads(Path(argv[0]).read_text(encoding="utf-8"))
     try:
         return run_worker(SweepSpec(**data))

@@ -236,7 +236,9 @@ def make_population_record(
 def main(argv: list[str]) -> int:
     """Run the task in ``argv[0]``; exit 0 when finished, 130 when interrupted."""
     from cartpole.core.errors import InputError
+    from cartpole.experiments.processes import stop_when_orphaned
 
+    stop_when_orphaned()
     try:
         record = run_task(Task.load(Path(argv[0])))
     except InputError as err:

@@ -24,6 +24,7 @@ from pydantic import BaseModel, Field, ValidationError
 
 from cartpole.runs.run_dir import read_json
 from cartpole.web.runs_folder import SAFE_NAME, NotFound, inside
+from cartpole.web.shared_reports import SharedReport, SharedReports, SharedStatus
 
 EXPERIMENTS = "experiments"
 SWEEPS = "sweeps"
@@ -101,6 +102,10 @@ class ExperimentOut(BaseModel):
     name: str
     report: Report | None
     problem: str | None
+    shared: SharedStatus | None = Field(
+        description="a comparison shared through a database (`cartpole compare --storage`): its report is "
+        "built live from every machine's finished runs, and this says where it stands"
+    )
     figures: list[str] = Field(description="figure names; each is served at .../figures/{figure}.png")
     command: list[str] | None = Field(description="the `cartpole compare` command that made it")
     runs_folder: str = Field(description="its run folders, relative to the runs folder")
@@ -204,6 +209,7 @@ class ExperimentsFolder:
     def __init__(self, root: Path):
         self.root = Path(root)
         self._studies = StudyCache()
+        self._shared = SharedReports()
 
     # -- folders -------------------------------------------------------------------------------------
 
@@ -237,7 +243,8 @@ class ExperimentsFolder:
 
     def _experiment_row(self, name: str) -> dict[str, Any]:
         folder = self.root / EXPERIMENTS / name
-        report, problem = self._report(folder)
+        shared, _ = self._shared_report(folder)
+        report, problem = self._report(folder, shared)
         return {
             "name": name,
             "env_id": report.env_id if report else None,
@@ -251,34 +258,60 @@ class ExperimentsFolder:
     def experiment(self, name: str) -> dict[str, Any]:
         """One experiment's report and figures; NotFound for an unknown name."""
         folder = self._folder(EXPERIMENTS, name)
-        report, problem = self._report(folder)
-        try:
-            command = _read_json_file(folder / "experiment.json", folder).get("command")
-        except (OSError, ValueError, AttributeError):
-            command = None
+        shared, shared_problem = self._shared_report(folder)
+        report, problem = self._report(folder, shared)
+        command = self._setup(folder).get("command")
         if not (isinstance(command, list) and all(isinstance(c, str) for c in command)):
             command = None
+        figures_folder = shared.figures if shared else folder
         return {
             "name": name,
             "report": report,
-            "problem": problem,
-            "figures": [f for f in FIGURES if _regular_file(folder / f"{f}.png", folder)],
+            "problem": shared_problem or problem,
+            "shared": shared.status if shared else None,
+            "figures": [f for f in FIGURES if _regular_file(figures_folder / f"{f}.png", figures_folder)],
             "command": [shown_path(c, self.root) for c in command] if command else None,
             "runs_folder": f"{EXPERIMENTS}/{name}/runs",
             "updated": _modified(folder / "report.json"),
         }
 
-    def _report(self, folder: Path) -> tuple[Report | None, str | None]:
-        """The folder's report.json, checked, with paths shown; or None and why."""
-        path = folder / "report.json"
-        if not path.exists() and not path.is_symlink():
-            started = (folder / "experiment.json").exists()
-            why = "still running or interrupted: " if started else ""
-            return None, f"no report.json yet ({why}`cartpole compare` writes it when its runs end)"
+    def _setup(self, folder: Path) -> dict[str, Any]:
+        """experiment.json (what was asked, the command, a shared comparison's storage), or {}."""
         try:
-            data = _read_json_file(path, folder)
-        except (OSError, ValueError) as err:
-            return None, _problem("report.json", err)
+            setup = _read_json_file(folder / "experiment.json", folder)
+        except (OSError, ValueError):
+            return {}
+        return setup if isinstance(setup, dict) else {}
+
+    def _shared_report(self, folder: Path) -> tuple[SharedReport | None, str | None]:
+        """The live report of a comparison shared through a database, or None (and why, if it failed)."""
+        url = self._setup(folder).get("storage")
+        if not isinstance(url, str) or not url:
+            return None, None
+        try:
+            return self._shared.report(url, folder.name), None
+        except Exception as err:  # any failure of a database we do not control is a problem to show
+            reason = str(getattr(err, "orig", None) or err).strip().splitlines()
+            return (
+                None,
+                f"cannot read the shared comparison from its database: {reason[0] if reason else err}",
+            )
+
+    def _report(self, folder: Path, shared: SharedReport | None = None) -> tuple[Report | None, str | None]:
+        """The report (of a shared comparison, live; else the folder's report.json), checked, with paths
+        shown; or None and why."""
+        if shared is not None:
+            data: Any = shared.report
+        else:
+            path = folder / "report.json"
+            if not path.exists() and not path.is_symlink():
+                started = (folder / "experiment.json").exists()
+                why = "still running or interrupted: " if started else ""
+                return None, f"no report.json yet ({why}`cartpole compare` writes it when its runs end)"
+            try:
+                data = _read_json_file(path, folder)
+            except (OSError, ValueError) as err:
+                return None, _problem("report.json", err)
         try:
             report = Report.model_validate(data)
         except ValidationError as err:
@@ -295,6 +328,9 @@ class ExperimentsFolder:
     def figure(self, name: str, figure: str) -> Path:
         """The PNG file of one figure; NotFound if it is not one, or not there."""
         folder = self._folder(EXPERIMENTS, name)
+        shared, _ = self._shared_report(folder)
+        if shared is not None:
+            folder = shared.figures
         path = folder / f"{figure}.png"
         if figure not in FIGURES or not _regular_file(path, folder):
             raise NotFound(f"experiment {name} has no figure {figure!r}")

@@ -83,11 +83,24 @@ function renderMade(d) {
     <pre class="mono small wrap">cartpole serve --runs-dir ${CP.escapeHTML(folder)}</pre>`;
 }
 
+// A comparison shared through a database: every machine's finished runs, followed live.
+function renderShared(status) {
+  const box = document.getElementById("shared");
+  if (!status) {
+    box.innerHTML = "";
+    return;
+  }
+  const live = status.finished < status.total ? " This page follows it as runs end." : "";
+  box.innerHTML = `<div class="notice" id="shared-status">Shared through ${CP.escapeHTML(status.storage)}:
+    <b>${status.finished}</b> of ${status.total} runs finished, ${status.running} running, ${status.pending} waiting.${live}</div>`;
+}
+
 function render(d) {
   document.getElementById("error").innerHTML = "";
   document.title = `${d.name} · CartPole`;
   document.getElementById("title").textContent = `Experiment ${d.name}`;
   document.getElementById("problem").innerHTML = d.problem ? `<div class="notice" id="report-problem">${CP.escapeHTML(d.problem)}</div>` : "";
+  renderShared(d.shared);
   renderReport(d.report);
   renderFigures(d.figures);
   renderMade(d);

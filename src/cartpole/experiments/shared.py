@@ -1,0 +1,362 @@
+"""A comparison shared by many machines through one database (``cartpole compare --storage URL``).
+
+Two tables, made by SQLAlchemy where they are missing (the same database a sweep uses can hold them):
+
+- ``cartpole_comparisons``: one row per comparison name: what every run shares (env, budget), its
+  entries in order, and the claim timeout;
+- ``cartpole_comparison_runs``: one row per (comparison, entry, seed), its primary key, so a re-run
+  adds nothing twice. A row is ``pending``, ``claimed`` by one worker (its ``owner``, with a
+  ``heartbeat`` in the database's own clock) or ``finished`` with the run's record and evaluation
+  curve, written as the run ends.
+
+A worker claims rows in one transaction (``SELECT ... FOR UPDATE SKIP LOCKED`` on PostgreSQL), so
+every row is claimed by exactly one worker. Rows of a claimed chunk share an entry, so that an agent
+that batches its seeds trains them as one population. A worker renews the heartbeat of its claims
+while it runs them; a claim whose heartbeat is older than the claim timeout (its worker was killed or
+lost its machine) is taken over by another worker, who resumes the run where it has the run's folder
+and trains it again where not. Only the first finish of a row is kept.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import time
+import uuid
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import Any
+
+from cartpole.experiments.entries import Entry, ExperimentError
+from cartpole.experiments.storage import driver_url, engine_options, missing_driver, unreachable
+
+DEFAULT_CLAIM_TIMEOUT = 120.0
+"""Seconds without a heartbeat after which another worker takes a claim over."""
+MIN_CLAIM_TIMEOUT = 2.0
+CREATE_ATTEMPTS = 5
+
+
+class RowState(StrEnum):
+    """Where one (entry, seed) run of a shared comparison stands."""
+
+    PENDING = "pending"
+    CLAIMED = "claimed"
+    FINISHED = "finished"
+
+
+def _tables() -> tuple[Any, Any, Any]:
+    import sqlalchemy as sa
+
+    metadata = sa.MetaData()
+    comparisons = sa.Table(
+        "cartpole_comparisons",
+        metadata,
+        sa.Column("name", sa.String(200), primary_key=True),
+        sa.Column("setup", sa.JSON, nullable=False),
+        sa.Column("entries", sa.JSON, nullable=False),
+        sa.Column("claim_timeout", sa.Float, nullable=False),
+    )
+    runs = sa.Table(
+        "cartpole_comparison_runs",
+        metadata,
+        sa.Column("comparison", sa.String(200), primary_key=True),
+        sa.Column("entry", sa.String(500), primary_key=True),
+        sa.Column("seed", sa.Integer, primary_key=True),
+        sa.Column("agent", sa.String(100), nullable=False),
+        sa.Column("preset", sa.String(500), nullable=False),
+        sa.Column("state", sa.String(16), nullable=False),
+        sa.Column("owner", sa.String(300)),
+        sa.Column("heartbeat", sa.Float),
+        sa.Column("claims", sa.Integer, nullable=False, default=0),
+        sa.Column("record", sa.JSON),
+        sa.Column("curve", sa.JSON),
+    )
+    return metadata, comparisons, runs
+
+
+METADATA, COMPARISONS, RUNS = _tables()
+
+
+def new_owner() -> str:
+    """This worker's name in claims: machine, process, and a random part (pids repeat)."""
+    return f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:8]}"
+
+
+@dataclass(frozen=True)
+class Claim:
+    """Seeds of one entry that this worker owns until it finishes or releases them."""
+
+    entry: Entry
+    seeds: list[int]
+
+
+@dataclass
+class Progress:
+    """Counts over every row of the comparison."""
+
+    total: int = 0
+    finished: int = 0
+    solved: int = 0
+    claimed: int = 0
+    pending: int = 0
+
+    @classmethod
+    def of_rows(cls, rows: list[Any]) -> Progress:
+        progress = cls(total=len(rows))
+        for row in rows:
+            if row.state == RowState.FINISHED:
+                progress.finished += 1
+                progress.solved += bool((row.record or {}).get("solved_in_training"))
+            elif row.state == RowState.CLAIMED:
+                progress.claimed += 1
+            else:
+                progress.pending += 1
+        return progress
+
+
+class SharedComparison:
+    """One comparison's rows in the database at ``url``."""
+
+    def __init__(self, url: str, name: str, engine: Any, claim_timeout: float, setup: dict[str, Any]):
+        self.url, self.name, self.engine = url, name, engine
+        self.claim_timeout, self.setup = claim_timeout, setup
+
+    # -- opening ---------------------------------------------------------------------------------------
+
+    @staticmethod
+    def connect(url: str) -> Any:
+        """An engine on ``url`` with the tables created (ExperimentError, one line, if it cannot be)."""
+        import sqlalchemy as sa
+        from sqlalchemy.exc import OperationalError, SQLAlchemyError
+
+        try:
+            engine = sa.create_engine(driver_url(url), **engine_options(url))
+        except ImportError as err:
+            raise missing_driver(url, err) from None
+        for attempt in range(CREATE_ATTEMPTS):
+            try:
+                METADATA.create_all(engine)
+                return engine
+            except OperationalError as err:
+                raise unreachable(url, err) from None
+            except SQLAlchemyError as err:  # two machines creating the tables at the same moment
+                if attempt == CREATE_ATTEMPTS - 1:
+                    raise unreachable(url, err) from None
+                time.sleep(0.5 + attempt)
+        raise AssertionError("unreachable")
+
+    @classmethod
+    def join(
+        cls,
+        url: str,
+        name: str,
+        setup: dict[str, Any],
+        entries: list[Entry],
+        seeds: list[int],
+        claim_timeout: float = DEFAULT_CLAIM_TIMEOUT,
+    ) -> SharedComparison:
+        """Create the comparison or join it (the same env and budget), adding its missing rows."""
+        if claim_timeout < MIN_CLAIM_TIMEOUT:
+            raise ExperimentError(
+                f"--claim-timeout must be >= {MIN_CLAIM_TIMEOUT:g} seconds, got {claim_timeout:g}"
+            )
+        engine = cls.connect(url)
+        with engine.begin() as db:
+            _insert_missing(db, COMPARISONS, [{
+                "name": name, "setup": setup, "entries": [], "claim_timeout": claim_timeout,
+            }])  # fmt: skip
+            row = db.execute(COMPARISONS.select().where(COMPARISONS.c.name == name).with_for_update()).one()
+            check_setup(name, url, dict(row.setup), setup)
+            known = list(row.entries)
+            added = [e.label for e in entries if e.label not in known]
+            if added:
+                db.execute(
+                    COMPARISONS.update().where(COMPARISONS.c.name == name).values(entries=known + added)
+                )
+            _insert_missing(db, RUNS, [
+                {"comparison": name, "entry": e.label, "seed": s, "agent": e.agent, "preset": e.preset,
+                 "state": RowState.PENDING, "claims": 0}
+                for s in seeds for e in entries
+            ])  # fmt: skip
+        return cls(url, name, engine, float(row.claim_timeout), setup)
+
+    @classmethod
+    def open(cls, url: str, name: str, engine: Any = None) -> SharedComparison:
+        """An existing comparison (for its report); ExperimentError if the database has none of that name.
+        ``engine``: one from :meth:`connect` to reuse (a server reading many times)."""
+        engine = engine or cls.connect(url)
+        with engine.connect() as db:
+            row = db.execute(COMPARISONS.select().where(COMPARISONS.c.name == name)).one_or_none()
+        if row is None:
+            raise ExperimentError(f"no comparison named {name!r} in the storage; check --name and --storage")
+        return cls(url, name, engine, float(row.claim_timeout), dict(row.setup))
+
+    # -- claims ----------------------------------------------------------------------------------------
+
+    def claim(
+        self,
+        owner: str,
+        chunk: int,
+        batches: dict[str, bool],
+        skip: set[tuple[str, int]],
+        labels: list[str],
+        seeds: list[int],
+    ) -> Claim | None:
+        """Claim up to ``chunk`` runs of one entry (one run where the entry does not batch its seeds)
+        among ``labels`` x ``seeds``, but not those in ``skip``: pending ones, or claims whose heartbeat
+        is older than the claim timeout. None if there are none."""
+        import sqlalchemy as sa
+
+        with self.engine.begin() as db:
+            now = database_seconds(db)
+            claimable = sa.and_(
+                self._asked(labels, seeds),
+                sa.or_(
+                    RUNS.c.state == RowState.PENDING,
+                    sa.and_(RUNS.c.state == RowState.CLAIMED, RUNS.c.heartbeat < now - self.claim_timeout),
+                ),
+            )
+            order = (RUNS.c.seed, RUNS.c.entry)
+            rows = db.execute(
+                sa.select(RUNS.c.entry, RUNS.c.seed, RUNS.c.agent, RUNS.c.preset)
+                .where(claimable)
+                .order_by(*order)
+                .with_for_update(skip_locked=True)
+            ).all()
+            rows = [r for r in rows if (r.entry, r.seed) not in skip]
+            if not rows:
+                return None
+            first = rows[0]
+            size = chunk if batches.get(first.entry, False) else 1
+            seeds = [r.seed for r in rows if r.entry == first.entry][:size]
+            db.execute(
+                RUNS.update()
+                .where(RUNS.c.comparison == self.name, RUNS.c.entry == first.entry, RUNS.c.seed.in_(seeds))
+                .values(state=RowState.CLAIMED, owner=owner, heartbeat=now, claims=RUNS.c.claims + 1)
+            )
+        return Claim(Entry(first.agent, first.preset), seeds)
+
+    def heartbeat(self, owner: str) -> int:
+        """Renew every claim of ``owner``; how many it still holds (one taken over is no longer its)."""
+        with self.engine.begin() as db:
+            now = database_seconds(db)
+            result = db.execute(
+                RUNS.update()
+                .where(
+                    RUNS.c.comparison == self.name, RUNS.c.owner == owner, RUNS.c.state == RowState.CLAIMED
+                )
+                .values(heartbeat=now)
+            )
+        return int(result.rowcount)
+
+    def finish(
+        self, owner: str, entry: Entry, seed: int, record: dict[str, Any], curve: dict[str, Any]
+    ) -> bool:
+        """Store a finished run's record and curve; False if another worker finished it first."""
+        with self.engine.begin() as db:
+            result = db.execute(
+                RUNS.update()
+                .where(self._row(entry, seed), RUNS.c.state != RowState.FINISHED)
+                .values(state=RowState.FINISHED, owner=owner, record=record, curve=curve)
+            )
+        return bool(result.rowcount)
+
+    def release(self, owner: str, entry: Entry, seed: int) -> None:
+        """Give a claim back (the run was interrupted here): pending again, for any worker."""
+        with self.engine.begin() as db:
+            db.execute(
+                RUNS.update()
+                .where(self._row(entry, seed), RUNS.c.owner == owner, RUNS.c.state == RowState.CLAIMED)
+                .values(state=RowState.PENDING, owner=None, heartbeat=None)
+            )
+
+    def _asked(self, labels: list[str], seeds: list[int]) -> Any:
+        """The rows of ``labels`` x ``seeds`` in this comparison."""
+        import sqlalchemy as sa
+
+        return sa.and_(RUNS.c.comparison == self.name, RUNS.c.entry.in_(labels), RUNS.c.seed.in_(seeds))
+
+    def _row(self, entry: Entry, seed: int) -> Any:
+        import sqlalchemy as sa
+
+        return sa.and_(RUNS.c.comparison == self.name, RUNS.c.entry == entry.label, RUNS.c.seed == seed)
+
+    # -- reading ---------------------------------------------------------------------------------------
+
+    def rows(self, labels: list[str] | None = None, seeds: list[int] | None = None) -> list[Any]:
+        """The comparison's rows (those of ``labels`` x ``seeds`` where given), in seed order."""
+        import sqlalchemy as sa
+
+        where = RUNS.c.comparison == self.name
+        if labels is not None and seeds is not None:
+            where = sa.and_(where, self._asked(labels, seeds))
+        with self.engine.connect() as db:
+            return list(db.execute(RUNS.select().where(where).order_by(RUNS.c.seed, RUNS.c.entry)).all())
+
+    def entries(self) -> list[Entry]:
+        """The comparison's entries, in the order they were first asked for."""
+        import sqlalchemy as sa
+
+        with self.engine.connect() as db:
+            labels = db.execute(
+                sa.select(COMPARISONS.c.entries).where(COMPARISONS.c.name == self.name)
+            ).scalar_one()
+            query = sa.select(RUNS.c.entry, RUNS.c.agent, RUNS.c.preset).where(RUNS.c.comparison == self.name)
+            agents = {r.entry: (r.agent, r.preset) for r in db.execute(query.distinct())}
+        return [Entry(*agents[label]) for label in labels if label in agents]
+
+    def progress(self, labels: list[str] | None = None, seeds: list[int] | None = None) -> Progress:
+        """Counts over the comparison's rows (those of ``labels`` x ``seeds`` where given)."""
+        return Progress.of_rows(self.rows(labels, seeds))
+
+    def finished(self) -> tuple[dict[Entry, list[dict[str, Any]]], dict[Entry, list[dict[str, Any]]]]:
+        """(records, curves) of the finished runs, per entry, in seed order."""
+        entries = {e.label: e for e in self.entries()}
+        records: dict[Entry, list[dict[str, Any]]] = {e: [] for e in entries.values()}
+        curves: dict[Entry, list[dict[str, Any]]] = {e: [] for e in entries.values()}
+        for row in self.rows():
+            if row.state == RowState.FINISHED and row.entry in entries:
+                records[entries[row.entry]].append(dict(row.record))
+                curves[entries[row.entry]].append(dict(row.curve or {}))
+        return records, curves
+
+    def seeds(self) -> list[int]:
+        return sorted({row.seed for row in self.rows()})
+
+
+def check_setup(name: str, url: str, stored: dict[str, Any], asked: dict[str, Any]) -> None:
+    """A comparison joined with another env or budget would mix results: refuse, naming the flag."""
+    for key, value in asked.items():
+        if stored.get(key) != value:
+            flag = {"env_id": "--env", "budget": "--budget"}.get(key, key)
+            raise ExperimentError(
+                f"comparison {name} in the storage was run with {flag} {stored.get(key)}, not {value}; "
+                "use the same value or another --name"
+            )
+
+
+def _insert_missing(db: Any, table: Any, rows: list[dict[str, Any]]) -> None:
+    """Insert the rows whose primary key is not there yet (ON CONFLICT DO NOTHING)."""
+    if not rows:
+        return
+    from sqlalchemy.dialects import postgresql, sqlite
+
+    dialects: dict[str, Any] = {"postgresql": postgresql.insert, "sqlite": sqlite.insert}
+    insert = dialects.get(db.dialect.name)
+    if insert is None:
+        raise ExperimentError(f"a shared comparison needs PostgreSQL (or SQLite), not {db.dialect.name}")
+    db.execute(insert(table).on_conflict_do_nothing(), rows)
+
+
+def database_seconds(db: Any) -> float:
+    """The database server's clock in seconds since the epoch: one clock for every machine's claims."""
+    import sqlalchemy as sa
+
+    if db.dialect.name == "postgresql":
+        query = sa.select(sa.func.extract("epoch", sa.func.clock_timestamp()))
+    else:
+        query = sa.select((sa.func.julianday("now") - 2440587.5) * 86400.0)
+    return float(db.execute(query).scalar_one())
+
+
+__all__ = ["DEFAULT_CLAIM_TIMEOUT", "Claim", "Progress", "RowState", "SharedComparison", "new_owner"]
