@@ -728,6 +728,18 @@ def runs_of(actions: list[int]) -> list[int]:
     return [a for i, a in enumerate(actions) if i == 0 or actions[i - 1] != a]
 
 
+def test_watch_of_acrobot_ignores_cartpole_physics_in_the_address(desktop: Page, web_runs: WebRuns):
+    """A Watch address with CartPole's physics (say, copied from a CartPole run) still plays an
+    Acrobot run, as Gymnasium has it, without the CartPole panels."""
+    page = desktop.goto(watch_path(web_runs.acrobot) + "&length=1.5&gravity=5")
+    page.locator("#loading").wait_for(state="hidden", timeout=60_000)
+    page.wait_for_function("() => watch.episode !== null")
+    assert page.inner_text("#message") == ""
+    assert page.evaluate("() => watch.episode.scene") == "acrobot"
+    assert page.locator("#nudge-panel").is_hidden() and page.locator("#physics-panel").is_hidden()
+    assert "length" not in page.url and "gravity" not in page.url
+
+
 @pytest.mark.parametrize("scene", list(SCENE_ENVS))
 def test_play_acrobot_or_mountaincar_steps_gymnasiums_env_with_the_keys(
     desktop: Page, web_runs: WebRuns, shots: Path, scene: str

@@ -47,6 +47,16 @@ class ScoredPolicy(Policy, Protocol):
         ...
 
 
+def act_once(policy: Policy, observation: np.ndarray) -> tuple[int, np.ndarray | None]:
+    """The greedy action for one observation and, for a :class:`ScoredPolicy`, its scores (whose argmax
+    is the action): one step of an episode that is drawn with the policy's preferences."""
+    batch = np.asarray(observation, dtype=np.float32)[None]
+    if isinstance(policy, ScoredPolicy):
+        row = np.asarray(policy.scores(batch))[0]
+        return int(row.argmax()), row
+    return int(np.asarray(policy.act(batch)).reshape(-1)[0]), None
+
+
 @dataclass(frozen=True)
 class EvalReport:
     """The outcome of ``evaluate``: every episode, the summary, and the verdict."""

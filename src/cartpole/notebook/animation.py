@@ -23,7 +23,7 @@ import numpy as np
 
 from cartpole.core.errors import InputError
 from cartpole.envs import env_info
-from cartpole.evaluation import Policy
+from cartpole.evaluation import Policy, act_once
 
 Mode = Literal["auto", "canvas", "gif"]
 
@@ -149,13 +149,9 @@ def play_one(env: Any, policy: Policy, seed: int, scored: bool) -> PlayedEpisode
     observation, _ = env.reset(seed=seed)
     observations, actions, scores, total = [observation.tolist()], [], [], 0.0
     while True:
-        batch = np.asarray(observation, dtype=np.float32)[None]
-        if scored:
-            row = np.asarray(policy.scores(batch))[0]  # type: ignore[attr-defined]
+        action, row = act_once(policy, observation)
+        if row is not None:
             scores.append(row.tolist())
-            action = int(row.argmax())  # ScoredPolicy: act is the argmax of the scores
-        else:
-            action = int(np.asarray(policy.act(batch)).reshape(-1)[0])
         observation, reward, terminated, truncated, _ = env.step(action)
         observations.append(observation.tolist())
         actions.append(action)

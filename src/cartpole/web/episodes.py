@@ -31,7 +31,7 @@ import torch
 from cartpole.agents.registry import open_policy
 from cartpole.envs import env_info
 from cartpole.envs.fast import CartPoleStepper
-from cartpole.evaluation import Policy
+from cartpole.evaluation import Policy, ScoredPolicy, act_once
 from cartpole.web.physics import ACTION_LABELS, CartPoleSim, GymSim, scene_of, start_state
 
 MAX_NUDGE = 10.0
@@ -150,17 +150,13 @@ def play_gym_episode(policy: Policy, env_id: str, seed: int) -> tuple[Episode, d
     starts it) until the episode ends: for the envs besides CartPole that Watch draws. Returns the
     episode (the env's state at each step, for the drawing) and the limits the drawing needs."""
     sim = GymSim(env_id)
-    scored = callable(getattr(policy, "scores", None))
+    scored = isinstance(policy, ScoredPolicy)
     try:
         states, actions, rewards, scores = [sim.reset(seed).tolist()], [], [], []
         while not sim.done:
-            batch = sim.observation[None]
-            if scored:
-                row = np.asarray(policy.scores(batch))[0]  # type: ignore[attr-defined]
+            action, row = act_once(policy, sim.observation)
+            if row is not None:
                 scores.append(row.astype(float).tolist())
-                action = int(row.argmax())  # ScoredPolicy: act is the argmax of the scores
-            else:
-                action = int(np.asarray(policy.act(batch)).reshape(-1)[0])
             result = sim.step(action)
             states.append(result.state.tolist())
             actions.append(action)
@@ -190,13 +186,9 @@ def _play_greedily(
         state = states[t]
         if t in nudges:
             state[3] += nudges[t]
-        obs = state.astype(np.float32)[None]  # what the env would hand the policy
-        if scores is not None:
-            row = np.asarray(policy.scores(obs))[0]  # type: ignore[attr-defined]
+        action, row = act_once(policy, state)  # the float32 observation the env would hand it
+        if scores is not None and row is not None:
             scores[t] = row  # float32 to float64 is exact: the JSON shows the policy's own values
-            action = int(row.argmax())  # ScoredPolicy contract: act is the argmax of scores
-        else:
-            action = int(np.asarray(policy.act(obs))[0])
         actions[t] = action
         if stepper.step(state, action, out=states[t + 1]):
             return t + 1, True

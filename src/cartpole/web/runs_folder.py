@@ -108,6 +108,7 @@ class RunsFolder:
             "threshold": threshold,
             "max_episode_steps": max_steps,
             "watchable": bool(env_id and scene_of(env_id)),
+            "scene": scene_of(env_id) if env_id else None,
             "checkpoints": [self._checkpoint_info(run, name) for name in self.checkpoints(run)],
         }
 

@@ -300,6 +300,17 @@ async function start() {
   const info = await CP.getJSON("/api/info");
   watch.info = info.physics;
   watch.physics = PhysicsPanel.fromQuery(watch.info);
+  try {
+    // Physics in the address change CartPole only: a run on another env plays without them.
+    const run = await CP.getJSON(`/api/runs/${encodeURIComponent(runName)}`);
+    if (run.scene && run.scene !== "cartpole") {
+      watch.physics = {};
+      el("nudge-panel").hidden = true;
+      el("physics-panel").hidden = true;
+    }
+  } catch (_) {
+    // the episode request below says what is wrong
+  }
   PhysicsPanel.render(el("physics"), watch.info, watch.physics);
   wire();
   await reload(false);
