@@ -13,10 +13,11 @@ from typing import Literal
 import gymnasium as gym
 
 from cartpole.core.errors import ConfigError
-from cartpole.envs.registration import register_fast_envs
+from cartpole.envs.registration import register_fast_envs, register_pixel_envs
 from cartpole.envs.spec import EnvInfo, UnsupportedEnvError, env_info
 
 register_fast_envs()  # cheap: string entry points, nothing compiled until an env is made
+register_pixel_envs()
 
 Simulator = Literal["fast", "gymnasium"]
 SIMULATORS: tuple[Simulator, ...] = ("fast", "gymnasium")

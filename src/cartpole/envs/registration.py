@@ -1,4 +1,6 @@
-"""Our envs in Gymnasium's registry: ``cartpole/CartPole-v1`` and ``cartpole/CartPole-v0``.
+"""Our envs in Gymnasium's registry: ``cartpole/CartPole-v1`` and ``cartpole/CartPole-v0`` (the fast
+state simulator), ``cartpole/CartPolePixels-v1`` and ``cartpole/CartPolePixels-v0`` (the same seen as
+stacks of gray frames, :mod:`cartpole.envs.pixels`).
 
 ``import cartpole`` registers them (entry points are strings: nothing is compiled or imported until an
 env is made), so after the import ``gym.make_vec("cartpole/CartPole-v1", num_envs=8)`` works, and
@@ -14,6 +16,20 @@ REFERENCE_IDS: tuple[str, ...] = ("CartPole-v0", "CartPole-v1")
 _NAMESPACE = "cartpole"
 
 
+def _register(env_id: str, reference_id: str, module: str, single: str, vector: str) -> None:
+    """Register ``env_id`` with the time limit and reward threshold of Gymnasium's ``reference_id``."""
+    if env_id in gym.registry:
+        return
+    reference = gym.spec(reference_id)
+    gym.register(
+        id=env_id,
+        entry_point=f"{module}:{single}",
+        vector_entry_point=f"{module}:{vector}",
+        max_episode_steps=reference.max_episode_steps,
+        reward_threshold=reference.reward_threshold,
+    )
+
+
 def register_fast_envs() -> None:
     """Register ``cartpole/CartPole-v0`` and ``cartpole/CartPole-v1`` with Gymnasium (idempotent).
 
@@ -21,14 +37,23 @@ def register_fast_envs() -> None:
     ``gymnasium.make`` and ``gymnasium.make_vec`` give our envs the same limits as the originals.
     """
     for reference_id in REFERENCE_IDS:
-        env_id = f"{_NAMESPACE}/{reference_id}"
-        if env_id in gym.registry:
-            continue
-        reference = gym.spec(reference_id)
-        gym.register(
-            id=env_id,
-            entry_point="cartpole.envs.fast:CartPoleEnv",
-            vector_entry_point="cartpole.envs.fast:CartPoleVectorEnv",
-            max_episode_steps=reference.max_episode_steps,
-            reward_threshold=reference.reward_threshold,
+        _register(
+            f"{_NAMESPACE}/{reference_id}",
+            reference_id,
+            "cartpole.envs.fast",
+            "CartPoleEnv",
+            "CartPoleVectorEnv",
+        )
+
+
+def register_pixel_envs() -> None:
+    """Register ``cartpole/CartPolePixels-v0`` and ``-v1`` with Gymnasium (idempotent): the fast
+    simulator seen as frame stacks, with the time limits and thresholds of CartPole-v0 and -v1."""
+    for reference_id in REFERENCE_IDS:
+        _register(
+            f"{_NAMESPACE}/{reference_id.replace('CartPole', 'CartPolePixels')}",
+            reference_id,
+            "cartpole.envs.pixels",
+            "CartPolePixelsEnv",
+            "CartPolePixelsVectorEnv",
         )

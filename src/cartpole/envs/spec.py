@@ -58,6 +58,12 @@ def env_info(env_id: str) -> EnvInfo:
         obs_space, act_space = env.observation_space, env.action_space
     finally:
         env.close()
+    if isinstance(obs_space, gym.spaces.Box) and len(obs_space.shape) == 3:
+        raise UnsupportedEnvError(
+            f"{env_id} has image observations {obs_space.shape}: training from pixels needs a "
+            "convolutional network, which no agent here has yet; use a flat Box observation env "
+            "such as CartPole-v1"
+        )
     if not isinstance(obs_space, gym.spaces.Box) or len(obs_space.shape) != 1:
         raise UnsupportedEnvError(
             f"{env_id} has a {type(obs_space).__name__}{getattr(obs_space, 'shape', '')} "
