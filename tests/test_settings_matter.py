@@ -94,6 +94,7 @@ LINEAR_CHANGES: dict[str, Change] = {
     "population": ({}, 9),
     "episodes_per_candidate": ({}, 1),
     "bias": ({}, True),
+    "normalize_observations": ({}, True),
     "init_range": ({}, 2.0),
     "noise": ({}, 0.5),
     "elite_fraction": ({}, 0.5),

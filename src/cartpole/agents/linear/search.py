@@ -1,7 +1,10 @@
 """Linear policies found by search: random search, hill climbing and the cross-entropy method.
 
 The policy is the second tutorial's: for two actions, ``action = 1 if w . s (+ b) > 0 else 0``; for
-more actions, ``argmax(s W + b)``. The three searches differ only in how they propose the next
+more actions, ``argmax(s W + b)``. With ``normalize_observations`` the policy reads each observation
+dimension scaled from its finite Box bounds to [-1, 1] (MountainCar's velocity spans +-0.07 against a
+position range of 1.8: on raw observations random weights almost never weigh velocity enough), and the
+scaling is saved with the policy. The three searches differ only in how they propose the next
 candidates. Every generation's candidates play their episodes together in one batched simulator call
 (the fast simulator for CartPole), and a candidate is judged on its mean over
 ``episodes_per_candidate`` episodes, so a lucky single episode does not pick the policy. The
@@ -10,6 +13,7 @@ candidates. Every generation's candidates play their episodes together in one ba
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -24,19 +28,64 @@ from cartpole.runs import Checkpoint
 
 
 class LinearPolicy:
-    """Greedy linear policy over a flat parameter vector (weights, then optional bias)."""
+    """Greedy linear policy over a flat parameter vector (weights, then optional bias), on the
+    observations as they are or, given ``scaling``, on ``(s - center) / half_width``."""
 
-    def __init__(self, params: np.ndarray, obs_dim: int, n_actions: int, bias: bool):
+    def __init__(
+        self,
+        params: np.ndarray,
+        obs_dim: int,
+        n_actions: int,
+        bias: bool,
+        scaling: ObservationScaling | None = None,
+    ):
         self.params = np.asarray(params, dtype=np.float64)
         self.obs_dim, self.n_actions, self.bias = obs_dim, n_actions, bias
+        self.scaling = scaling
         require(self.params.size == param_count(obs_dim, n_actions, bias), "wrong parameter count")
+        require(scaling is None or scaling.center.size == obs_dim, "wrong observation scaling size")
 
     def scores(self, observations: np.ndarray) -> np.ndarray:
-        """``[-s, s]`` for two actions (s = w . obs + b); ``obs W + b`` otherwise."""
+        """``[-s, s]`` for two actions (s = w . obs + b); ``obs W + b`` otherwise (obs scaled first
+        where the policy has a scaling)."""
         return batched_scores(self.params[None], np.asarray(observations)[None], self)[0]
 
     def act(self, observations: np.ndarray) -> np.ndarray:
         return batched_actions(self.params[None], np.asarray(observations)[None], self)[0]
+
+
+@dataclass(frozen=True)
+class ObservationScaling:
+    """What a linear policy reads instead of observation ``s``: ``(s - center) / half_width``."""
+
+    center: np.ndarray
+    half_width: np.ndarray
+
+    @classmethod
+    def from_bounds(cls, low: Sequence[float], high: Sequence[float]) -> ObservationScaling:
+        """Each dimension with finite bounds mapped from [low, high] to [-1, 1]; one with an
+        infinite (or empty) range left as it is."""
+        lo, hi = np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64)
+        finite = np.isfinite(lo) & np.isfinite(hi) & (hi > lo)
+        center = np.where(finite, (hi + lo) / 2, 0.0)
+        half_width = np.where(finite, (hi - lo) / 2, 1.0)
+        return cls(center, half_width)
+
+    def apply(self, observations: np.ndarray) -> np.ndarray:
+        return (observations - self.center) / self.half_width
+
+    def to_data(self) -> dict[str, list[float]]:
+        """Plain data for a checkpoint's metadata (all finite, so JSON keeps it exactly)."""
+        return {"center": self.center.tolist(), "half_width": self.half_width.tolist()}
+
+    @classmethod
+    def from_data(cls, data: dict[str, list[float]] | None) -> ObservationScaling | None:
+        """Back from a checkpoint; None for one saved without scaling (or before it existed)."""
+        if data is None:
+            return None
+        return cls(
+            np.asarray(data["center"], dtype=np.float64), np.asarray(data["half_width"], dtype=np.float64)
+        )
 
 
 def param_count(obs_dim: int, n_actions: int, bias: bool) -> int:
@@ -48,6 +97,8 @@ def batched_actions(params: np.ndarray, observations: np.ndarray, shape: LinearP
     """Greedy actions of K candidates on their own observations: [K, M, D] -> [K, M]."""
     if shape.n_actions == 2:  # the hot path of every search: action = 1 iff w . s (+ b) > 0
         d = shape.obs_dim
+        if shape.scaling is not None:
+            observations = shape.scaling.apply(observations)
         scores = np.einsum("kmd,kd->km", observations, params[:, :d])
         if shape.bias:
             scores += params[:, d, None]
@@ -58,6 +109,8 @@ def batched_actions(params: np.ndarray, observations: np.ndarray, shape: LinearP
 def batched_scores(params: np.ndarray, observations: np.ndarray, shape: LinearPolicy | Any) -> np.ndarray:
     """Scores of K candidates on their own observations: params [K, P], obs [K, M, D] -> [K, M, A]."""
     d, n = shape.obs_dim, shape.n_actions
+    if shape.scaling is not None:
+        observations = shape.scaling.apply(observations)
     columns = 1 if n == 2 else n
     weights = params[:, : d * columns].reshape(-1, d, columns)
     scores = observations @ weights
@@ -98,6 +151,9 @@ class LinearSearchConfig:
     """Episodes each candidate plays; its score is their mean (1 = the tutorial's lucky pick)."""
     bias: bool = False
     """Add a bias term to the linear score."""
+    normalize_observations: bool = False
+    """Scale each observation dimension with finite Box bounds to [-1, 1] before the linear score
+    (infinite bounds: left as they are); the saved policy scales the same way."""
     init_range: float = 0.5
     """Random-search candidates and initial guesses are uniform in [-init_range, init_range]."""
     noise: float = 0.1
@@ -131,14 +187,19 @@ class LinearSearch:
         self.config, self.env = config, env
         self.rng = np.random.default_rng(seed)
         self.size = param_count(env.obs_dim, env.n_actions, config.bias)
-        self.shape = LinearPolicy(np.zeros(self.size), env.obs_dim, env.n_actions, config.bias)
+        self.scaling = (
+            ObservationScaling.from_bounds(env.obs_low, env.obs_high)
+            if config.normalize_observations
+            else None
+        )
+        self.shape = LinearPolicy(np.zeros(self.size), env.obs_dim, env.n_actions, config.bias, self.scaling)
         self.best = self.rng.uniform(-config.init_range, config.init_range, self.size)
         self.best_score = -np.inf
         n_envs = config.population * config.episodes_per_candidate
         self.vec_env: gym.vector.VectorEnv = make_vec_env(env.env_id, n_envs, simulator=config.simulator)
 
     def policy(self) -> LinearPolicy:
-        return LinearPolicy(self.best, self.env.obs_dim, self.env.n_actions, self.config.bias)
+        return LinearPolicy(self.best, self.env.obs_dim, self.env.n_actions, self.config.bias, self.scaling)
 
     def score_candidates(self, candidates: np.ndarray) -> tuple[np.ndarray, int]:
         """Mean return of each candidate over its episodes, all played at once; and env steps used."""
@@ -195,6 +256,8 @@ class LinearSearch:
             "bias": self.config.bias,
             "best_score": self.best_score if np.isfinite(self.best_score) else None,  # JSON: None = none yet
         }
+        if self.scaling is not None:
+            data["observation_scaling"] = self.scaling.to_data()
         if resume:
             data["rng"] = self.rng.bit_generator.state
             data.update(self.extra_state())
@@ -295,4 +358,5 @@ def policy_from_checkpoint(checkpoint: Checkpoint) -> LinearPolicy:
         int(data["obs_dim"]),
         int(data["n_actions"]),
         bool(data["bias"]),
+        ObservationScaling.from_data(data.get("observation_scaling")),  # absent: raw observations
     )
