@@ -7,8 +7,7 @@ import pytest
 from cartpole.training import train
 
 
-@pytest.mark.slow
-@pytest.mark.learning
+@pytest.mark.slow  # not marked `learning`: CEM is numpy, so torch's other float kernels change nothing
 def test_cem_mountaincar_preset_solves_mountaincar_on_most_seeds(tmp_path):
     """``cartpole train cem --env MountainCar-v0 --preset mountaincar``: a verified solve (100 fresh
     episodes, mean >= -110) on 2 of 3 seeds within the preset's budget. The best linear policies average
