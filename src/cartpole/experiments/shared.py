@@ -166,7 +166,7 @@ class SharedComparison:
                 "name": name, "setup": setup, "entries": [], "claim_timeout": claim_timeout,
             }])  # fmt: skip
             row = db.execute(COMPARISONS.select().where(COMPARISONS.c.name == name).with_for_update()).one()
-            check_setup(name, url, dict(row.setup), setup)
+            check_setup(name, dict(row.setup), setup)
             known = list(row.entries)
             added = [e.label for e in entries if e.label not in known]
             if added:
@@ -324,7 +324,7 @@ class SharedComparison:
         return sorted({row.seed for row in self.rows()})
 
 
-def check_setup(name: str, url: str, stored: dict[str, Any], asked: dict[str, Any]) -> None:
+def check_setup(name: str, stored: dict[str, Any], asked: dict[str, Any]) -> None:
     """A comparison joined with another env or budget would mix results: refuse, naming the flag."""
     for key, value in asked.items():
         if stored.get(key) != value:
