@@ -371,3 +371,22 @@ def test_a_shared_comparison_whose_database_cannot_be_reached_is_a_problem_witho
     assert "cannot read the shared comparison" in body["problem"]
     assert "secret" not in response.text
     assert client.get("/api/experiments/gone/figures/curves.png").status_code == 404
+
+
+def test_the_web_app_creates_no_database_for_a_shared_comparison(tmp_path: Path):
+    """The server only reads: a storage named in experiment.json that is not there stays not there,
+    and no tables are made in a database that has none."""
+    import sqlite3
+
+    folder = tmp_path / "experiments" / "nowhere"
+    folder.mkdir(parents=True)
+    missing, empty = tmp_path / "missing.db", tmp_path / "empty.db"
+    sqlite3.connect(empty).close()
+    for db in (missing, empty):
+        setup = {"env_id": "CartPole-v1", "budget": None, "storage": f"sqlite:///{db}"}
+        (folder / "experiment.json").write_text(json.dumps(setup), "utf-8")
+        body = local_client(tmp_path).get("/api/experiments/nowhere").json()
+        assert "cannot read the shared comparison" in body["problem"]
+    assert not missing.exists()
+    with sqlite3.connect(empty) as connection:
+        assert connection.execute("select name from sqlite_master").fetchall() == []

@@ -124,8 +124,9 @@ class SharedComparison:
     # -- opening ---------------------------------------------------------------------------------------
 
     @staticmethod
-    def connect(url: str) -> Any:
-        """An engine on ``url`` with the tables created (ExperimentError, one line, if it cannot be)."""
+    def connect(url: str, create: bool = True) -> Any:
+        """An engine on ``url`` with the tables created where missing (``create``; a reader that must
+        write nothing passes False). ExperimentError, one line, if it cannot be had."""
         import sqlalchemy as sa
         from sqlalchemy.exc import OperationalError, SQLAlchemyError
 
@@ -133,6 +134,8 @@ class SharedComparison:
             engine = sa.create_engine(driver_url(url), **engine_options(url))
         except ImportError as err:
             raise missing_driver(url, err) from None
+        if not create:
+            return engine
         for attempt in range(CREATE_ATTEMPTS):
             try:
                 METADATA.create_all(engine)

@@ -93,10 +93,15 @@ class SharedReports:
         return built
 
     def _open(self, url: str, name: str) -> Any:
+        from cartpole.experiments.entries import ExperimentError
         from cartpole.experiments.shared import SharedComparison
+        from cartpole.experiments.storage import describe_url
 
         if url not in self._engines:
-            self._engines[url] = SharedComparison.connect(url)
+            backend, where = describe_url(url)
+            if backend == "sqlite" and not Path(where).is_file():  # SQLite would make the file
+                raise ExperimentError(f"no database file {Path(where).name}")
+            self._engines[url] = SharedComparison.connect(url, create=False)  # this server writes nothing
         return SharedComparison.open(url, name, engine=self._engines[url])
 
 
