@@ -67,8 +67,9 @@ class ObservationScaling:
         infinite (or empty) range left as it is."""
         lo, hi = np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64)
         finite = np.isfinite(lo) & np.isfinite(hi) & (hi > lo)
-        center = np.where(finite, (hi + lo) / 2, 0.0)
-        half_width = np.where(finite, (hi - lo) / 2, 1.0)
+        lo, hi = np.where(finite, lo, -1.0), np.where(finite, hi, 1.0)  # (-1, 1): left as it is
+        center = (hi + lo) / 2
+        half_width = (hi - lo) / 2
         return cls(center, half_width)
 
     def apply(self, observations: np.ndarray) -> np.ndarray:
