@@ -33,21 +33,11 @@ for _var in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MK
 
 import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
-from cpu import describe_cpu  # noqa: E402
+from cpu import describe_cpu, pin_to_one_cpu  # noqa: E402
 
 TARGET_STEPS_PER_S = 1e8  # at 65,536 envs, float32
 TARGET_SPEEDUP = 3.0  # over Gymnasium's CartPoleVectorEnv at 4,096 envs
 ENV_ID = "CartPole-v1"
-
-
-def pin_to_one_cpu(cpu: int | None) -> int | None:
-    """Pin this process to ``cpu`` (default: the first it may use); None where unsupported."""
-    if not hasattr(os, "sched_setaffinity"):
-        return None
-    allowed = sorted(os.sched_getaffinity(0))
-    chosen = allowed[0] if cpu is None else cpu
-    os.sched_setaffinity(0, {chosen})
-    return chosen
 
 
 CLOCK: Callable[[], float] = time.thread_time  # see the module docstring; --wall changes it

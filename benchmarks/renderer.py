@@ -41,7 +41,7 @@ os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
 
 import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
-from cpu import describe_cpu  # noqa: E402
+from cpu import describe_cpu, pin_to_one_cpu  # noqa: E402
 
 from cartpole.envs.fast import CartPoleVectorEnv  # noqa: E402
 from cartpole.envs.pixels import (  # noqa: E402
@@ -52,16 +52,6 @@ from cartpole.envs.pixels import (  # noqa: E402
 )
 
 TARGET_FRAMES_PER_S = 1e5  # per core, at the default size, batched
-
-
-def pin_to_one_cpu(cpu: int | None) -> int | None:
-    """Pin this process to ``cpu`` (default: the first it may use); None where unsupported."""
-    if not hasattr(os, "sched_setaffinity"):
-        return None
-    allowed = sorted(os.sched_getaffinity(0))
-    chosen = allowed[0] if cpu is None else cpu
-    os.sched_setaffinity(0, {chosen})
-    return chosen
 
 
 def rate(call: Callable[[], Any], items: int, seconds: float) -> float:
