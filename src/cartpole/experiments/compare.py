@@ -17,8 +17,10 @@ ordinary run folders, a record each.
 from __future__ import annotations
 
 import re
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -263,8 +265,6 @@ class SharedRunner:
         chunk: int,
         progress: Callable[[str, int, int, int], None] | None,
     ):
-        import time
-
         self.experiment, self.shared, self.chunk, self.progress = experiment, shared, chunk, progress
         self.owner = new_owner()
         self.labels = [e.label for e in experiment.entries]
@@ -299,8 +299,6 @@ class SharedRunner:
             return default
 
     def next_job(self) -> Job | None:
-        import time
-
         if time.monotonic() < self.next_look:
             return None
         claim = self.database(
@@ -318,8 +316,6 @@ class SharedRunner:
     def more(self) -> bool:
         """Whether to wait: runs of this request are not finished, and some are claimed by other
         workers (who may finish them, or die and leave them to this one) or are claimable again."""
-        import time
-
         time.sleep(max(0.0, self.next_look - time.monotonic()))
         progress = self.database(
             "count runs", lambda: self.shared.progress(self.labels, self.experiment.seeds), None
@@ -329,8 +325,6 @@ class SharedRunner:
         return bool(progress.finished + len(self.failed) < progress.total)
 
     def tick(self) -> None:
-        import time
-
         if time.monotonic() - self.last_beat >= self.period:
             self.last_beat = time.monotonic()
             self.database("renew claims", lambda: self.shared.heartbeat(self.owner), 0)
@@ -338,7 +332,6 @@ class SharedRunner:
 
     def store(self, finished: list[tuple[Entry, int, dict[str, Any], dict[str, Any]]]) -> None:
         """Put finished runs' results in the database; those it does not take wait in ``unstored``."""
-        from functools import partial
 
         def stored(run: tuple[Entry, int, dict[str, Any], dict[str, Any]]) -> bool:
             finish = partial(self.shared.finish, self.owner, *run)
@@ -347,8 +340,6 @@ class SharedRunner:
         self.unstored = [run for run in finished if not stored(run)]
 
     def on_done(self, job: Job, code: int) -> None:
-        from functools import partial
-
         from cartpole.experiments.figures import EvalCurve
         from cartpole.runs import RunError
 
