@@ -245,7 +245,12 @@ class StackedReplay:
 
     def __init__(self, seeds: int, capacity: int, obs_dim: int, device: torch.device):
         self.capacity, self.obs_dim = capacity, obs_dim
-        self.table = torch.zeros(seeds, capacity, 2 * obs_dim + 3, device=device)
+        # Uninitialized, not zeros: ``torch.zeros`` writes every page of the table at once, so a
+        # population's whole capacity would be resident from the start; here a page costs memory when
+        # it is first written. No row at or past a seed's fill count is ever read (minibatches draw
+        # below it), except row 0, the padding slot of a seed with no rows yet: zeroed.
+        self.table = torch.empty(seeds, capacity, 2 * obs_dim + 3, device=device)
+        self.table[:, 0] = 0.0
         self.pos = np.zeros(seeds, dtype=np.int64)
         self.size = np.zeros(seeds, dtype=np.int64)
         self.host_view()
@@ -293,8 +298,17 @@ class StackedReplay:
         flat = self.table.view(seeds * capacity, -1).index_select(0, (index + base).view(-1))
         return flat.view(seeds, index.shape[1], -1)
 
-    def keep(self, rows: torch.Tensor, rows_np: np.ndarray) -> None:
-        self.table = self.table[rows]
+    def keep(self, rows_np: np.ndarray) -> None:
+        """Keep only the seeds at ``rows_np`` (rising), moving each one's filled rows down in place.
+
+        Not ``table[rows]``: that copy would make every page of a new ``[S, capacity, ...]`` table
+        resident at once (the table's unwritten pages cost nothing until then), doubling the replay's
+        memory at the moment a seed stops. Rows past a seed's fill count are never read."""
+        for new, old in enumerate(rows_np.tolist()):
+            if new != old:
+                filled = int(self.size[old])
+                self.table[new, :filled] = self.table[old, :filled]
+        self.table = self.table[: len(rows_np)]
         self.pos, self.size = self.pos[rows_np], self.size[rows_np]
         self.host_view()
 
@@ -387,7 +401,7 @@ class PopulationDQN(SeedRows):
         rows = torch.from_numpy(rows_np).to(self.device)
         self.net.keep(rows)
         self.optimizer.keep(rows)
-        self.replay.keep(rows, rows_np)
+        self.replay.keep(rows_np)
         self.envs.keep(rows_np)
         self.explore_rngs = [self.explore_rngs[i] for i in rows_np]
         self.replay_generators = [self.replay_generators[i] for i in rows_np]
