@@ -331,10 +331,16 @@ def test_edge_sizes_are_allowed() -> None:
         assert observations.shape == (2, stack, *frame_size)
 
 
-def test_training_on_a_pixel_env_is_refused_in_one_line(capsys):
-    """No agent has a convolutional network yet: asking for one is bad input, said in one line."""
+def test_training_a_pixel_env_without_a_conv_network_is_refused_in_one_line(tmp_path, capsys):
+    """Only the actor-critic agents have a convolutional network: asking another agent to learn from
+    pixels is bad input, said in one line before a run folder exists (tests/test_pixel_agents.py
+    trains the ones that can)."""
     from cartpole.cli.main import main
 
-    assert main(["train", "ppo", "--env", "cartpole/CartPolePixels-v1", "--quiet"]) == 2
+    runs = tmp_path / "runs"
+    assert (
+        main(["train", "dqn", "--env", "cartpole/CartPolePixels-v1", "--runs-dir", str(runs), "--quiet"]) == 2
+    )
     lines = capsys.readouterr().err.strip().splitlines()
-    assert len(lines) == 1 and "image observations (4, 30, 100)" in lines[0], lines
+    assert len(lines) == 1 and "dqn has no convolutional network yet" in lines[0], lines
+    assert not runs.exists()

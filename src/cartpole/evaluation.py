@@ -152,12 +152,16 @@ def start_states(env_id: str, seeds: list[int]) -> np.ndarray:
 
 def _reset_to_seeds(env: gym.vector.VectorEnv, env_id: str, seeds: list[int]) -> np.ndarray:
     """Reset ``env`` so that env i starts where Gymnasium's single env does for ``seeds[i]``."""
-    if not env_info(env_id).is_cartpole:
+    info = env_info(env_id)
+    base = env.unwrapped
+    if info.pixels_of and hasattr(base, "restart_at"):  # our pixel renderer: Gymnasium's states, drawn
+        env.reset(seed=seeds[0])
+        return np.asarray(base.restart_at(start_states(info.pixels_of, seeds)))
+    if not info.is_cartpole:  # Gymnasium's own pixels too: each of its envs is seeded as the single env
         observations, _ = env.reset(seed=seeds)  # type: ignore[arg-type]  # env i seeded with seeds[i]
         return observations
     env.reset(seed=seeds[0])
     states = start_states(env_id, seeds)
-    base = env.unwrapped
     if hasattr(base, "set_state"):  # our fast simulator
         base.set_state(states)
     else:  # Gymnasium's CartPoleVectorEnv keeps its state as [4, num_envs] float64

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from cartpole.envs import EnvInfo, env_info, resolve_simulator
+from cartpole.envs import EnvInfo, UnsupportedEnvError, env_info, resolve_simulator
 from cartpole.evaluation import BlockActor, Policy
 from cartpole.runs import Checkpoint, CheckpointError, RunDir, load_checkpoint
 
@@ -42,6 +42,19 @@ class AgentSpec:
     """(policies from its checkpoints, observation size) -> one actor for all of them in one pass,
     each acting as it does alone, or None where they do not stack: how a population's verdicts
     are played (else each policy acts in turn)."""
+    image_observations: bool = False
+    """Whether it can learn from image observations ``[channels, height, width]`` (it has a
+    convolutional network), e.g. ``cartpole/CartPolePixels-v1``."""
+
+    def check_env(self, env: EnvInfo) -> None:
+        """UnsupportedEnvError (one line) when this agent cannot learn on ``env``'s observations:
+        checked before anything is allocated or written."""
+        if env.is_image and not self.image_observations:
+            able = [spec.name for spec in agents().values() if spec.image_observations]
+            raise UnsupportedEnvError(
+                f"{self.name} has no convolutional network yet: train {' or '.join(able)} on {env.env_id} "
+                f"(its observations are images {list(env.obs_shape)})"
+            )
 
     def policies_actor(self, policies: list[Policy], obs_dim: int) -> BlockActor:
         """``policies`` of this agent as one :data:`~cartpole.evaluation.BlockActor` (policy b acts
@@ -86,6 +99,7 @@ def build_population(
 ) -> Population:
     """``seeds`` of agent ``spec`` with ``config`` on ``env``, batched in one learner. A single run is
     a population of one, bit for bit that seed in any population (``tests/test_one_engine.py``)."""
+    spec.check_env(env)
     return spec.make_population(config, env, seeds, device)
 
 
@@ -169,7 +183,7 @@ def policy_of(checkpoint: Checkpoint, file: Path) -> Policy:
     spec = spec_of(checkpoint)
     try:
         policy = spec.policy_from_checkpoint(checkpoint)
-        policy.act(np.zeros((1, fitted_shape(checkpoint)[0]), dtype=np.float32))  # tensors of the right size?
+        policy.act(np.zeros((1, *fitted_observation(checkpoint)), dtype=np.float32))  # right sizes?
         return policy
     except CheckpointError as err:
         raise CheckpointError(f"{file}: {err}") from err
@@ -189,6 +203,15 @@ def fitted_shape(checkpoint: Checkpoint) -> tuple[int, int]:
     except (KeyError, TypeError, ValueError):
         own = env_info(checkpoint.env_id)
         return own.obs_dim, own.n_actions
+
+
+def fitted_observation(checkpoint: Checkpoint) -> tuple[int, ...]:
+    """The observation shape of the env a checkpoint's agent was built for (flat: ``(obs_dim,)``;
+    checkpoints from before image observations name no shape: flat)."""
+    learner = checkpoint.meta.get("learner")
+    if isinstance(learner, dict) and isinstance(learner.get("obs_shape"), list):
+        return tuple(int(n) for n in learner["obs_shape"])
+    return (fitted_shape(checkpoint)[0],)
 
 
 def check_fits_env(checkpoint: Checkpoint, file: Path, env_id: str) -> None:

@@ -3,12 +3,15 @@
 ``make_vec_env`` is the one place that decides which simulator steps an env id:
 ``simulator="gymnasium"`` always uses Gymnasium's own implementation (the reference, used for every
 "solved" verdict by default); ``simulator="fast"`` uses :mod:`cartpole.envs.fast` for CartPole ids and
-falls back to Gymnasium for any other env.
+falls back to Gymnasium for any other env. Our pixel envs (``cartpole/CartPolePixels-v1``, -v0) are
+drawn by our fast renderer on ``"fast"``, and on ``"gymnasium"`` are Gymnasium's own CartPole seen
+through :class:`~cartpole.envs.pixels.GymnasiumPixels` (its ``rgb_array`` pictures, preprocessed the
+same way), so their verdicts rest on Gymnasium's physics and drawing too.
 """
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 import gymnasium as gym
 
@@ -39,17 +42,37 @@ def check_simulator(name: str, setting: str = "simulator") -> Simulator:
 
 
 def resolve_simulator(env_id: str, simulator: str) -> Simulator:
-    """The simulator that will really run ``env_id``: "fast" only exists for CartPole."""
+    """The simulator that will really run ``env_id``: "fast" only exists for CartPole (and its pixels)."""
     checked = check_simulator(simulator)
-    return "fast" if checked == "fast" and env_info(env_id).is_cartpole else "gymnasium"
+    info = env_info(env_id)
+    return "fast" if checked == "fast" and (info.is_cartpole or info.pixels_of) else "gymnasium"
 
 
 def make_vec_env(env_id: str, num_envs: int, *, simulator: str = "gymnasium") -> gym.vector.VectorEnv:
     """A vector env of ``num_envs`` copies of ``env_id`` with Gymnasium's next-step autoreset."""
-    env_info(env_id)  # validates the id and its spaces with a clear message
+    info = env_info(env_id)  # validates the id and its spaces with a clear message
     if resolve_simulator(env_id, simulator) == "fast":
         return gym.make_vec(fast_env_id(env_id), num_envs=num_envs, vectorization_mode="vector_entry_point")
+    if info.pixels_of:
+        return gymnasium_pixels_vec_env(info.pixels_of, num_envs, info.obs_shape)
     return gym.make_vec(env_id, num_envs=num_envs)
+
+
+def gymnasium_pixels_vec_env(
+    reference_id: str, num_envs: int, obs_shape: tuple[int, ...]
+) -> gym.vector.VectorEnv:
+    """``num_envs`` of Gymnasium's own ``reference_id`` (CartPole) seen as frame stacks of
+    ``obs_shape`` through :class:`~cartpole.envs.pixels.GymnasiumPixels`, stepped in turn (each
+    draws Gymnasium's 600x400 picture every step: the honest reference, not a fast one)."""
+    from cartpole.envs.pixels import GymnasiumPixels  # numba kernels: only when pixels are asked for
+
+    stack, height, width = obs_shape
+
+    def make() -> gym.Env[Any, Any]:
+        env = gym.make(reference_id, render_mode="rgb_array")
+        return GymnasiumPixels(env, frame_size=(height, width), stack=stack)
+
+    return gym.vector.SyncVectorEnv([make] * num_envs)
 
 
 __all__ = [

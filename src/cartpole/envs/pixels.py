@@ -500,6 +500,17 @@ class CartPolePixelsVectorEnv(VectorEnv[NDArray[np.uint8], NDArray[np.int64], ND
         self._autoreset[:] = False
         return self._observation(), info
 
+    def restart_at(self, states: ArrayLike) -> NDArray[np.uint8]:
+        """Put every env at ``states`` ``[num_envs, 4]`` as fresh episodes (after ``reset``) and fill
+        each stack with its frame; the observations. How evaluations start from the states that
+        Gymnasium's ``reset(seed=...)`` draws."""
+        self._sim.set_state(np.asarray(states))
+        self._head = 0
+        self._renderer.render(self._sim.get_state(), out=self._frames[0])
+        self._frames[1:] = self._frames[:1]
+        self._autoreset[:] = False
+        return self._observation()
+
     def step(
         self, actions: ArrayLike
     ) -> tuple[NDArray[np.uint8], NDArray[np.float32], NDArray[np.bool_], NDArray[np.bool_], dict[str, Any]]:

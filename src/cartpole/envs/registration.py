@@ -16,6 +16,17 @@ REFERENCE_IDS: tuple[str, ...] = ("CartPole-v0", "CartPole-v1")
 _NAMESPACE = "cartpole"
 
 
+def pixel_env_id(reference_id: str) -> str:
+    """The id of the pixel env that shows Gymnasium's ``reference_id`` (``CartPole-v1`` ->
+    ``cartpole/CartPolePixels-v1``)."""
+    return f"{_NAMESPACE}/{reference_id.replace('CartPole', 'CartPolePixels')}"
+
+
+PIXEL_REFERENCE_IDS: dict[str, str] = {pixel_env_id(r): r for r in REFERENCE_IDS}
+"""Pixel env id -> the Gymnasium env it shows: the state env its verdicts are played on (through
+:class:`~cartpole.envs.pixels.GymnasiumPixels`)."""
+
+
 def _register(env_id: str, reference_id: str, module: str, single: str, vector: str) -> None:
     """Register ``env_id`` with the time limit and reward threshold of Gymnasium's ``reference_id``."""
     if env_id in gym.registry:
@@ -51,7 +62,7 @@ def register_pixel_envs() -> None:
     simulator seen as frame stacks, with the time limits and thresholds of CartPole-v0 and -v1."""
     for reference_id in REFERENCE_IDS:
         _register(
-            f"{_NAMESPACE}/{reference_id.replace('CartPole', 'CartPolePixels')}",
+            pixel_env_id(reference_id),
             reference_id,
             "cartpole.envs.pixels",
             "CartPolePixelsEnv",

@@ -67,6 +67,8 @@ def make_resumable_vec_env(env_id: str, num_envs: int, simulator: Simulator) -> 
     info = env_info(env_id)
     if info.is_cartpole:  # batched CartPole, ours or Gymnasium's: both keep their per-env state public
         return make_vec_env(env_id, num_envs, simulator=simulator)
+    if info.pixels_of:  # Gymnasium's CartPole seen through its pictures: frame stacks are not public
+        return make_vec_env(env_id, num_envs, simulator=simulator)  # state, so a resume starts afresh
     without_limit = dataclasses.replace(gym.spec(env_id), max_episode_steps=None)
     clock = functools.partial(EpisodeClock, max_episode_steps=info.max_episode_steps)
     return gym.make_vec(without_limit, num_envs, vectorization_mode="sync", wrappers=[clock])

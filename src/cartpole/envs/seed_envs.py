@@ -8,6 +8,10 @@ make: seeded by ``reset(seed=seed)``, with Gymnasium's next-step autoreset. Two 
 - :class:`FastSeedEnvs`: CartPole on our fast simulator, all S x N envs stepped by one call of its
   kernel (:func:`~cartpole.envs.fast.step_cartpole_columns`); each seed's start states come from its own
   ``np_random(seed)`` in Gymnasium's order, so they are the start states its vector env would draw.
+- :class:`PixelSeedEnvs`: our pixel envs (``cartpole/CartPolePixels-v1``): the fast simulator's S x N
+  cart-poles as above, each drawn as a stack of gray frames by one renderer call per step
+  (:class:`~cartpole.envs.pixels.PixelRenderer`), as :class:`~cartpole.envs.pixels.CartPolePixelsVectorEnv`
+  draws them; observations stay uint8 (the network scales them).
 - :class:`GymnasiumSeedEnvs`: any other env or simulator (Acrobot, MountainCar, Gymnasium's own
   CartPole for the tutorial presets): one resumable Gymnasium vector env per seed
   (:func:`~cartpole.envs.resumable_envs.make_resumable_vec_env`), stepped in turn.
@@ -18,6 +22,8 @@ checkpoint and put back mid-episode (``seed_state`` / ``load_seed_state``).
 
 from __future__ import annotations
 
+import base64
+import zlib
 from typing import Any, Protocol
 
 import gymnasium as gym
@@ -41,7 +47,7 @@ class SeedEnvs(Protocol):
     num_envs: int
 
     def observations(self) -> np.ndarray:
-        """The current observations [S * N, obs_dim] (float32)."""
+        """The current observations [S * N, *obs_shape]: float32, or uint8 for images."""
         ...
 
     def step(self, actions: np.ndarray) -> Step:
@@ -70,6 +76,8 @@ def make_seed_envs(env: EnvInfo, simulator: str, seeds: list[int], num_envs: int
     """``num_envs`` envs of ``env`` for each seed of ``seeds``, on ``simulator`` where it runs that env."""
     limit = env.max_episode_steps or LONGEST_EPISODE_WITHOUT_TIME_LIMIT
     if resolve_simulator(env.env_id, simulator) == "fast":
+        if env.pixels_of:
+            return PixelSeedEnvs(FastSeedEnvs(seeds, num_envs, limit), env.obs_shape)
         return FastSeedEnvs(seeds, num_envs, limit)
     return GymnasiumSeedEnvs(env.env_id, seeds, num_envs)
 
@@ -151,6 +159,70 @@ class FastSeedEnvs:
         self.rngs[row].bit_generator.state = data["np_random"]
 
 
+class PixelSeedEnvs:
+    """The cart-poles of :class:`FastSeedEnvs` seen as stacks of gray frames ``[S * N, stack, height,
+    width]`` uint8 (oldest first), as :class:`~cartpole.envs.pixels.CartPolePixelsVectorEnv` sees
+    them: a stack is filled with its first frame at the start of an episode (also on the autoreset
+    step). Each env's frames depend only on its own states, so seeds stay independent."""
+
+    def __init__(self, states: FastSeedEnvs, obs_shape: tuple[int, ...]):
+        from cartpole.envs.pixels import PixelRenderer  # numba kernels: only for pixel envs
+
+        stack, height, width = obs_shape
+        self.states, self.num_envs = states, states.num_envs
+        self.renderer = PixelRenderer((height, width))
+        self.frames = np.empty((states.columns.shape[1], stack, height, width), dtype=np.uint8)
+        self.restack(np.arange(len(self.frames)), self.draw())
+
+    def draw(self) -> np.ndarray:
+        """A frame [S * N, height, width] of every env's current state."""
+        return self.renderer.render(self.states.columns.T)
+
+    def restack(self, envs: np.ndarray, frames: np.ndarray) -> None:
+        """Fill the stacks of ``envs`` with their frame of ``frames`` (a new episode's first)."""
+        self.frames[envs] = frames[envs, None]
+
+    def observations(self) -> np.ndarray:
+        return self.frames.copy()
+
+    def step(self, actions: np.ndarray) -> Step:
+        restarted = np.flatnonzero(self.states.pending)  # their step is the autoreset
+        _, rewards, terminated, truncated = self.states.step(actions)
+        frames = self.draw()
+        self.frames[:, :-1] = self.frames[:, 1:]
+        self.frames[:, -1] = frames
+        self.restack(restarted, frames)
+        return self.observations(), rewards, terminated, truncated
+
+    def restart(self, row: int, seed: int) -> None:
+        self.states.restart(row, seed)
+        envs = np.arange(len(self.frames))[env_rows(row, self.num_envs)]
+        self.restack(envs, self.draw())
+
+    def keep(self, seed_rows: np.ndarray) -> None:
+        self.frames = np.ascontiguousarray(self.frames[rows_of_envs(seed_rows, self.num_envs)])
+        self.states.keep(seed_rows)
+
+    def seed_state(self, row: int) -> dict[str, Any]:
+        # The stacks hold the last few states' frames, which the states alone cannot redraw: kept
+        # compressed (mostly white, they shrink to a few kB).
+        frames = self.frames[env_rows(row, self.num_envs)]
+        packed = base64.b64encode(zlib.compress(frames.tobytes())).decode("ascii")
+        return self.states.seed_state(row) | {"frames": packed}
+
+    def load_seed_state(self, row: int, data: dict[str, Any]) -> None:
+        self.states.load_seed_state(row, data)
+        envs = env_rows(row, self.num_envs)
+        unpacked = np.frombuffer(zlib.decompress(base64.b64decode(data["frames"])), dtype=np.uint8)
+        self.frames[envs] = unpacked.reshape(self.frames[envs].shape)
+
+
+def as_observations(observations: Any) -> np.ndarray:
+    """A vector env's observations as the learners take them: images stay uint8, the rest float32."""
+    array = np.asarray(observations)
+    return array if array.dtype == np.uint8 else array.astype(np.float32)
+
+
 class GymnasiumSeedEnvs:
     """One Gymnasium vector env per seed (any env with Box observations), stepped in turn."""
 
@@ -161,7 +233,7 @@ class GymnasiumSeedEnvs:
         for seed in seeds:
             envs = make_resumable_vec_env(env_id, num_envs, "gymnasium")
             self.envs.append(envs)
-            self.current.append(np.asarray(envs.reset(seed=seed)[0], dtype=np.float32))
+            self.current.append(as_observations(envs.reset(seed=seed)[0]))
         n = len(seeds) * num_envs
         self.steps = np.zeros(n, dtype=np.int64)
         self.pending = np.zeros(n, dtype=bool)
@@ -174,7 +246,7 @@ class GymnasiumSeedEnvs:
         for row, envs in enumerate(self.envs):
             mine = actions[env_rows(row, self.num_envs)]
             observations, reward, term, trunc, _ = envs.step(mine)
-            self.current[row] = np.asarray(observations, dtype=np.float32)
+            self.current[row] = as_observations(observations)
             rewards.append(reward)
             terminated.append(term)
             truncated.append(trunc)
@@ -189,7 +261,7 @@ class GymnasiumSeedEnvs:
         )
 
     def restart(self, row: int, seed: int) -> None:
-        self.current[row] = np.asarray(self.envs[row].reset(seed=seed)[0], dtype=np.float32)
+        self.current[row] = as_observations(self.envs[row].reset(seed=seed)[0])
         envs = env_rows(row, self.num_envs)
         self.steps[envs] = 0
         self.pending[envs] = False
@@ -218,9 +290,10 @@ class GymnasiumSeedEnvs:
         self.steps[envs] = data["steps"]
         self.pending[envs] = data["pending"]
         if restore_vector_env_state(self.envs[row], data["vector_env"], self.steps[envs], self.pending[envs]):
-            self.current[row] = np.asarray(data["observations"], dtype=np.float32)
+            saved = np.asarray(data["observations"], dtype=self.current[row].dtype)
+            self.current[row] = as_observations(saved)
         else:  # an env whose state is not public (see resumable_envs): fresh episodes
-            self.current[row] = np.asarray(self.envs[row].reset()[0], dtype=np.float32)
+            self.current[row] = as_observations(self.envs[row].reset()[0])
             self.steps[envs] = 0
             self.pending[envs] = False
 
@@ -229,6 +302,7 @@ __all__ = [
     "LONGEST_EPISODE_WITHOUT_TIME_LIMIT",
     "FastSeedEnvs",
     "GymnasiumSeedEnvs",
+    "PixelSeedEnvs",
     "SeedEnvs",
     "make_seed_envs",
     "rows_of_envs",

@@ -7,6 +7,7 @@ each get their own rule.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cache
 
@@ -14,10 +15,12 @@ import gymnasium as gym
 import numpy as np
 
 from cartpole.core.errors import InputError
+from cartpole.envs.registration import PIXEL_REFERENCE_IDS
 
 
 class UnsupportedEnvError(InputError, ValueError):
-    """The env id is unknown, or its spaces are not a Box observation and Discrete actions."""
+    """The env id is unknown, or its spaces are not a Box observation (flat or image) and Discrete
+    actions."""
 
 
 @dataclass(frozen=True)
@@ -26,16 +29,36 @@ class EnvInfo:
 
     env_id: str
     obs_dim: int
+    """Numbers in one observation (of a flat one, its length; of an image, channels x height x width)."""
     n_actions: int
     reward_threshold: float | None
     max_episode_steps: int | None
     obs_low: tuple[float, ...]
     obs_high: tuple[float, ...]
+    """Bounds of each number of a flat observation (of an image: its one pixel range, 0 and 255)."""
+    obs_shape: tuple[int, ...] = ()
+    """Shape of one observation: ``(obs_dim,)`` flat, ``(channels, height, width)`` for images, as
+    agents choose their network by it."""
+
+    def __post_init__(self) -> None:
+        if not self.obs_shape:
+            object.__setattr__(self, "obs_shape", (self.obs_dim,))
+
+    @property
+    def is_image(self) -> bool:
+        """True for image observations ``[channels, height, width]`` (a convolutional network's)."""
+        return len(self.obs_shape) == 3
 
     @property
     def is_cartpole(self) -> bool:
         """True for Gymnasium's CartPole ids (our fast simulator can stand in for them)."""
         return self.env_id.removeprefix("cartpole/") in ("CartPole-v0", "CartPole-v1")
+
+    @property
+    def pixels_of(self) -> str | None:
+        """For our pixel envs, the Gymnasium CartPole id they show (their verdicts are played on it,
+        seen through :class:`~cartpole.envs.pixels.GymnasiumPixels`); else None."""
+        return PIXEL_REFERENCE_IDS.get("cartpole/" + self.env_id.removeprefix("cartpole/"))
 
 
 @cache
@@ -58,28 +81,28 @@ def env_info(env_id: str) -> EnvInfo:
         obs_space, act_space = env.observation_space, env.action_space
     finally:
         env.close()
-    if isinstance(obs_space, gym.spaces.Box) and len(obs_space.shape) == 3:
-        raise UnsupportedEnvError(
-            f"{env_id} has image observations {obs_space.shape}: training from pixels needs a "
-            "convolutional network, which no agent here has yet; use a flat Box observation env "
-            "such as CartPole-v1"
-        )
-    if not isinstance(obs_space, gym.spaces.Box) or len(obs_space.shape) != 1:
+    if not isinstance(obs_space, gym.spaces.Box) or len(obs_space.shape) not in (1, 3):
         raise UnsupportedEnvError(
             f"{env_id} has a {type(obs_space).__name__}{getattr(obs_space, 'shape', '')} "
-            "observation; supported: a flat Box observation with Discrete actions"
+            "observation; supported: a flat Box observation, or images [channels, height, width], "
+            "with Discrete actions"
         )
     if not isinstance(act_space, gym.spaces.Discrete):
         raise UnsupportedEnvError(
             f"{env_id} has {type(act_space).__name__} actions; supported: Discrete actions "
             "with a flat Box observation"
         )
+    shape = tuple(int(n) for n in obs_space.shape)
+    low, high = np.asarray(obs_space.low), np.asarray(obs_space.high)
+    if len(shape) == 3:  # one range for every pixel, not one per pixel
+        low, high = np.asarray([low.min()]), np.asarray([high.max()])
     return EnvInfo(
         env_id=env_id,
-        obs_dim=int(obs_space.shape[0]),
+        obs_dim=math.prod(shape),
         n_actions=int(act_space.n),
         reward_threshold=spec.reward_threshold,
         max_episode_steps=spec.max_episode_steps,
-        obs_low=tuple(float(v) for v in np.asarray(obs_space.low)),
-        obs_high=tuple(float(v) for v in np.asarray(obs_space.high)),
+        obs_low=tuple(float(v) for v in low),
+        obs_high=tuple(float(v) for v in high),
+        obs_shape=shape,
     )

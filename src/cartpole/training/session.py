@@ -161,6 +161,7 @@ def start(
         require_tensorboard()  # before a run folder is made
     spec = get_agent(agent)
     env = env_info(env_id)
+    spec.check_env(env)  # before its memory estimate: that of an agent that cannot take the env is moot
     config, settings = resolve_config(agent, spec.config_cls, preset, overrides)
     if stop_when_solved is not None:
         settings.stop_when_solved = stop_when_solved
@@ -433,7 +434,7 @@ def restore(setup: RunSetup, population: Population) -> LoopState | None:
     seed = SeedLearner(population, setup.seed)
     try:
         seed.load_state_dict(checkpoint.tensors, checkpoint.meta["learner"])
-        seed.policy().act(np.zeros((1, setup.env.obs_dim), dtype=np.float32))  # weights of the right size?
+        seed.policy().act(np.zeros((1, *setup.env.obs_shape), dtype=np.float32))  # weights of the right size?
         state = LoopState.from_dict(checkpoint.meta["loop"])
     except ConfigError as err:  # the learner says why, in one line
         raise CheckpointError(f"{latest}: {err}") from err

@@ -3,15 +3,20 @@
 - ``ActorCritic``: an MLP from observations to action logits (the actor) and a state value (the
   critic), with separate trunks or one shared trunk, and optional orthogonal initialization (the
   scheme CleanRL and Stable-Baselines3 use: gain sqrt(2) on hidden layers, 0.01 on the policy head,
-  1 on the value head, zero biases).
+  1 on the value head, zero biases). For image observations ``[channels, height, width]`` each trunk
+  starts with a small convolutional network (:data:`CONV_LAYERS`, on pixels scaled to [0, 1] and
+  inverted: :func:`scale_pixels`) whose
+  flattened output feeds the MLP.
 - ``CategoricalPolicy``: the greedy policy of a trained actor, frozen: ``scores`` are the action
   probabilities, ``act`` their argmax. It runs the actor with numpy on copies of its weights
-  (:class:`~cartpole.agents.nn.numpy_mlp.NumpyMLP`).
+  (:class:`~cartpole.agents.nn.numpy_mlp.NumpyMLP`), or, for a convolutional actor (which has no
+  numpy twin), with torch on a frozen copy.
 - ``schedule_value``: the constant and linear schedules of learning rate and clip range.
 """
 
 from __future__ import annotations
 
+import copy
 import itertools
 import math
 from collections.abc import Sequence
@@ -43,16 +48,91 @@ def mlp(sizes: list[int], activation: str) -> list[nn.Linear | nn.Module]:
     return layers
 
 
-class ActorCritic(nn.Module):
-    """Action logits and state values from one MLP (shared trunk) or two (separate trunks).
+CONV_LAYERS: tuple[tuple[int, int, int], ...] = ((16, 8, 4), (32, 3, 1))
+"""(filters, kernel size, stride) of the convolutional layers of an image trunk, each followed by a
+ReLU, no padding. Small on purpose: a 4x30x100 frame stack becomes 16x6x24 then 32x4x22 (2,816
+features), about 1.2 M multiply-adds a frame with the first hidden layer, cheap enough to train on
+a CPU (a 256-row forward and backward pass: ~45 ms on one core, against ~110 ms for 5x5 stride 2
+then 3x3 stride 2). The 8x8 windows overlap by half, so the pole's edges (1.7 pixels wide) and
+their motion across the stacked frames still show in every window's gray levels."""
+PIXEL_SCALE = 1.0 / 255.0
+"""uint8 pixels to [0, 1]."""
 
-    ``forward`` returns both; ``logits`` and ``values`` compute one of them alone (acting needs only the
+
+def scale_pixels(observations: torch.Tensor) -> torch.Tensor:
+    """Pixels (uint8, or floats of the same values) as float32 darkness in [0, 1]: ``1 - x / 255``.
+
+    Inverted because Gymnasium draws the cart-pole dark on a white screen: as darkness the
+    background is 0, so the convolutions' outputs are sparse and start from what moves (as Atari's
+    dark backgrounds give DQN's networks), instead of a large constant from the white that hides the
+    pole. The network's first step, so rollouts can keep observations as uint8."""
+    return 1.0 - observations.to(torch.float32) * PIXEL_SCALE
+
+
+class ScalePixels(nn.Module):
+    """:func:`scale_pixels` as a layer (no parameters)."""
+
+    def forward(self, observations: torch.Tensor) -> torch.Tensor:
+        return scale_pixels(observations)
+
+
+def conv_output_size(obs_shape: Sequence[int]) -> int:
+    """Features the :data:`CONV_LAYERS` make of one image ``[channels, height, width]``."""
+    _, height, width = obs_shape
+    channels = obs_shape[0]
+    for filters, kernel, stride in CONV_LAYERS:
+        height, width = (height - kernel) // stride + 1, (width - kernel) // stride + 1
+        channels = filters
+    if height < 1 or width < 1:
+        raise ValueError(f"images {tuple(obs_shape)} are too small for the convolutional layers")
+    return channels * height * width
+
+
+def trunk(obs_shape: tuple[int, ...], hidden_sizes: tuple[int, ...], activation: str) -> nn.Sequential:
+    """The layers from an observation to the last hidden layer: an MLP for flat observations
+    ``(obs_dim,)``; for images ``(channels, height, width)``, scaled pixels through the
+    :data:`CONV_LAYERS` (ReLU), flattened, then the MLP."""
+    if len(obs_shape) == 1:
+        return nn.Sequential(*mlp([obs_shape[0], *hidden_sizes], activation))
+    layers: list[nn.Module] = [ScalePixels()]
+    channels = obs_shape[0]
+    for filters, kernel, stride in CONV_LAYERS:
+        layers += [nn.Conv2d(channels, filters, kernel, stride), nn.ReLU()]
+        channels = filters
+    layers.append(nn.Flatten())
+    return nn.Sequential(*layers, *mlp([conv_output_size(obs_shape), *hidden_sizes], activation))
+
+
+def parameter_count(
+    obs_shape: tuple[int, ...], n_actions: int, hidden_sizes: tuple[int, ...], shared: bool
+) -> int:
+    """Parameters of an :class:`ActorCritic` (without building it: memory estimates use it)."""
+    features = obs_shape[0]
+    conv = 0
+    if len(obs_shape) == 3:
+        channels = obs_shape[0]
+        for filters, kernel, _ in CONV_LAYERS:
+            conv += filters * channels * kernel * kernel + filters
+            channels = filters
+        features = conv_output_size(obs_shape)
+    sizes = [features, *hidden_sizes]
+    one_trunk = conv + sum(n_in * n_out + n_out for n_in, n_out in itertools.pairwise(sizes))
+    heads = sizes[-1] * (n_actions + 1) + n_actions + 1
+    return one_trunk * (1 if shared else 2) + heads
+
+
+class ActorCritic(nn.Module):
+    """Action logits and state values from one trunk (shared) or two (separate): an MLP, or for
+    images a convolutional network and an MLP (:func:`trunk`).
+
+    ``obs_shape`` is an observation's shape (an int: a flat observation of that size). ``forward``
+    returns both outputs; ``logits`` and ``values`` compute one of them alone (acting needs only the
     logits, and with separate trunks skips the critic).
     """
 
     def __init__(
         self,
-        obs_dim: int,
+        obs_shape: int | tuple[int, ...],
         n_actions: int,
         hidden_sizes: tuple[int, ...],
         activation: str = "tanh",
@@ -62,21 +142,29 @@ class ActorCritic(nn.Module):
     ):
         super().__init__()
         self.shared_trunk = shared_trunk
-        sizes = [obs_dim, *hidden_sizes]
-        # nn.Linear initializes itself from torch's global generator: build under fork_rng, which puts
-        # the global state back, then initialize every parameter from ``generator`` (nothing global
-        # changes when a learner is built).
+        self.obs_shape = (obs_shape,) if isinstance(obs_shape, int) else tuple(obs_shape)
+        features = hidden_sizes[-1]
+        # nn.Linear and nn.Conv2d initialize themselves from torch's global generator: build under
+        # fork_rng, which puts the global state back, then initialize every parameter from
+        # ``generator`` (nothing global changes when a learner is built).
         with torch.random.fork_rng(devices=[]):
-            self.actor_trunk = nn.Sequential(*mlp(sizes, activation))
-            self.critic_trunk = self.actor_trunk if shared_trunk else nn.Sequential(*mlp(sizes, activation))
-            self.policy_head = nn.Linear(sizes[-1], n_actions)
-            self.value_head = nn.Linear(sizes[-1], 1)
+            self.actor_trunk = trunk(self.obs_shape, hidden_sizes, activation)
+            self.critic_trunk = (
+                self.actor_trunk if shared_trunk else trunk(self.obs_shape, hidden_sizes, activation)
+            )
+            self.policy_head = nn.Linear(features, n_actions)
+            self.value_head = nn.Linear(features, 1)
         self.initialize(orthogonal_init, generator)
 
-    def linear_layers(self) -> list[tuple[nn.Linear, float]]:
-        """Every linear layer once, with its orthogonal-init gain."""
+    @property
+    def is_image(self) -> bool:
+        """True when its trunks start with convolutional layers (image observations)."""
+        return len(self.obs_shape) == 3
+
+    def linear_layers(self) -> list[tuple[nn.Linear | nn.Conv2d, float]]:
+        """Every layer with weights (linear and convolutional) once, with its orthogonal-init gain."""
         trunks = [self.actor_trunk] if self.shared_trunk else [self.actor_trunk, self.critic_trunk]
-        hidden = [layer for trunk in trunks for layer in trunk if isinstance(layer, nn.Linear)]
+        hidden = [layer for trunk in trunks for layer in trunk if isinstance(layer, nn.Linear | nn.Conv2d)]
         return [(layer, math.sqrt(2)) for layer in hidden] + [
             (self.policy_head, 0.01),
             (self.value_head, 1.0),
@@ -85,15 +173,17 @@ class ActorCritic(nn.Module):
     @torch.no_grad()
     def initialize(self, orthogonal: bool, generator: torch.Generator | None) -> None:
         """Orthogonal weights (gain sqrt(2) hidden, 0.01 policy head, 1 value head) and zero biases;
-        else nn.Linear's own default initialization. Drawn from ``generator``."""
+        else the layers' own default initialization. Drawn from ``generator``."""
         for layer, gain in self.linear_layers():
-            if orthogonal:
+            bias = layer.bias
+            assert bias is not None  # every layer here is built with one
+            if orthogonal:  # a conv weight is orthogonal as [filters, inputs x kernel area]
                 nn.init.orthogonal_(layer.weight, gain, generator=generator)
-                nn.init.zeros_(layer.bias)
-            else:  # = nn.Linear.reset_parameters, from our generator
+                nn.init.zeros_(bias)
+            else:  # = nn.Linear's and nn.Conv2d's reset_parameters, from our generator
                 nn.init.kaiming_uniform_(layer.weight, a=math.sqrt(5), generator=generator)
-                bound = 1.0 / math.sqrt(layer.in_features)
-                nn.init.uniform_(layer.bias, -bound, bound, generator=generator)
+                bound = 1.0 / math.sqrt(layer.weight[0].numel())  # 1 / sqrt(fan_in)
+                nn.init.uniform_(bias, -bound, bound, generator=generator)
 
     @staticmethod
     def _run(trunk: nn.Sequential, observations: torch.Tensor) -> torch.Tensor:
@@ -130,11 +220,14 @@ class ActorCritic(nn.Module):
 class CategoricalPolicy:
     """The greedy policy of an actor: ``scores`` = action probabilities, ``act`` = their argmax.
 
-    Holds numpy copies of the actor's weights taken when it is built, so it is a frozen snapshot.
+    Holds numpy copies of the actor's weights taken when it is built (a convolutional actor: a torch
+    copy, :class:`TorchActor`), so it is a frozen snapshot.
     """
 
     def __init__(self, model: ActorCritic):
-        self.logits = NumpyMLP(model.actor_layers())
+        self.logits: NumpyMLP | TorchActor = (
+            TorchActor(model) if model.is_image else NumpyMLP(model.actor_layers())
+        )
         """Action logits [N, n_actions] of observations."""
 
     def scores(self, observations: np.ndarray) -> np.ndarray:
@@ -147,6 +240,20 @@ class CategoricalPolicy:
 
     def act(self, observations: np.ndarray) -> np.ndarray:
         return self.logits(observations).argmax(axis=1)
+
+
+class TorchActor:
+    """The action logits of a frozen copy of an actor, computed with torch: for convolutional actors,
+    which have no numpy twin (a frame stack's convolutions are where torch's kernels pay off)."""
+
+    def __init__(self, model: ActorCritic):
+        self.model = copy.deepcopy(model).requires_grad_(False)
+
+    @torch.no_grad()
+    def __call__(self, observations: np.ndarray) -> np.ndarray:
+        """Logits [N, n_actions] of observations [N, *obs_shape] (uint8 pixels or their float values)."""
+        batch = torch.as_tensor(np.asarray(observations)).reshape(-1, *self.model.obs_shape)
+        return self.model.logits(batch).numpy()
 
 
 def block_greedy_actor(logits: StackedNumpyMLP, obs_dim: int) -> BlockActor:
@@ -174,18 +281,24 @@ def block_greedy_actor(logits: StackedNumpyMLP, obs_dim: int) -> BlockActor:
 def stacked_greedy_actor(policies: Sequence[object], obs_dim: int) -> BlockActor | None:
     """:func:`block_greedy_actor` of ``policies`` when they are :class:`CategoricalPolicy` objects of
     one shape (a population's verdicts), else None. Each policy's actions are those it takes alone."""
-    if not all(isinstance(p, CategoricalPolicy) for p in policies):
-        return None
+    if not all(isinstance(p, CategoricalPolicy) and isinstance(p.logits, NumpyMLP) for p in policies):
+        return None  # convolutional actors act one by one (each already batches its episodes)
     stacked = StackedNumpyMLP.stack([p.logits for p in policies])  # type: ignore[attr-defined]
     return None if stacked is None else block_greedy_actor(stacked, obs_dim)
 
 
 __all__ = [
     "ACTIVATIONS",
+    "CONV_LAYERS",
     "SCHEDULES",
     "ActorCritic",
     "CategoricalPolicy",
+    "ScalePixels",
+    "TorchActor",
     "block_greedy_actor",
+    "conv_output_size",
+    "parameter_count",
+    "scale_pixels",
     "schedule_value",
     "stacked_greedy_actor",
 ]

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, fields
+from typing import Any
 
 import torch
 
@@ -112,7 +113,7 @@ def generalized_advantages(
 def seeded_actor_critic(config: PolicyGradientConfig, env: EnvInfo, seed: int) -> ActorCritic:
     """The network a learner of ``seed`` starts from (a population's seeds start from the same)."""
     return ActorCritic(
-        env.obs_dim,
+        env.obs_shape,
         env.n_actions,
         config.hidden_sizes,
         config.activation,
@@ -126,6 +127,14 @@ def with_prefix(tensors: dict[str, torch.Tensor], prefix: str) -> dict[str, torc
     return {k.removeprefix(prefix): v for k, v in tensors.items() if k.startswith(prefix)}
 
 
+def observation_shape(learner: dict[str, Any]) -> tuple[int, ...]:
+    """The observation shape a checkpoint's ``learner`` data names (checkpoints written before
+    image observations name only ``obs_dim``: flat)."""
+    if "obs_shape" in learner:
+        return tuple(int(n) for n in learner["obs_shape"])
+    return (int(learner["obs_dim"]),)
+
+
 def policy_loader(agent: str, config_cls: type) -> Callable[[Checkpoint], CategoricalPolicy]:
     """``policy_from_checkpoint`` for an agent whose checkpoints hold an ActorCritic as ``model.*``."""
 
@@ -134,7 +143,7 @@ def policy_loader(agent: str, config_cls: type) -> Callable[[Checkpoint], Catego
             config = build_config(config_cls, checkpoint.meta["config"])
             data = checkpoint.meta["learner"]
             model = ActorCritic(
-                int(data["obs_dim"]),
+                observation_shape(data),
                 int(data["n_actions"]),
                 config.hidden_sizes,
                 config.activation,

@@ -12,12 +12,15 @@ shared is only the arithmetic:
   on the CPU, vmap's per-call batching rules cost more than these small layers' arithmetic, while
   ``baddbmm`` is one kernel per layer; and it gives every seed the same bits whatever the batch
   holds (tested; for layer widths that are multiples of 4, as every preset's are), so a seed's run
-  does not depend on which seeds share the process.
+  does not depend on which seeds share the process. The convolutional layers of an image trunk
+  run per seed (:func:`~cartpole.agents.nn.stacked_conv.stacked_conv2d`), for the same reason.
 - The envs (:mod:`cartpole.envs.seed_envs`): on CartPole's fast simulator S x N envs stepped by one
   kernel call, each seed's start states drawn from its own generator in Gymnasium's order (those of
-  the single run's vector env); on any other env each seed's own Gymnasium vector env. The actors
-  act through a frozen NumPy copy of their weights (``np.matmul`` per seed's slice), which costs
-  less than torch for the few rows of one step.
+  the single run's vector env), drawn as frame stacks for the pixel envs; on any other env each
+  seed's own Gymnasium vector env. The actors act through a frozen NumPy copy of their weights
+  (``np.matmul`` per seed's slice), which costs less than torch for the few rows of one step; a
+  convolutional actor acts through torch (its convolutions are torch's strength, and it has no
+  NumPy twin). Pixel observations stay uint8 in the rollout; the network scales them.
 - ``PopulationAdam`` (:mod:`cartpole.agents.nn.population_optimizers`): one Adam step for all seeds
   over the flat parameters, one numba pass per seed's row on the CPU. Adam is per element,
   so seeds stay independent; each seed has its own learning rate (schedules follow the seed's own
@@ -32,7 +35,6 @@ shared is only the arithmetic:
 
 from __future__ import annotations
 
-import itertools
 import math
 import warnings
 from collections.abc import Callable
@@ -47,7 +49,11 @@ from cartpole.agents.actor_critic.a2c import A2CConfig
 from cartpole.agents.actor_critic.network import (
     ActorCritic,
     CategoricalPolicy,
+    ScalePixels,
     block_greedy_actor,
+    conv_output_size,
+    parameter_count,
+    scale_pixels,
     schedule_value,
     stacked_greedy_actor,
 )
@@ -62,6 +68,7 @@ from cartpole.agents.learner import LearnResult
 from cartpole.agents.nn.fast_tanh import tanh
 from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step
 from cartpole.agents.nn.population_optimizers import PopulationAdam, PopulationOptimizer, PopulationRMSprop
+from cartpole.agents.nn.stacked_conv import stacked_conv2d
 from cartpole.agents.nn.stacked_linear import stacked_linear
 from cartpole.agents.population import SeedRows
 from cartpole.agents.registry import AgentSpec
@@ -77,19 +84,47 @@ TORCH_ACTIVATIONS: dict[type[nn.Module], Callable[[torch.Tensor], torch.Tensor]]
     nn.ELU: nn.functional.elu,
 }
 
-Layer = tuple[str, str] | type[nn.Module]
-"""A step of a forward pass: (weight name, bias name) of a linear layer, or an activation's type."""
+
+@dataclass(frozen=True)
+class ConvStep:
+    """A convolutional layer of a forward pass: its parameters' names and its stride."""
+
+    weight: str
+    bias: str
+    stride: int
+
+
+Layer = tuple[str, str] | ConvStep | type[nn.Module]
+"""A step of a forward pass: (weight name, bias name) of a linear layer, a convolutional layer, or a
+parameter-free layer's type (an activation, ScalePixels, Flatten)."""
 
 
 def forward_plan(model: ActorCritic, trunk_name: str, head_name: str) -> list[Layer]:
     """The steps from observation to one head's output, by parameter name."""
     plan: list[Layer] = []
     for index, layer in enumerate(getattr(model, trunk_name)):
+        name = f"{trunk_name}.{index}"
         if isinstance(layer, nn.Linear):
-            plan.append((f"{trunk_name}.{index}.weight", f"{trunk_name}.{index}.bias"))
+            plan.append((f"{name}.weight", f"{name}.bias"))
+        elif isinstance(layer, nn.Conv2d):
+            if layer.padding != (0, 0) or layer.stride[0] != layer.stride[1]:
+                raise ValueError(f"{name}: stacked convolutions take no padding and one stride")
+            plan.append(ConvStep(f"{name}.weight", f"{name}.bias", layer.stride[0]))
         else:
             plan.append(type(layer))
     return [*plan, (f"{head_name}.weight", f"{head_name}.bias")]
+
+
+def flatten_images(x: torch.Tensor) -> torch.Tensor:
+    """[S, B, C, H, W] -> [S, B, C * H * W], as nn.Flatten flattens each row."""
+    return x.flatten(2)
+
+
+SHAPE_STEPS: dict[type[nn.Module], Callable[[torch.Tensor], torch.Tensor]] = {
+    ScalePixels: scale_pixels,
+    nn.Flatten: flatten_images,
+}
+"""The parameter-free layers of an image trunk, on a seed axis."""
 
 
 class StackedActorCritic:
@@ -130,17 +165,22 @@ class StackedActorCritic:
 
     @staticmethod
     def run(plan: list[Layer], params: dict[str, torch.Tensor], x: torch.Tensor) -> torch.Tensor:
-        """``x`` [S, B, in] through ``plan``: one baddbmm per linear layer for all seeds."""
+        """``x`` [S, B, *obs_shape] through ``plan``: one baddbmm per linear layer for all seeds, one
+        conv2d per seed and convolutional layer."""
         for step in plan:
             if isinstance(step, tuple):
                 weight, bias = params[step[0]], params[step[1]]
                 x = stacked_linear(x, weight, bias)
+            elif isinstance(step, ConvStep):
+                x = stacked_conv2d(x, params[step.weight], params[step.bias], step.stride)
+            elif step in SHAPE_STEPS:
+                x = SHAPE_STEPS[step](x)
             else:
                 x = TORCH_ACTIVATIONS[step](x)
         return x
 
     def logits(self, observations: torch.Tensor) -> torch.Tensor:
-        """Action logits [S, B, n_actions] of observations [S, B, obs_dim]."""
+        """Action logits [S, B, n_actions] of observations [S, B, *obs_shape]."""
         return self.run(self.actor_plan, self.params, observations)
 
     def values(self, observations: torch.Tensor) -> torch.Tensor:
@@ -165,9 +205,44 @@ class StackedActorCritic:
                 plan.append(
                     (weight.transpose(1, 2).cpu().numpy().copy(), bias.unsqueeze(1).cpu().numpy().copy())
                 )
+            elif isinstance(step, ConvStep):
+                raise ValueError("a convolutional actor has no numpy copy: act with rollout_actor")
             else:
                 plan.append(NUMPY_ACTIVATIONS[step])
         return StackedNumpyMLP(plan)
+
+    def rollout_actor(self) -> Callable[[np.ndarray], np.ndarray]:
+        """Logits ``[S, N, n_actions]`` (numpy) of every seed's observations ``[S, N, *obs_shape]``
+        during a rollout: through :meth:`numpy_actor` for an MLP, through torch on the current
+        weights for a convolutional actor (no numpy twin)."""
+        if not self.template.is_image:
+            return self.numpy_actor()
+        params = {name: p.detach() for name, p in self.params.items()}
+        device = self.flat.device
+
+        @torch.no_grad()
+        def logits(observations: np.ndarray) -> np.ndarray:
+            x = torch.from_numpy(observations).to(device)
+            return self.run(self.actor_plan, params, x).cpu().numpy()
+
+        return logits
+
+    def torch_block_actor(self, rows: list[int]) -> BlockActor:
+        """The greedy actions of the actors of ``rows`` as one :data:`BlockActor` (block b: row
+        ``rows[b]``'s episodes), through torch: for convolutional actors."""
+        chosen = torch.tensor(rows, dtype=torch.int64, device=self.flat.device)
+        frozen = {name: p.detach()[chosen] for name, p in self.params.items()}
+        shape = self.template.obs_shape
+
+        @torch.no_grad()
+        def act(observations: np.ndarray, blocks: np.ndarray) -> np.ndarray:
+            index = torch.as_tensor(np.asarray(blocks, dtype=np.int64), device=self.flat.device)
+            params = frozen if len(blocks) == len(rows) else {k: v[index] for k, v in frozen.items()}
+            x = torch.as_tensor(np.asarray(observations)).to(self.flat.device)
+            x = x.reshape(len(blocks), -1, *shape)
+            return self.run(self.actor_plan, params, x).argmax(dim=-1).reshape(-1).cpu().numpy()
+
+        return act
 
     def unstack(self, index: int) -> ActorCritic:
         """Seed ``index``'s network as an ordinary :class:`ActorCritic` (the template, overwritten)."""
@@ -409,9 +484,9 @@ class PopulationActorCritic(SeedRows):
         torch pass after the rollout."""
         config = self.config
         seeds, envs = len(self.seeds), config.num_envs
-        obs_dim = self.env_info.obs_dim
-        actor = self.model.numpy_actor()
-        observations = np.zeros((steps + 1, seeds * envs, obs_dim), dtype=np.float32)
+        obs_shape = self.env_info.obs_shape
+        actor = self.model.rollout_actor()
+        observations = np.zeros((steps + 1, seeds * envs, *obs_shape), dtype=self.observations.dtype)
         actions = np.zeros((steps, seeds * envs), dtype=np.int64)
         rewards = np.zeros((steps, seeds * envs), dtype=np.float32)
         terminated = np.zeros((steps, seeds * envs), dtype=np.float32)
@@ -426,7 +501,7 @@ class PopulationActorCritic(SeedRows):
         used = steps
         for t in range(steps):
             observations[t] = self.observations
-            logits = actor(self.observations.reshape(seeds, envs, obs_dim))
+            logits = actor(self.observations.reshape(seeds, envs, *obs_shape))
             actions[t] = sample_actions(logits, uniforms[t]).reshape(-1)
             next_obs, step_rewards, step_terminated, step_truncated = self.envs.step(actions[t])
             step_valid = ~(self.autoreset | ended_once)
@@ -474,10 +549,12 @@ class PopulationActorCritic(SeedRows):
     @torch.no_grad()
     def log_probs_of(self, observations: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
         """The log-probabilities [T, S * N] under the current actors of ``actions`` [T, S * N] taken at
-        ``observations`` [T, S * N, obs_dim]: one batched pass over the whole rollout."""
-        steps, rows, obs_dim = observations.shape
+        ``observations`` [T, S * N, *obs_shape]: one batched pass over the whole rollout."""
+        steps, rows, *obs_shape = observations.shape
         seeds = len(self.seeds)
-        by_seed = observations.view(steps, seeds, -1, obs_dim).transpose(0, 1).reshape(seeds, -1, obs_dim)
+        by_seed = (
+            observations.view(steps, seeds, -1, *obs_shape).transpose(0, 1).reshape(seeds, -1, *obs_shape)
+        )
         log_probs = torch.log_softmax(self.model.logits(by_seed), dim=-1)
         chosen = actions.view(steps, seeds, -1).transpose(0, 1).reshape(seeds, -1, 1)
         return log_probs.gather(-1, chosen).view(seeds, steps, -1).transpose(0, 1).reshape(steps, rows)
@@ -506,12 +583,12 @@ class PopulationActorCritic(SeedRows):
                 .reshape(seeds, steps * envs, *x.shape[2:])
             )
 
-        obs_dim = self.env_info.obs_dim
+        obs_shape = self.env_info.obs_shape
         if use_values:
             by_seed = (
-                t.observations.view(steps + 1, seeds, envs, obs_dim)
+                t.observations.view(steps + 1, seeds, envs, *obs_shape)
                 .transpose(0, 1)
-                .reshape(seeds, -1, obs_dim)
+                .reshape(seeds, -1, *obs_shape)
             )
             critic = StackedActorCritic.run(self.model.critic_plan, params, by_seed).squeeze(-1)
             values = critic.view(seeds, steps + 1, envs).transpose(0, 1).reshape(steps + 1, -1)
@@ -542,8 +619,11 @@ class PopulationActorCritic(SeedRows):
 
     def greedy_actor(self, seeds: list[int]) -> BlockActor:
         """The greedy policies of ``seeds`` as one :data:`~cartpole.evaluation.BlockActor` (block i
-        holds seed i's rows), one stacked NumPy forward pass per call."""
-        return block_greedy_actor(self.model.numpy_actor([self.row(s) for s in seeds]), self.env_info.obs_dim)
+        holds seed i's rows), one stacked NumPy forward pass per call (torch for convolutional actors)."""
+        rows = [self.row(s) for s in seeds]
+        if self.model.template.is_image:
+            return self.model.torch_block_actor(rows)
+        return block_greedy_actor(self.model.numpy_actor(rows), self.env_info.obs_dim)
 
     # -- one seed, as a single run sees it ----------------------------------------------------------
 
@@ -557,7 +637,11 @@ class PopulationActorCritic(SeedRows):
         row = self.row(seed)
         model = self.model.unstack(row)
         tensors = {f"model.{k}": v.detach().clone() for k, v in model.state_dict().items()}
-        data: dict[str, Any] = {"obs_dim": self.env_info.obs_dim, "n_actions": self.env_info.n_actions}
+        data: dict[str, Any] = {
+            "obs_dim": self.env_info.obs_dim,
+            "obs_shape": list(self.env_info.obs_shape),
+            "n_actions": self.env_info.n_actions,
+        }
         if not resume:
             return tensors, data
         envs = slice(row * self.config.num_envs, (row + 1) * self.config.num_envs)
@@ -707,7 +791,8 @@ class PopulationPPO(PopulationActorCritic):
                 return x
             if x.dim() == 2:
                 return x.gather(1, index)
-            return x.gather(1, index.unsqueeze(-1).expand(-1, -1, x.shape[-1]))
+            rows = index.view(*index.shape, *[1] * (x.dim() - 2))  # [S, B, 1, ...]: every column
+            return x.gather(1, rows.expand(-1, -1, *x.shape[2:]))
 
         observations, actions = take(rollout.observations), take(rollout.actions)
         old_log_probs, old_values = take(rollout.log_probs), take(rollout.values)
@@ -927,13 +1012,18 @@ def actor_critic_bytes_per_seed(
 ) -> int:
     """What one seed of an actor-critic population holds, roughly: parameters with their gradient
     and optimizer state, a rollout of ``rollout_steps`` steps of every env, the activations of a
-    batch of ``batch_rows`` rows, and the bookkeeping."""
-    sizes = [env.obs_dim, *config.hidden_sizes]
-    trunk = sum(n_in * n_out + n_out for n_in, n_out in itertools.pairwise(sizes))
-    heads = sizes[-1] * (env.n_actions + 1) + env.n_actions + 1
-    parameters = trunk * (1 if config.shared_trunk else 2) + heads
-    rollout = rollout_steps * config.num_envs * (env.obs_dim + 8) * 4 * 3
-    activations = batch_rows * sum(config.hidden_sizes) * 4 * 12
+    batch of ``batch_rows`` rows, and the bookkeeping. Image observations: the rollout keeps their
+    uint8 pixels (1 byte each, not 4), and every trunk's activations include the scaled pixels and
+    the convolutional layers' outputs, for the batch and for the whole rollout's no-grad passes
+    (the old log-probabilities and the values)."""
+    parameters = parameter_count(env.obs_shape, env.n_actions, config.hidden_sizes, config.shared_trunk)
+    rows, widths, observation_bytes = batch_rows, sum(config.hidden_sizes), env.obs_dim * 4
+    if env.is_image:
+        rows = max(batch_rows, (rollout_steps + 1) * config.num_envs)
+        widths += env.obs_dim + conv_output_size(env.obs_shape) * 4  # scaled pixels, conv outputs
+        observation_bytes = env.obs_dim
+    rollout = rollout_steps * config.num_envs * (observation_bytes + 8 * 4) * 3
+    activations = rows * widths * 4 * 12
     return parameters * 4 * 6 + rollout + activations + BOOKKEEPING_BYTES
 
 
@@ -977,6 +1067,7 @@ AGENTS = [
         iteration="update",
         score_label="action probabilities",
         stacked_actor=stacked_greedy_actor,
+        image_observations=True,
     ),
     AgentSpec(
         name="a2c",
@@ -988,6 +1079,7 @@ AGENTS = [
         iteration="update",
         score_label="action probabilities",
         stacked_actor=stacked_greedy_actor,
+        image_observations=True,
     ),
     AgentSpec(
         name="reinforce",
@@ -1001,6 +1093,7 @@ AGENTS = [
         iteration="update",
         score_label="action probabilities",
         stacked_actor=stacked_greedy_actor,
+        image_observations=True,
     ),
 ]
 """The actor-critic agents: their settings (ppo.py, a2c.py, reinforce.py) and their learners, batched

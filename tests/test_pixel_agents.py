@@ -1,0 +1,210 @@
+"""CartPole from pixels with the actor-critic agents: the convolutional trunk, seed independence in
+the batched engine, the pixel envs they train on, honest verdicts on Gymnasium's own pictures, and
+one-line refusals from the agents that have no convolutional network."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from cartpole.agents.actor_critic.a2c import A2CConfig
+from cartpole.agents.actor_critic.network import (
+    CONV_LAYERS,
+    ActorCritic,
+    CategoricalPolicy,
+    TorchActor,
+    parameter_count,
+)
+from cartpole.agents.actor_critic.population import ppo_bytes_per_seed
+from cartpole.agents.actor_critic.ppo import PPOConfig
+from cartpole.agents.actor_critic.reinforce import ReinforceConfig
+from cartpole.agents.registry import build_population, get_agent, load_policy
+from cartpole.cli.main import main
+from cartpole.envs import env_info, make_vec_env
+from cartpole.envs.pixels import GymnasiumPixels
+from cartpole.envs.seed_envs import PixelSeedEnvs, make_seed_envs
+from cartpole.evaluation import _reset_to_seeds, start_states
+
+PIXELS = "cartpole/CartPolePixels-v1"
+SHAPE = (4, 30, 100)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def one_thread():
+    """One torch thread, as ``cartpole train`` runs (and as seed independence is stated for)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+# --- the network ------------------------------------------------------------------------------------
+
+
+def test_env_info_describes_images_by_shape():
+    info = env_info(PIXELS)
+    assert info.obs_shape == SHAPE and info.is_image and info.obs_dim == math.prod(SHAPE)
+    assert info.pixels_of == "CartPole-v1" and not info.is_cartpole
+    flat = env_info("CartPole-v1")
+    assert flat.obs_shape == (4,) and not flat.is_image and flat.pixels_of is None
+
+
+def test_an_image_trunk_starts_with_the_conv_layers_and_its_parameters_are_named_so():
+    model = ActorCritic(SHAPE, 2, (64,), shared_trunk=False, generator=torch.Generator().manual_seed(0))
+    shapes = {name: tuple(p.shape) for name, p in model.named_parameters()}
+    (f1, k1, _), (f2, k2, _) = CONV_LAYERS
+    for trunk in ("actor_trunk", "critic_trunk"):
+        assert shapes[f"{trunk}.1.weight"] == (f1, 4, k1, k1)
+        assert shapes[f"{trunk}.3.weight"] == (f2, f1, k2, k2)
+        assert shapes[f"{trunk}.6.weight"] == (64, 32 * 4 * 22)  # 30x100 -> 6x24 -> 4x22
+    assert sum(p.numel() for p in model.parameters()) == parameter_count(SHAPE, 2, (64,), False)
+    shared = ActorCritic(SHAPE, 2, (64,), shared_trunk=True)
+    assert not any(name.startswith("critic_trunk") for name, _ in shared.named_parameters())
+    assert sum(p.numel() for p in shared.parameters()) == parameter_count(SHAPE, 2, (64,), True)
+
+
+def test_the_conv_layers_are_initialized_orthogonally_from_the_generator():
+    def build(seed: int) -> ActorCritic:
+        return ActorCritic(SHAPE, 2, (64,), generator=torch.Generator().manual_seed(seed))
+
+    model = build(3)
+    for trunk in (model.actor_trunk, model.critic_trunk):
+        for layer in (trunk[1], trunk[3]):
+            rows = layer.weight.detach().reshape(layer.weight.shape[0], -1)  # filters x inputs
+            assert torch.allclose(rows @ rows.T, 2.0 * torch.eye(rows.shape[0]), atol=1e-4)  # gain sqrt(2)
+            assert torch.count_nonzero(layer.bias) == 0
+    assert torch.equal(build(3).actor_trunk[1].weight, model.actor_trunk[1].weight)
+    assert not torch.equal(build(4).actor_trunk[1].weight, model.actor_trunk[1].weight)
+
+
+def test_the_network_scales_uint8_pixels_itself_and_its_policy_acts_through_torch():
+    model = ActorCritic(SHAPE, 2, (64,), generator=torch.Generator().manual_seed(1))
+    pixels = torch.randint(0, 256, (5, *SHAPE), dtype=torch.uint8, generator=torch.Generator().manual_seed(2))
+    logits, values = model(pixels)
+    assert logits.shape == (5, 2) and values.shape == (5,)
+    assert torch.equal(logits, model(pixels.float())[0])  # uint8 or float gray levels: the same
+    policy = CategoricalPolicy(model)
+    assert isinstance(policy.logits, TorchActor)
+    actions = policy.act(pixels.numpy())
+    assert actions.shape == (5,) and np.array_equal(actions, logits.argmax(dim=1).numpy())
+    with torch.no_grad():
+        model.policy_head.bias.add_(100.0)  # the policy is a frozen copy
+    assert np.array_equal(policy.act(pixels.numpy()), actions)
+
+
+# --- the engine -------------------------------------------------------------------------------------
+
+TINY = PPOConfig(
+    num_envs=4, n_steps=16, minibatch_size=16, n_epochs=2, hidden_sizes=(16,), shared_trunk=False
+)
+"""Rows of every batch a multiple of 4 ((16 + 1) x 4 for the values): see StackedActorCritic."""
+TINY_CONFIGS = {
+    "ppo": TINY,
+    "a2c": A2CConfig(num_envs=4, n_steps=8, hidden_sizes=(16,), shared_trunk=True),
+    "reinforce": ReinforceConfig(num_envs=4, hidden_sizes=(16,)),
+}
+
+
+@pytest.mark.parametrize("agent", sorted(TINY_CONFIGS))
+def test_a_pixel_seed_alone_is_bit_identical_to_the_seed_in_a_population(agent):
+    spec, env = get_agent(agent), env_info(PIXELS)
+    alone = build_population(spec, TINY_CONFIGS[agent], env, [4], "cpu")
+    among = build_population(spec, TINY_CONFIGS[agent], env, [9, 4], "cpu")
+    for _ in range(3):
+        left, right = alone.learn()[4], among.learn()[4]
+        assert left.env_steps == right.env_steps and left.scalars == right.scalars
+    assert torch.equal(alone.model.flat[0], among.model.flat[1])
+    assert not torch.equal(among.model.flat[0], among.model.flat[1])
+    observations = alone.envs.observations()
+    assert observations.dtype == np.uint8 and observations.shape == (4, *SHAPE)
+    # The stacked greedy actor acts as the seed's own policy does.
+    act = among.greedy_actor([4])
+    assert np.array_equal(act(observations, np.array([0])), alone.seed_policy(4).act(observations))
+
+
+def test_pixel_seed_envs_draw_frame_stacks_and_resume_them():
+    envs = make_seed_envs(env_info(PIXELS), "fast", [1, 2], 3)
+    assert isinstance(envs, PixelSeedEnvs)
+    for _ in range(5):
+        observations, *_ = envs.step(np.ones(6, dtype=np.int64))
+    assert observations.shape == (6, *SHAPE) and observations.dtype == np.uint8
+    assert not np.array_equal(observations[:, 0], observations[:, -1])  # the stack moves
+    saved = json.loads(json.dumps(envs.seed_state(1)))
+    again = make_seed_envs(env_info(PIXELS), "fast", [1, 2], 3)
+    again.load_seed_state(1, saved)
+    assert np.array_equal(again.observations()[3:], observations[3:])
+    actions = np.zeros(6, dtype=np.int64)
+    assert np.array_equal(again.step(actions)[0][3:], envs.step(actions)[0][3:])
+
+
+def test_the_memory_estimate_counts_the_pixels():
+    flat, pixels = env_info("CartPole-v1"), env_info(PIXELS)
+    small = ppo_bytes_per_seed(TINY, pixels)
+    assert small > ppo_bytes_per_seed(TINY, flat)
+    longer = PPOConfig(**{**TINY.__dict__, "n_steps": 1024})
+    # at least the uint8 pixels of the longer rollout (and their conv activations)
+    assert ppo_bytes_per_seed(longer, pixels) - small >= (1024 - 16) * 2 * math.prod(SHAPE)
+
+
+# --- evaluation -------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("simulator", ["fast", "gymnasium"])
+def test_evaluations_of_pixels_start_where_gymnasiums_cartpole_starts(simulator):
+    seeds = [2**32 + 7, 2**32 + 8, 2**32 + 9]
+    env = make_vec_env(PIXELS, len(seeds), simulator=simulator)
+    try:
+        observations = _reset_to_seeds(env, PIXELS, seeds)
+        assert observations.shape == (3, *SHAPE) and observations.dtype == np.uint8
+        if simulator == "fast":
+            states = env.unwrapped.states
+        else:
+            assert all(isinstance(e, GymnasiumPixels) for e in env.envs)
+            states = np.stack([e.unwrapped.state for e in env.envs])
+        assert np.allclose(states, start_states("CartPole-v1", seeds), atol=1e-6)
+    finally:
+        env.close()
+
+
+def test_train_and_eval_a_pixel_ppo_judge_it_on_gymnasiums_pictures(tmp_path, monkeypatch, capsys):
+    runs = tmp_path / "runs"
+    args = ["train", "ppo", "--env", PIXELS, "--preset", "pixels", "--seed", "3", "--budget", "512"]
+    settings = ["n_steps=16", "num_envs=4", "minibatch_size=64", "eval_every=100000"]
+    code = main([*args, "--runs-dir", str(runs), "--quiet", *[x for s in settings for x in ("--set", s)]])
+    assert code == 0, capsys.readouterr().err
+    (run,) = runs.iterdir()
+    verdict = json.loads((run / "eval.json").read_text())
+    assert (verdict["env_id"], verdict["simulator"], verdict["episodes"]) == (PIXELS, "gymnasium", 100)
+    assert isinstance(load_policy(run), CategoricalPolicy)
+    seen: list[tuple[tuple[int, ...], np.dtype]] = []
+    original = TorchActor.__call__
+
+    def recording(self: TorchActor, observations: np.ndarray) -> np.ndarray:
+        seen.append((np.asarray(observations).shape[1:], np.asarray(observations).dtype))
+        return original(self, observations)
+
+    monkeypatch.setattr(TorchActor, "__call__", recording)
+    capsys.readouterr()
+    assert main(["eval", str(run), "--episodes", "3", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert (report["env_id"], report["simulator"], report["episodes"]) == (PIXELS, "gymnasium", 3)
+    assert all(shape == SHAPE for shape, _ in seen)  # frame stacks, never states
+    assert sum(dtype == np.uint8 for _, dtype in seen) >= 3  # the episodes' frames (uint8, unscaled)
+
+
+# --- agents without a convolutional network --------------------------------------------------------
+
+
+@pytest.mark.parametrize("agent", ["dqn", "cem", "random-search", "hill-climbing"])
+def test_agents_without_a_conv_network_refuse_pixels_in_one_line(agent, tmp_path, capsys):
+    runs = tmp_path / "runs"
+    code = main(["train", agent, "--env", PIXELS, "--runs-dir", str(runs), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert f"{agent} has no convolutional network yet" in err and "ppo" in err and PIXELS in err
+    assert not runs.exists() or not any(Path(runs).iterdir())
