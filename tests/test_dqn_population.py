@@ -500,3 +500,56 @@ def test_the_default_preset_solves_cartpole_for_most_seeds():
     ``MKL_CBWR=COMPATIBLE``."""
     best = train_until_solved(DQNConfig(), [4, 5, 6, 7], budget=30_000, check_every=1000)
     assert sum(mean >= 400 for mean in best.values()) >= 3, best
+
+
+def autograd_gradients(population: PopulationDQN, batch: torch.Tensor) -> torch.Tensor:
+    """The online networks' gradients of the mean Huber (or MSE) loss on ``batch``, by autograd."""
+    net, d = population.net, CARTPOLE.obs_dim
+    for leaf in net.params.values():
+        leaf.grad = None
+    q_all = net.forward(net.params, batch[..., :d].contiguous(), population.activation)
+    targets = population.targets(
+        batch[..., d : 2 * d].contiguous(), batch[..., 2 * d + 1], batch[..., 2 * d + 2]
+    )
+    q = q_all.gather(2, batch[..., 2 * d].long().unsqueeze(2)).squeeze(2)
+    loss_of = (
+        torch.nn.functional.smooth_l1_loss
+        if population.config.loss == "huber"
+        else torch.nn.functional.mse_loss
+    )
+    loss_of(q, targets, reduction="none").mean(dim=1).sum().backward()
+    return torch.cat([net.params[name].grad.reshape(len(population.seeds), -1) for name in net.params], dim=1)
+
+
+@pytest.mark.parametrize("changes", [{}, {"loss": "mse"}, {"double_dqn": False, "hidden_sizes": (12, 20, 8)}])
+def test_a_plain_relu_networks_gradients_by_hand_are_autograds(changes):
+    """The hand-written backward of a ReLU MLP (the default preset's path) gives autograd's gradients."""
+    population = small_population([3, 5], **changes)
+    learn(population, 40)
+    assert population.net.plain_relu
+    batch = population.replay.gather(
+        torch.randint(0, 100, (2, 32), generator=torch.Generator().manual_seed(0))
+    )
+    expected = autograd_gradients(population, batch)
+    net, d = population.net, CARTPOLE.obs_dim
+    inputs: list[torch.Tensor] = []
+    with torch.no_grad():
+        q_all = net.forward(net.params, batch[..., :d].contiguous(), population.activation, inputs=inputs)
+        targets = population.targets(
+            batch[..., d : 2 * d].contiguous(), batch[..., 2 * d + 1], batch[..., 2 * d + 2]
+        )
+    actions = batch[..., 2 * d].long().unsqueeze(2)
+    q = q_all.gather(2, actions).squeeze(2)
+    rows = torch.ones(2, 32)
+    grad = population.q_gradient(
+        q, targets, actions, rows, rows.sum(dim=1), torch.ones(2, dtype=torch.bool), q_all
+    )
+    net.backward_by_hand(inputs, grad)
+    by_hand = torch.cat([net.params[name].grad.reshape(2, -1) for name in net.params], dim=1)
+    assert torch.allclose(by_hand, expected, rtol=1e-5, atol=1e-7)
+    assert by_hand.abs().sum() > 0
+
+
+@pytest.mark.parametrize("changes", [{"dropout": 0.2}, {"dueling": True}, {"activation": "tanh"}])
+def test_other_networks_take_autograds_backward(changes):
+    assert not small_population([3], **changes).net.plain_relu

@@ -72,7 +72,7 @@ from cartpole.agents.learner import LearnResult
 from cartpole.agents.nn.fast_tanh import tanh
 from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step, run_steps
 from cartpole.agents.nn.population_optimizers import PopulationAdam
-from cartpole.agents.nn.stacked_linear import stacked_linear
+from cartpole.agents.nn.stacked_linear import input_gradient, stacked_linear, weight_gradient
 from cartpole.agents.population import SeedRows
 from cartpole.agents.registry import AgentSpec
 from cartpole.core.errors import ConfigError
@@ -151,6 +151,10 @@ class StackedQNetwork:
         self.dueling = template.value is not None
         dropouts = template.dropout_layers()
         self.dropout = dropouts[0].p if dropouts else 0.0
+        activations = {type(layer) for layer in template.body if not isinstance(layer, torch.nn.Linear)}
+        self.plain_relu = activations == {torch.nn.ReLU} and not self.dueling
+        """Whether this is a plain ReLU MLP (no dropout, no dueling head), whose gradients
+        :meth:`backward_by_hand` computes."""
         self.bind()
 
     def bind(self) -> None:
@@ -176,14 +180,20 @@ class StackedQNetwork:
         x: torch.Tensor,
         activation: Callable[[torch.Tensor], torch.Tensor],
         keeps: list[torch.Tensor] | None = None,
+        inputs: list[torch.Tensor] | None = None,
     ) -> torch.Tensor:
         """Q-values ``[S, B, n_actions]`` of observations ``x`` [S, B, obs_dim], as
         ``QNetwork.forward``; ``keeps`` (one bool mask ``[S, B, width]`` per hidden layer) applies
-        dropout as :class:`~cartpole.agents.dqn.q_network.GeneratorDropout` does."""
+        dropout as :class:`~cartpole.agents.dqn.q_network.GeneratorDropout` does. ``inputs``, when
+        given, receives each linear layer's input, in order (for :meth:`backward_by_hand`)."""
         for index, (weight, bias) in enumerate(self.hidden):
+            if inputs is not None:
+                inputs.append(x)
             x = activation(stacked_linear(x, params[weight], params[bias]))
             if keeps is not None:
                 x = x * keeps[index] / (1.0 - self.dropout)
+        if inputs is not None:
+            inputs.append(x)
         q = stacked_linear(x, params["head.weight"], params["head.bias"])
         if self.dueling:  # the head gives advantages
             q = (
@@ -192,6 +202,24 @@ class StackedQNetwork:
                 - q.mean(dim=2, keepdim=True)
             )
         return q
+
+    @torch.no_grad()
+    def backward_by_hand(self, inputs: list[torch.Tensor], grad: torch.Tensor) -> None:
+        """Write into ``grad`` (the online networks' gradients) the gradient of a loss whose gradient
+        with respect to the Q-values is ``grad`` [S, B, n_actions], for a plain ReLU MLP whose layers
+        had the ``inputs`` of :meth:`forward`.
+
+        The products are the ones autograd's backward of :func:`stacked_linear` makes, one per seed's
+        slice; done by hand, a gradient step skips the autograd graph's bookkeeping, which costs more
+        than a small network's arithmetic (``benchmarks/kernels.py``)."""
+        layers = [*self.hidden, ("head.weight", "head.bias")]
+        for index in reversed(range(len(layers))):
+            weight, bias = (self.params[name] for name in layers[index])
+            x = inputs[index]
+            weight.grad.copy_(weight_gradient(grad, x))  # type: ignore[union-attr]
+            bias.grad.copy_(grad.sum(dim=1))  # type: ignore[union-attr]
+            if index:  # through the layer, then the ReLU before it (whose output is x)
+                grad = torch.where(x > 0.0, input_gradient(grad, weight.detach()), 0.0)
 
     def unstack(self, row: int, flat: torch.Tensor | None = None) -> QNetwork:
         """Row ``row`` of ``flat`` (the online networks by default) as the template QNetwork."""
@@ -648,21 +676,27 @@ class PopulationDQN(SeedRows):
         config, net, d = self.config, self.net, self.env_info.obs_dim
         observations = batch[..., :d].contiguous()
         next_observations = batch[..., d : 2 * d].contiguous()
-        actions = batch[..., 2 * d].long()
+        actions = batch[..., 2 * d].long().unsqueeze(2)
         rewards, terminated = batch[..., 2 * d + 1], batch[..., 2 * d + 2]
-        q_all = net.forward(net.params, observations, self.activation, keeps)
-        targets = self.targets(next_observations, rewards, terminated)
-        q = q_all.gather(2, actions.unsqueeze(2)).squeeze(2)
-        if config.loss == "huber":
-            elementwise = F.smooth_l1_loss(q, targets, reduction="none")
+        by_hand = net.plain_relu and keeps is None
+        inputs: list[torch.Tensor] = []
+        with torch.set_grad_enabled(not by_hand):
+            q_all = net.forward(net.params, observations, self.activation, keeps, inputs if by_hand else None)
+            targets = self.targets(next_observations, rewards, terminated)
+            q = q_all.gather(2, actions).squeeze(2)
+            if config.loss == "huber":
+                elementwise = F.smooth_l1_loss(q, targets, reduction="none")
+            else:
+                elementwise = F.mse_loss(q, targets, reduction="none")
+            losses = (elementwise * mask).sum(dim=1) / count  # each seed's mean over its own rows
+        if by_hand:
+            net.backward_by_hand(inputs, self.q_gradient(q, targets, actions, mask, count, active, q_all))
         else:
-            elementwise = F.mse_loss(q, targets, reduction="none")
-        losses = (elementwise * mask).sum(dim=1) / count  # each seed's mean over its own rows
-        net.grad.zero_()
-        with warnings.catch_warnings():
-            # The gradients are views of one [S, P] tensor on purpose (see StackedQNetwork).
-            warnings.filterwarnings("ignore", "grad and param do not obey the gradient layout")
-            (losses * active.to(losses.dtype)).sum().backward()
+            net.grad.zero_()
+            with warnings.catch_warnings():
+                # The gradients are views of one [S, P] tensor on purpose (see StackedQNetwork).
+                warnings.filterwarnings("ignore", "grad and param do not obey the gradient layout")
+                (losses * active.to(losses.dtype)).sum().backward()
         if config.max_grad_norm is not None:  # each seed's global norm, as clip_grad_norm_ computes it
             norms = torch.linalg.vector_norm(net.grad, dim=1, keepdim=True)
             net.grad.mul_((config.max_grad_norm / (norms + 1e-6)).clamp(max=1.0))
@@ -670,6 +704,24 @@ class PopulationDQN(SeedRows):
         with torch.no_grad():
             q_means = (q.detach() * mask).sum(dim=1) / count
             return torch.stack([losses.detach(), q_means], dim=1)
+
+    def q_gradient(
+        self,
+        q: torch.Tensor,
+        targets: torch.Tensor,
+        actions: torch.Tensor,
+        mask: torch.Tensor,
+        count: torch.Tensor,
+        active: torch.Tensor,
+        q_all: torch.Tensor,
+    ) -> torch.Tensor:
+        """The gradient of the summed loss of :meth:`gradient_step` with respect to every Q-value
+        ``[S, B, n_actions]``: each active seed's mean loss over its own rows, through the taken
+        actions' Q-values ``q`` [S, B] (Huber's derivative is the error clipped to [-1, 1])."""
+        per_row = (active.to(q.dtype) / count).unsqueeze(1) * mask
+        error = q - targets
+        slope = error.clamp(-1.0, 1.0) if self.config.loss == "huber" else 2.0 * error
+        return torch.zeros_like(q_all).scatter_(2, actions, (slope * per_row).unsqueeze(2))
 
     @torch.no_grad()
     def targets(
