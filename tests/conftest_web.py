@@ -82,6 +82,40 @@ def make_other_env_run(runs_dir: Path, cem_run: Path) -> str:
     return run.name
 
 
+PIXELS = "cartpole/CartPolePixels-v1"
+
+
+def make_pixel_run(runs_dir: Path) -> str:
+    """A run folder of an untrained PPO on CartPole from pixels: its ``best`` checkpoint holds the
+    convolutional network as initialized (seed 0), enough to watch what it sees. Written by hand, as
+    a run's checkpoint is, because training one, even briefly, takes half a minute (its verdict plays
+    100 episodes on Gymnasium's own pictures)."""
+    from cartpole.agents.registry import build_population, get_agent
+    from cartpole.core.config import config_to_dict
+    from cartpole.envs import env_info
+    from cartpole.runs import Checkpoint, save_checkpoint
+    from cartpole.training.config import resolve_config
+
+    spec = get_agent("ppo")
+    config, _ = resolve_config(
+        "ppo", spec.config_cls, "pixels", {"num_envs": 1, "n_steps": 16, "minibatch_size": 16}
+    )
+    tensors, learner = build_population(spec, config, env_info(PIXELS), [0]).seed_state_dict(0, resume=False)
+    run = RunDir.create(runs_dir, PIXELS, "ppo", 0)
+    record = {
+        "agent": "ppo",
+        "env_id": PIXELS,
+        "seed": 0,
+        "preset": "pixels",
+        "config": config_to_dict(config),
+    }
+    run.write_config({**record, "created": "2021-01-01T00:00:00+00:00"})  # older than the CEM run
+    run.write_status({"state": "finished", "env_steps": 0, "episodes": 0, "solved": False})
+    meta = {**record, "step": 0, "learner": learner, "resumable": False}
+    save_checkpoint(run.checkpoint_path("best"), Checkpoint(meta=meta, tensors=tensors))
+    return run.name
+
+
 def make_awkward_runs(runs_dir: Path, outside: Path) -> tuple[str, str]:
     """A corrupt run (config.json garbage), a half-written one (no config yet), a symlink out."""
     corrupt = runs_dir / "CartPole-v1__dqn__s7__20200101-000000"

@@ -127,6 +127,57 @@ def test_each_output_has_its_own_element_and_carries_its_drawing_code() -> None:
         assert "<canvas" in page and "CartPoleDraw" in page and "requestAnimationFrame" in page
 
 
+class DarkSide:
+    """A stub pixel policy: pushes toward the half of its newest frame with more dark pixels."""
+
+    def scores(self, observations: np.ndarray) -> np.ndarray:
+        batch = np.asarray(observations)
+        assert batch.shape[1:] == (4, 30, 100), batch.shape  # frame stacks, never states
+        darkness = 255.0 - batch[:, -1].astype(np.float64)
+        return np.stack([darkness[:, :, :50].sum(axis=(1, 2)), darkness[:, :, 50:].sum(axis=(1, 2))], 1) / 1e4
+
+    def act(self, observations: np.ndarray) -> np.ndarray:
+        return self.scores(observations).argmax(axis=1)
+
+
+PIXELS = "cartpole/CartPolePixels-v1"
+
+
+def test_show_of_a_pixel_policy_draws_what_it_sees_beside_the_scene() -> None:
+    from cartpole.web.agent_view import decode_frames
+    from cartpole.web.episodes import play_episode
+
+    animation = cartpole.show(DarkSide(), PIXELS, episodes=2, seed=5)
+    assert animation.mode == "canvas" and animation.view is not None
+    page = animation._repr_html_()
+    assert "what the agent sees" in page and "FrameStackDraw" in page and "max-width:900px" in page
+    data = player_data(animation)
+    for seed, episode in zip((5, 6), data["episodes"], strict=True):
+        view = episode["view"]
+        assert (view["stack"], view["height"], view["width"]) == (4, 30, 100)
+        assert len(view["frames"]) == len(episode["states"]) == len(episode["actions"]) + 1
+        # Gymnasium's CartPole and Watch's stepper move through the same states: the same frames.
+        watched, _ = play_episode(DarkSide(), PIXELS, seed)
+        assert np.array_equal(decode_frames(view), decode_frames(watched.view or {}))
+        assert episode["actions"] == watched.actions
+    assert player_data(cartpole.show(Balancer(), episodes=1))["episodes"][0]["view"] is None
+    with pytest.raises(ShowError, match="mode='canvas'"):
+        cartpole.show(DarkSide(), PIXELS, mode="gif")
+
+
+def test_run_show_of_a_pixel_run_carries_its_view(tmp_path: Path) -> None:
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from conftest_web import make_pixel_run
+
+    run = cartpole.open_run(tmp_path / make_pixel_run(tmp_path))
+    data = player_data(run.show(episodes=1, seed=2))
+    (episode,) = data["episodes"]
+    assert episode["view"]["stack"] == 4 and len(episode["view"]["frames"]) == len(episode["states"])
+    assert episode["scores"] and data["env_id"] == PIXELS
+
+
 def test_show_takes_a_checkpoint_file_with_its_agents_score_label(cem_run: Path) -> None:
     animation = cartpole.show(cem_run / "checkpoints" / "best.pt", episodes=1)
     assert animation.env_id == "CartPole-v1" and animation.score_label != "scores"

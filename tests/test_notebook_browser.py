@@ -108,7 +108,7 @@ class Page:
         return self.page
 
     def canvases(self) -> list[object]:
-        return self.page.query_selector_all(".cartpole-show canvas")
+        return self.page.query_selector_all(".cartpole-show canvas.cp-scene")
 
     def snapshot(self, canvas: object) -> str:
         return canvas.evaluate("c => c.toDataURL()")  # type: ignore[attr-defined]
@@ -293,3 +293,43 @@ def test_gif_mode_decodes(page: Page):
     size = image.evaluate("i => [i.naturalWidth, i.naturalHeight]")
     assert size[0] == 300 and size[1] > 0, f"the GIF decoded as {size}"
     assert "returns" in page.page.inner_text("figure figcaption")
+
+
+class DarkSide:
+    """A stub pixel policy: pushes toward the half of its newest frame with more dark pixels."""
+
+    def scores(self, observations: np.ndarray) -> np.ndarray:
+        darkness = 255.0 - np.asarray(observations)[:, -1].astype(np.float64)
+        return np.stack([darkness[:, :, :50].sum(axis=(1, 2)), darkness[:, :, 50:].sum(axis=(1, 2))], 1) / 1e4
+
+    def act(self, observations: np.ndarray) -> np.ndarray:
+        return self.scores(observations).argmax(axis=1)
+
+
+# The gray levels of the "now" frame of the agent's view, read back from its canvas: frame pixels
+# are drawn 3x3 under a 16-pixel label, in the last of 4 cells in a column with 8-pixel gaps.
+NOW_FRAME = """(canvas, [width, height]) => {
+  const x0 = 0, y0 = 3 * (3 * height + 16 + 8) + 16;
+  const pixels = canvas.getContext("2d").getImageData(x0, y0, 3 * width, 3 * height).data;
+  const gray = [];
+  for (let r = 0; r < height; r++) for (let c = 0; c < width; c++) {
+    gray.push(pixels[((3 * r + 1) * 3 * width + 3 * c + 1) * 4]);
+  }
+  return gray;
+}"""
+
+
+def test_a_pixel_agents_frames_are_drawn_beside_the_scene(page: Page):
+    animation = cartpole.show(DarkSide(), "cartpole/CartPolePixels-v1", episodes=1, seed=5)
+    page.load(animation._repr_html_())
+    (canvas,) = page.canvases()
+    page.wait_drawn(canvas)
+    assert page.page.is_visible(".cartpole-show .cp-view canvas")
+    assert "what the agent sees" in page.page.inner_text(".cartpole-show .cp-view")
+    canvas.click()  # pause: the scene and the view stay at one step
+    step = page.step(canvas)
+    view = page.page.query_selector(".cartpole-show .cp-view canvas")
+    drawn = np.array(view.evaluate(NOW_FRAME, [100, 30]), dtype=np.uint8).reshape(30, 100)  # type: ignore[union-attr]
+    frames = animation.episodes[0].frames
+    assert frames is not None and np.array_equal(drawn, frames[step])
+    assert (drawn < 128).sum() > 20  # the cart and pole, dark on the white screen

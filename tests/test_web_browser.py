@@ -35,6 +35,7 @@ from conftest_web import (  # noqa: E402
     WebRuns,
     make_cem_run,
     make_experiment,
+    make_pixel_run,
     make_single_generation_run,
     make_sweep,
     make_web_runs,
@@ -831,3 +832,58 @@ def test_play_env_select_switches_the_game(desktop: Page, start: str, switch_to:
     assert page.locator("#physics-panel").is_hidden() == (switch_to != "CartPole-v1")
     scene = "cartpole" if switch_to == "CartPole-v1" else switch_to.split("-")[0].lower()
     assert page.evaluate("() => ENV.scene") == scene
+
+
+@pytest.fixture(scope="module")
+def pixel_run(web_runs: WebRuns) -> str:
+    """An (untrained) PPO run on CartPole from pixels, in the served runs folder."""
+    return make_pixel_run(web_runs.root)
+
+
+# The "now" frame of the agent's view at step k, read back from its canvas (FrameStackDraw draws
+# frame pixels 3x3, under a 16-pixel label, the last of 4 cells in a column with 8-pixel gaps),
+# against the episode's own frame k: how many pixels differ.
+VIEW_MISMATCHES = """(k) => {
+  const e = watch.episode, v = e.view, frames = FrameStackDraw.decode(v);
+  const canvas = document.getElementById("agent-view");
+  const x0 = 0, y0 = 3 * (3 * v.height + 16 + 8) + 16;
+  const pixels = canvas.getContext("2d").getImageData(x0, y0, 3 * v.width, 3 * v.height).data;
+  let wrong = 0;
+  for (let r = 0; r < v.height; r++) for (let c = 0; c < v.width; c++) {
+    const drawn = pixels[((3 * r + 1) * 3 * v.width + 3 * c + 1) * 4];
+    if (drawn !== frames[k][r * v.width + c]) wrong++;
+  }
+  return wrong;
+}"""
+
+
+def test_watch_shows_what_a_pixel_agent_sees_beside_the_scene(desktop: Page, pixel_run: str):
+    page = desktop.goto(watch_path(pixel_run))
+    page.locator("#loading").wait_for(state="hidden", timeout=60_000)  # a cold episode worker is slow
+    assert page.inner_text("#message") == ""
+    page.wait_for_function("() => watch.episode !== null && watch.episode.view !== null")
+    page.click("#play-pause")  # pause, then show known steps
+    page.wait_for_function("() => watch.playing === false")
+    assert page.locator("#view-panel").is_visible()
+    assert "What the agent sees" in page.inner_text("#view-panel")
+    length = page.evaluate("() => watch.episode.length")
+    for k in (0, length // 2, length):
+        page.evaluate("(k) => { watch.frame = k; render(); }", k)
+        assert page.evaluate(VIEW_MISMATCHES, k) == 0, k
+        assert f"at step {k}" in page.inner_text("#view-note")
+    # Not blank: the cart and pole are darker than the white screen.
+    dark = page.evaluate(
+        """() => { const c = document.getElementById("agent-view");
+             const d = c.getContext("2d").getImageData(0, 0, c.width, c.height).data;
+             let n = 0; for (let i = 0; i < d.length; i += 4) if (d[i + 3] === 255 && d[i] < 128) n++;
+             return n; }"""
+    )
+    assert dark > 100
+    page.evaluate("() => { watch.frame = 1; render(); }")
+    assert page.locator("#prefs .pref").count() == 2  # the per-action scores, as for any agent
+
+
+def test_watch_of_a_state_agent_shows_no_agent_view(desktop: Page, web_runs: WebRuns):
+    page = desktop.goto(watch_path(web_runs.cem))
+    page.wait_for_function("() => watch.episode !== null")
+    assert page.locator("#view-panel").is_hidden()

@@ -2,8 +2,11 @@
 
 On CartPole the episodes play on Gymnasium's own env and are drawn on a canvas by the web app's own
 drawing code (``web/static/cartpole-draw.js``), with the policy's per-action scores as bars under
-the cart: a few kilobytes of states, animated in the browser. Where scripts do not run (a notebook
-shown on a code host) or for other envs, ``mode="gif"`` embeds the rendered frames as an animated
+the cart: a few kilobytes of states, animated in the browser. A pixel agent
+(``cartpole/CartPolePixels-v1``) plays the same CartPole, seeing frame stacks drawn from its states
+(:mod:`cartpole.web.agent_view`), and its frames are drawn beside the scene
+(``web/static/frame-stack-draw.js``). Where scripts do not run (a notebook shown on a code host) or
+for other envs, ``mode="gif"`` embeds the rendered frames as an animated
 GIF (Gymnasium's ``rgb_array`` frames, through :mod:`cartpole.recording`).
 """
 
@@ -24,6 +27,7 @@ import numpy as np
 from cartpole.core.errors import InputError
 from cartpole.envs import env_info
 from cartpole.evaluation import Policy, act_once
+from cartpole.web.agent_view import FrameStacker, PixelView, view_json
 
 Mode = Literal["auto", "canvas", "gif"]
 
@@ -50,6 +54,8 @@ class PlayedEpisode:
     actions: list[int]
     scores: list[list[float]] | None
     episode_return: float
+    frames: list[np.ndarray] | None = None
+    """A pixel agent's frame of each state (what it saw, stacked); None for state agents."""
 
 
 @dataclass
@@ -62,6 +68,8 @@ class Animation:
     episodes: list[PlayedEpisode] = field(default_factory=list)
     limits: dict[str, float] = field(default_factory=dict)
     gif: bytes | None = None
+    view: PixelView | None = None
+    """The shape of a pixel agent's observations (its frames are in the episodes); None otherwise."""
 
     @property
     def returns(self) -> list[float]:
@@ -92,21 +100,24 @@ def show(
     """Play ``episodes`` greedy episodes of ``agent`` (a policy, a checkpoint file or a run folder)
     from seeds ``seed, seed + 1, ...`` on Gymnasium's own ``env`` (default: the checkpoint's env,
     else CartPole-v1), for a notebook to animate. ``mode``: ``canvas`` (CartPole: drawn in the
-    browser, with the per-action scores), ``gif`` (any env: rendered frames), ``auto`` (canvas on
-    CartPole, else gif)."""
+    browser, with the per-action scores; a pixel agent's frame stacks beside the scene), ``gif``
+    (any state env: rendered frames), ``auto`` (canvas on CartPole and its pixels, else gif)."""
     if not 1 <= episodes <= MAX_EPISODES:
         raise ShowError(f"episodes must be between 1 and {MAX_EPISODES}, got {episodes}")
     if mode not in ("auto", "canvas", "gif"):
         raise ShowError(f"mode must be auto, canvas or gif, got {mode!r}")
     policy, env_id, score_label = resolve_agent(agent, env)
     info = env_info(env_id)
-    if mode == "canvas" and not info.is_cartpole:
+    drawn = info.is_cartpole or info.pixels_of is not None  # a pixel env's scene is CartPole's
+    if mode == "canvas" and not drawn:
         raise ShowError(f"mode canvas draws CartPole only; show {env_id} with mode='gif'")
-    chosen: Literal["canvas", "gif"] = "canvas" if mode != "gif" and info.is_cartpole else "gif"
+    if mode == "gif" and info.pixels_of:  # the recorder plays state envs only
+        raise ShowError(f"mode gif records state envs only; show {env_id} with mode='canvas'")
+    chosen: Literal["canvas", "gif"] = "canvas" if mode != "gif" and drawn else "gif"
     if chosen == "gif":
         return gif_animation(policy, env_id, episodes, seed, score_label)
     played, limits = play_cartpole(policy, env_id, episodes, seed)
-    return Animation(env_id, "canvas", score_label, played, limits)
+    return Animation(env_id, "canvas", score_label, played, limits, view=PixelView.of(env_id))
 
 
 def resolve_agent(agent: Policy | str | Path, env: str | None) -> tuple[Policy, str, str]:
@@ -126,13 +137,18 @@ def play_cartpole(
     policy: Policy, env_id: str, episodes: int, seed: int
 ) -> tuple[list[PlayedEpisode], dict[str, float]]:
     """Greedy episodes on Gymnasium's own CartPole, each from ``reset(seed=seed + i)`` as
-    :func:`~cartpole.evaluation.evaluate` starts it, and the limits the drawing needs."""
+    :func:`~cartpole.evaluation.evaluate` starts it, and the limits the drawing needs. On a pixel env,
+    the CartPole it shows, the policy seeing frame stacks drawn from its states."""
     import gymnasium as gym
 
-    env = gym.make(env_id.removeprefix("cartpole/"))
+    view = PixelView.of(env_id)
+    env = gym.make(env_info(env_id).pixels_of or env_id.removeprefix("cartpole/"))
     scored = callable(getattr(policy, "scores", None))
     try:
-        played = [play_one(env, policy, seed + i, scored) for i in range(episodes)]
+        played = [
+            play_one(env, policy, seed + i, scored, FrameStacker(view) if view else None)
+            for i in range(episodes)
+        ]
         cartpole: Any = env.unwrapped
         limits = {
             "x_threshold": float(cartpole.x_threshold),
@@ -145,19 +161,25 @@ def play_cartpole(
     return played, limits
 
 
-def play_one(env: Any, policy: Policy, seed: int, scored: bool) -> PlayedEpisode:
+def play_one(
+    env: Any, policy: Policy, seed: int, scored: bool, stacker: FrameStacker | None = None
+) -> PlayedEpisode:
+    """One greedy episode; with ``stacker`` the policy sees the frame stacks of the env's states."""
     observation, _ = env.reset(seed=seed)
+    seen = stacker.reset(env.unwrapped.state) if stacker else observation
     observations, actions, scores, total = [observation.tolist()], [], [], 0.0
     while True:
-        action, row = act_once(policy, observation)
+        action, row = act_once(policy, seen)
         if row is not None:
             scores.append(row.tolist())
         observation, reward, terminated, truncated, _ = env.step(action)
+        seen = stacker.push(env.unwrapped.state) if stacker else observation
         observations.append(observation.tolist())
         actions.append(action)
         total += float(reward)
         if terminated or truncated:
-            return PlayedEpisode(seed, observations, actions, scores if scored else None, total)
+            frames = stacker.frames if stacker else None
+            return PlayedEpisode(seed, observations, actions, scores if scored else None, total, frames)
 
 
 def gif_animation(policy: Policy, env_id: str, episodes: int, seed: int, score_label: str) -> Animation:
@@ -212,6 +234,7 @@ def canvas_html(animation: Animation) -> str:
                 "actions": e.actions,
                 "scores": None if e.scores is None else np.round(e.scores, 4).tolist(),
                 "return": e.episode_return,
+                "view": view_json(animation.view, e.frames) if animation.view and e.frames else None,
             }
             for e in animation.episodes
         ],
@@ -219,16 +242,24 @@ def canvas_html(animation: Animation) -> str:
     payload = json.dumps(data, separators=(",", ":")).replace("</", "<\\/")
     scripts = {
         "__DRAW__": static_text("cartpole.web", "cartpole-draw.js"),
+        "__VIEW__": static_text("cartpole.web", "frame-stack-draw.js"),
         "__PLAYER__": static_text("cartpole.notebook", "player.js"),
     }
-    page = PLAYER_HTML.replace("__UID__", uid)
+    width = "900px" if animation.view else "600px"  # room for the frames beside the scene
+    page = PLAYER_HTML.replace("__UID__", uid).replace("__WIDTH__", width)
     for marker, text in scripts.items():
         page = page.replace(marker, text)
     return page.replace("__DATA__", payload)
 
 
-PLAYER_HTML = """<div id="__UID__" class="cartpole-show" style="max-width:600px;font:13px sans-serif">
-<canvas style="width:100%;display:block;border-radius:6px"></canvas>
+PLAYER_HTML = """<div id="__UID__" class="cartpole-show" style="max-width:__WIDTH__;font:13px sans-serif">
+<div style="display:flex;gap:10px;align-items:flex-start">
+<canvas class="cp-scene" style="flex:2;min-width:0;width:100%;display:block;border-radius:6px"></canvas>
+<div class="cp-view" style="flex:1;min-width:0;display:none">
+<div style="font-weight:600">what the agent sees</div>
+<canvas style="width:100%;display:block;image-rendering:pixelated"></canvas>
+<div style="color:#5d6678">its last frames, oldest first</div></div>
+</div>
 <div class="cp-bars" style="display:flex;gap:8px;margin:6px 0"></div>
 <div class="cp-caption" style="color:#3b4357"></div>
 <noscript>This animation needs JavaScript: show it with mode="gif" where scripts do not run.</noscript>
@@ -236,6 +267,7 @@ PLAYER_HTML = """<div id="__UID__" class="cartpole-show" style="max-width:600px;
 <script>
 (function (ROOT_ID, DATA) {
 __DRAW__
+__VIEW__
 __PLAYER__
 })("__UID__", __DATA__);
 </script>"""

@@ -69,6 +69,18 @@ class MetricsOut(BaseModel):
     rows: list[dict[str, Any]]
 
 
+class AgentView(BaseModel):
+    """A pixel agent's frames: one per state. The agent's observation at step t is frames
+    t-stack+1..t, oldest first, the first frame repeated before step 0 (as the env stacks them)."""
+
+    stack: int = Field(description="frames per observation")
+    height: int
+    width: int
+    frames: list[str] = Field(
+        description="each state's frame: base64 of height x width uint8 gray levels, row-major"
+    )
+
+
 class EpisodeOut(BaseModel):
     """One greedy episode: ``states`` has length+1 rows, each the env's own state (CartPole: x, x_dot,
     theta, theta_dot; Acrobot: theta1, theta2 and their speeds; MountainCar: position, velocity)."""
@@ -94,6 +106,9 @@ class EpisodeOut(BaseModel):
     )
     score_label: str | None
     limits: dict[str, float]
+    view: AgentView | None = Field(
+        None, description="what a pixel agent saw (runs on cartpole/CartPolePixels-*); null for state agents"
+    )
 
 
 def folder(request: Request) -> RunsFolder:

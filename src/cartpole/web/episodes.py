@@ -2,7 +2,9 @@
 
 An episode starts where ``evaluate()`` starts for the same seed (Gymnasium's ``reset(seed=seed)``),
 can run under changed physics, and can be "nudged": a push that adds to the pole's angular velocity
-before a given step, so a viewer can see whether the policy recovers.
+before a given step, so a viewer can see whether the policy recovers. A run on a pixel env plays from
+the same states, its policy seeing frame stacks drawn from them (:mod:`cartpole.web.agent_view`);
+the episode then carries each step's frame, so the page can show what the agent saw.
 
 Episodes are computed in a worker process (``EpisodeWorkers``), not on the server's event loop nor
 in one of its threads: a 500-step episode holds the GIL for longer than the 5 ms (p99) within which
@@ -18,6 +20,7 @@ import os
 import threading
 import time
 from collections import OrderedDict
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import suppress
@@ -32,7 +35,8 @@ from cartpole.agents.registry import open_policy
 from cartpole.envs import env_info
 from cartpole.envs.fast import CartPoleStepper
 from cartpole.evaluation import Policy, ScoredPolicy, act_once
-from cartpole.web.physics import ACTION_LABELS, CartPoleSim, GymSim, scene_of, start_state
+from cartpole.web.agent_view import FrameStacker, PixelView, ViewError, view_json
+from cartpole.web.physics import ACTION_LABELS, CartPoleSim, GymSim, PhysicsError, scene_of, start_state
 
 MAX_NUDGE = 10.0
 """Largest nudge, in rad/s added to the pole's angular velocity (a hard slap is about 2)."""
@@ -85,6 +89,9 @@ class Episode:
     scores: list[list[float]] | None = None
     terminated: bool = False
     truncated: bool = False
+    view: dict[str, Any] | None = None
+    """A pixel agent's view (:func:`~cartpole.web.agent_view.view_json`: one frame per state);
+    None for agents that see states."""
 
     def to_dict(self, limits: dict[str, float], score_label: str | None) -> dict[str, Any]:
         scene = scene_of(self.env_id) or "cartpole"
@@ -105,6 +112,7 @@ class Episode:
             "scores": self.scores,
             "score_label": score_label if self.scores is not None else None,
             "limits": limits,
+            "view": self.view,
         }
 
 
@@ -119,8 +127,13 @@ def play_episode(
 
     Returns the episode and the simulator it ran on (for its physics and limits). Every CartPole id
     has a time limit; were there none, the episode would stop, truncated, after ``UNLIMITED_STEPS``.
+    On a pixel env the policy sees frame stacks drawn from the states (under the episode's physics,
+    as the env draws them), and the episode keeps each state's frame. PhysicsError where the frames
+    cannot show the physics (a pole too long for them).
     """
     sim = CartPoleSim(env_id, physics)
+    view = PixelView.of(env_id)
+    stacker = pixel_stacker(view, sim) if view else None
     nudges = dict(nudges or {})
     limit = sim.max_steps or UNLIMITED_STEPS
     states = np.empty((limit + 1, 4))
@@ -128,7 +141,10 @@ def play_episode(
     actions = np.empty(limit, dtype=np.int64)
     scored = callable(getattr(policy, "scores", None))
     scores = np.empty((limit, env_info(env_id).n_actions)) if scored else None
-    length, terminated = _play_greedily(policy, sim.stepper, nudges, states, actions, scores)
+    observe = stacker_observer(stacker) if stacker else None
+    length, terminated = _play_greedily(policy, sim.stepper, nudges, states, actions, scores, observe)
+    if stacker is not None:
+        stacker.push(states[length])  # the last state's frame too: one frame per state shown
     # Lists once, at the end: per-step conversions cost as much as the physics.
     episode = Episode(
         env_id,
@@ -141,8 +157,31 @@ def play_episode(
         scores=None if scores is None else scores[:length].tolist(),
         terminated=terminated,
         truncated=length >= limit,  # as TimeLimit: both flags can be set on the last step
+        view=view_json(stacker.view, stacker.frames) if stacker else None,
     )
     return episode, sim
+
+
+def pixel_stacker(view: PixelView, sim: CartPoleSim) -> FrameStacker:
+    """The frame stacker of a pixel episode on ``sim``: drawn with its physics (the pole's length
+    shows), as the env's ``set_params`` draws; PhysicsError where the frames cannot show them."""
+    try:
+        return FrameStacker(view, sim.stepper.params)
+    except ViewError as err:
+        raise PhysicsError(str(err)) from err
+
+
+Observer = Callable[[int, np.ndarray], np.ndarray]
+"""(step, state) -> the observation the policy sees at that step."""
+
+
+def stacker_observer(stacker: FrameStacker) -> Observer:
+    """A pixel env's observations: the stack is filled at step 0 and pushed at every later step."""
+
+    def observe(step: int, state: np.ndarray) -> np.ndarray:
+        return stacker.reset(state) if step == 0 else stacker.push(state)
+
+    return observe
 
 
 def play_gym_episode(policy: Policy, env_id: str, seed: int) -> tuple[Episode, dict[str, float]]:
@@ -176,17 +215,20 @@ def _play_greedily(
     states: np.ndarray,
     actions: np.ndarray,
     scores: np.ndarray | None,
+    observe: Observer | None = None,
 ) -> tuple[int, bool]:
     """Fill ``states[1:]``, ``actions`` and ``scores`` (when given: the policy's, whose argmax is the
     action) step by step from ``states[0]``, until termination or the arrays are full.
 
-    Returns (steps played, terminated). Each nudge is added to ``states[t]`` before the policy sees it.
+    Returns (steps played, terminated). Each nudge is added to ``states[t]`` before the policy sees it;
+    the policy sees the state itself, or ``observe(t, state)`` when given (a pixel env's frames).
     """
     for t in range(len(actions)):
         state = states[t]
         if t in nudges:
             state[3] += nudges[t]
-        action, row = act_once(policy, state)  # the float32 observation the env would hand it
+        observation = state if observe is None else observe(t, state)
+        action, row = act_once(policy, observation)  # the float32 observation the env would hand it
         if scores is not None and row is not None:
             scores[t] = row  # float32 to float64 is exact: the JSON shows the policy's own values
         actions[t] = action

@@ -68,8 +68,19 @@ ACTION_LABELS = {
 
 
 def scene_of(env_id: str) -> str | None:
-    """Which drawing shows ``env_id`` ("cartpole", "acrobot", "mountaincar"), None if none does."""
-    return "cartpole" if is_cartpole(env_id) else SCENES.get(env_id.removeprefix("cartpole/"))
+    """Which drawing shows ``env_id`` ("cartpole", "acrobot", "mountaincar"), None if none does.
+    A pixel env's scene is CartPole's: its episodes move through CartPole states."""
+    return "cartpole" if is_cartpole(state_env_id(env_id)) else SCENES.get(env_id.removeprefix("cartpole/"))
+
+
+def state_env_id(env_id: str) -> str:
+    """The env whose states ``env_id``'s episodes move through: for a pixel env, the Gymnasium
+    CartPole it shows (``cartpole/CartPolePixels-v1`` -> ``CartPole-v1``: its start states, limits
+    and physics); else ``env_id`` itself."""
+    try:
+        return env_info(env_id).pixels_of or env_id
+    except ValueError:
+        return env_id
 
 
 def is_cartpole(env_id: str) -> bool:
@@ -86,8 +97,9 @@ def _start_state(env_id: str, seed: int) -> tuple[float, ...]:
 
 
 def start_state(env_id: str, seed: int) -> np.ndarray:
-    """Gymnasium's exact start state for ``reset(seed=seed)``, as ``evaluate()`` plays it."""
-    return np.array(_start_state(env_id, seed), dtype=np.float64)
+    """Gymnasium's exact start state for ``reset(seed=seed)``, as ``evaluate()`` plays it (a pixel
+    env's: that of the CartPole it shows)."""
+    return np.array(_start_state(state_env_id(env_id), seed), dtype=np.float64)
 
 
 def default_physics() -> dict[str, float]:
@@ -109,7 +121,7 @@ class CartPoleSim:
     """A cart-pole whose state and physics can be set, stepped one action at a time."""
 
     def __init__(self, env_id: str, overrides: dict[str, float] | None = None):
-        info = env_info(env_id)
+        info = env_info(state_env_id(env_id))  # a pixel env's time limit is its CartPole's
         if not info.is_cartpole:
             raise PhysicsError(f"{env_id} is not CartPole: only CartPole can be watched or played")
         self.env_id = env_id

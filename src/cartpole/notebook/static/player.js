@@ -1,10 +1,14 @@
 // The notebook's CartPole player (cartpole.show, Run.show): draws each step with the web app's
 // CartPoleDraw, the per-action scores as bars below, and loops over the episodes. Python wraps it in
 // one function with the drawing code and the episodes (DATA), and the element's id (ROOT_ID).
+// A pixel agent's frames (each episode's view) are drawn beside the scene by FrameStackDraw.
 "use strict";
 const root = document.getElementById(ROOT_ID);
 const data = DATA;
-const canvas = root.querySelector("canvas");
+const canvas = root.querySelector("canvas.cp-scene");
+const viewBox = root.querySelector(".cp-view");
+const viewCanvas = viewBox.querySelector("canvas");
+const viewFrames = data.episodes.map((e) => (e.view ? FrameStackDraw.decode(e.view) : null));
 const bars = root.querySelector(".cp-bars");
 const caption = root.querySelector(".cp-caption");
 const fps = data.limits.fps || 50;
@@ -20,6 +24,9 @@ function render() {
     length: data.limits.length, action: action,
     caption: `episode ${episode + 1}/${data.episodes.length}  seed ${e.seed}  step ${i}  return ${i}`,
   });
+  // A pixel agent's observation at this step, beside the scene (its frames, as its env stacks them).
+  viewBox.style.display = e.view ? "block" : "none";
+  if (e.view) FrameStackDraw.draw(viewCanvas, e.view, viewFrames[episode], i, 1);
   bars.innerHTML = "";
   if (e.scores && e.scores.length) {
     // The final state has no scores (nothing is chosen there): the last step's stay, chosen bar and all.

@@ -17,6 +17,7 @@ const watch = {
   nudges: [], // [{step, change}]
   physics: {},
   seed: Number(CP.param("seed") || 0),
+  viewFrames: null, // a pixel agent's frames, decoded (FrameStackDraw.decode)
 };
 
 function episodeURL() {
@@ -40,6 +41,7 @@ async function load(keepFrame) {
   try {
     const episode = await CP.getJSON(episodeURL());
     watch.episode = episode;
+    watch.viewFrames = episode.view ? FrameStackDraw.decode(episode.view) : null;
     el("message").innerHTML = "";
     el("timeline").max = String(episode.length);
     if (!keepFrame) watch.frame = 0;
@@ -138,9 +140,22 @@ function render() {
   }
   el("step").textContent = `${i} / ${e.length}`;
   el("timeline").value = String(i);
+  renderView(i);
   el("action").textContent = action === null ? "–" : e.action_labels[action] ?? String(action);
   el("action").style.color = actionColor(action, e.action_labels.length);
   renderPrefs(i);
+}
+
+// A pixel agent's observation at step i (its frame stack), beside the scene; hidden for state agents.
+function renderView(i) {
+  const e = watch.episode;
+  el("view-panel").hidden = !e.view;
+  if (!e.view) return;
+  FrameStackDraw.draw(el("agent-view"), e.view, watch.viewFrames, i, 1);
+  const { stack, height, width } = e.view;
+  el("view-note").textContent =
+    `Its observation at step ${i}: the last ${stack} gray ${width}×${height} frames, drawn from the states ` +
+    "on the server as its env draws them (at the start, the first frame repeated).";
 }
 
 function renderPrefs(i) {
