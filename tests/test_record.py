@@ -6,6 +6,7 @@ import builtins
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 from PIL import Image
 
@@ -121,3 +122,23 @@ def test_eval_render_writes_the_video_of_its_first_episodes(cem_run, tmp_path, c
     monkeypatch.chdir(tmp_path / "cwd")
     assert main(["eval", str(weak), "--episodes", "1", "--seed", "9", "--render"]) == 0
     assert (tmp_path / "cwd" / "weak-seed9.gif").is_file()  # default: in the current folder
+
+
+class PixelLeft:
+    """A pixel agent's stand-in: pushes left, and keeps what it was shown."""
+
+    def __init__(self) -> None:
+        self.seen: list[np.ndarray] = []
+
+    def act(self, observations: np.ndarray) -> np.ndarray:
+        self.seen.append(np.asarray(observations))
+        return np.zeros(len(observations), dtype=np.int64)
+
+
+def test_a_pixel_agent_is_recorded_on_gymnasiums_cartpole_seeing_its_frame_stacks():
+    agent = PixelLeft()
+    recording = render_episodes(agent, "cartpole/CartPolePixels-v1", 1, SEED)
+    left = render_episodes(PixelLeft(), "CartPole-v1", 1, SEED)
+    assert recording.lengths == left.lengths  # the same episode of Gymnasium's CartPole
+    assert recording.frames[0].shape == (400, 600, 3)  # the screen is recorded, not the agent's frames
+    assert {a.shape for a in agent.seen} == {(1, 4, 30, 100)} and agent.seen[0].dtype == np.uint8

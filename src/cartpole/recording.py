@@ -19,6 +19,8 @@ import numpy as np
 
 from cartpole.core.errors import InputError
 from cartpole.core.memory import SHARE, fits_in_memory
+from cartpole.envs import env_info, fast_env_id
+from cartpole.envs.registration import PIXEL_REFERENCE_IDS
 from cartpole.evaluation import Policy
 from cartpole.runs.atomic import replace_atomically
 
@@ -71,9 +73,11 @@ def render_episodes(
     _headless()
     import gymnasium as gym
 
-    gym_id = env_id.removeprefix("cartpole/")
+    gym_id = PIXEL_REFERENCE_IDS.get(fast_env_id(env_id)) or env_id.removeprefix("cartpole/")
     try:
         env = gym.make(gym_id, render_mode="rgb_array")
+        if gym_id != env_id.removeprefix("cartpole/"):  # a pixel env: its agent sees the pictures
+            env = seen_as_pixels(env, env_id)
     except gym.error.DependencyNotInstalled as err:
         raise RecordingError(f"rendering {gym_id} needs pygame: pip install pygame ({err})") from err
     except (gym.error.Error, TypeError, ValueError) as err:
@@ -107,6 +111,15 @@ def render_episodes(
     finally:
         env.close()
     return recording
+
+
+def seen_as_pixels(env: Any, pixel_env_id: str) -> Any:
+    """Gymnasium's CartPole ``env`` observed as ``pixel_env_id``'s frame stacks (its ``rgb_array``
+    pictures, preprocessed as the pixel env's): what a pixel agent's verdicts show it too."""
+    from cartpole.envs.pixels import GymnasiumPixels  # numba kernels: only for pixel agents
+
+    stack, height, width = env_info(pixel_env_id).obs_shape
+    return GymnasiumPixels(env, frame_size=(height, width), stack=stack)
 
 
 def check_frames_fit(episodes: int, steps: int | None, env: Any) -> None:
