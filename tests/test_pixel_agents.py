@@ -8,6 +8,7 @@ import json
 import math
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import pytest
 import torch
@@ -25,10 +26,10 @@ from cartpole.agents.actor_critic.ppo import PPOConfig
 from cartpole.agents.actor_critic.reinforce import ReinforceConfig
 from cartpole.agents.registry import build_population, get_agent, load_policy
 from cartpole.cli.main import main
-from cartpole.envs import env_info, make_vec_env
-from cartpole.envs.pixels import GymnasiumPixels
+from cartpole.envs import env_info
+from cartpole.envs.pixels import GymnasiumPixels, render_frames
 from cartpole.envs.seed_envs import PixelSeedEnvs, make_seed_envs
-from cartpole.evaluation import _reset_to_seeds, start_states
+from cartpole.evaluation import evaluate, start_states
 
 PIXELS = "cartpole/CartPolePixels-v1"
 SHAPE = (4, 30, 100)
@@ -154,21 +155,34 @@ def test_the_memory_estimate_counts_the_pixels():
 # --- evaluation -------------------------------------------------------------------------------------
 
 
+class FirstLook:
+    """A policy that pushes left and keeps the first observations it is shown."""
+
+    def __init__(self) -> None:
+        self.first: np.ndarray | None = None
+
+    def act(self, observations: np.ndarray) -> np.ndarray:
+        if self.first is None:
+            self.first = np.asarray(observations).copy()
+        return np.zeros(len(observations), dtype=np.int64)
+
+
 @pytest.mark.parametrize("simulator", ["fast", "gymnasium"])
 def test_evaluations_of_pixels_start_where_gymnasiums_cartpole_starts(simulator):
     seeds = [2**32 + 7, 2**32 + 8, 2**32 + 9]
-    env = make_vec_env(PIXELS, len(seeds), simulator=simulator)
-    try:
-        observations = _reset_to_seeds(env, PIXELS, seeds)
-        assert observations.shape == (3, *SHAPE) and observations.dtype == np.uint8
-        if simulator == "fast":
-            states = env.unwrapped.states
-        else:
-            assert all(isinstance(e, GymnasiumPixels) for e in env.envs)
-            states = np.stack([e.unwrapped.state for e in env.envs])
-        assert np.allclose(states, start_states("CartPole-v1", seeds), atol=1e-6)
-    finally:
-        env.close()
+    policy = FirstLook()
+    evaluate(policy, PIXELS, len(seeds), seed=seeds[0], simulator=simulator)
+    assert policy.first is not None and policy.first.shape == (3, *SHAPE) and policy.first.dtype == np.uint8
+    if simulator == "fast":  # our renderer's frames of Gymnasium's start states, the stack filled with them
+        frames = render_frames(start_states("CartPole-v1", seeds))
+        assert np.array_equal(policy.first, np.repeat(frames[:, None], SHAPE[0], axis=1))
+    else:  # Gymnasium's own pictures of its reset(seed=s)
+        for seed, seen in zip(seeds, policy.first, strict=True):
+            env = GymnasiumPixels(gym.make("CartPole-v1", render_mode="rgb_array"))
+            try:
+                assert np.array_equal(seen, env.reset(seed=seed)[0])
+            finally:
+                env.close()
 
 
 def test_train_and_eval_a_pixel_ppo_judge_it_on_gymnasiums_pictures(tmp_path, monkeypatch, capsys):
