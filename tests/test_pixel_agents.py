@@ -222,3 +222,42 @@ def test_agents_without_a_conv_network_refuse_pixels_in_one_line(agent, tmp_path
     assert code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
     assert f"{agent} has no convolutional network yet" in err and "ppo" in err and PIXELS in err
     assert not runs.exists() or not any(Path(runs).iterdir())
+
+
+@pytest.mark.slow  # about 30 s: three short pixel runs, each with its verdict on Gymnasium's pictures
+def test_a_pixel_run_stopped_and_resumed_trains_the_rows_of_a_run_never_stopped(tmp_path):
+    """Resume restores the frame stacks too: the interrupted run's training rows are the whole run's."""
+    from cartpole.training import resume, train
+
+    settings = {
+        "num_envs": 4,
+        "n_steps": 16,
+        "minibatch_size": 64,
+        "hidden_sizes": (16, 16),
+        "eval_every": 10**9,
+    }
+    whole = train(
+        "ppo", PIXELS, seed=3, preset="pixels", overrides=settings, budget="768", runs_dir=tmp_path / "a"
+    )
+    interrupted = train(
+        "ppo", PIXELS, seed=3, preset="pixels", overrides=settings, budget="320", runs_dir=tmp_path / "b"
+    )
+    run = interrupted.run
+    config = run.config()  # as if the 320-step run had been interrupted on the way to 768
+    config["budget"] = whole.run.config()["budget"]
+    run.write_config(config)
+    run.write_status(run.status() | {"state": "interrupted"})
+    finished = resume(run.path)
+
+    def train_rows(rows: list[dict]) -> list[dict]:
+        return [
+            {k: v for k, v in r.items() if k not in ("time", "time/sps")}
+            for r in rows
+            if "train/updates" in r
+        ]
+
+    assert len(train_rows(whole.run.metrics())) >= 10
+    assert train_rows(run.metrics()) == train_rows(whole.run.metrics())
+    assert (
+        finished.state.env_steps == whole.state.env_steps and finished.state.episodes == whole.state.episodes
+    )
