@@ -283,3 +283,30 @@ def render_frames(
                 if 0 <= r < n_axle_rows and 0 <= j - axle_j0 < n_axle_cols:
                     value += gray_axle * axle[r, j - axle_j0] - gray_pole * axle_on_pole[r, j - axle_j0]
                 frame[i, j] = np.uint8(min(max(value + _HALF, 0.0), 255.0))
+
+
+@njit(**_JIT)
+def gray_blocks(
+    picture: NDArray[np.uint8], top: int, pixel: int, weights: NDArray[np.int64], out: NDArray[np.uint8]
+) -> None:
+    """``out[i, j]``: the gray level of the ``pixel`` x ``pixel`` block of ``picture`` [rows, cols, 3]
+    whose top-left screen pixel is ``(top + i * pixel, j * pixel)``, rounded half up.
+
+    In whole numbers (gray levels times ``sum(weights)``, e.g. 299 R + 587 G + 114 B), so it is
+    :func:`~cartpole.envs.pixels.preprocess_frames`' general area average exactly, where an output
+    pixel covers whole screen pixels."""
+    height, width = out.shape
+    scale = weights[0] + weights[1] + weights[2]
+    denominator = scale * pixel * pixel
+    for i in range(height):
+        first_row = top + i * pixel
+        for j in range(width):
+            total = 0
+            for row in range(first_row, first_row + pixel):
+                for col in range(j * pixel, (j + 1) * pixel):
+                    total += (
+                        weights[0] * picture[row, col, 0]
+                        + weights[1] * picture[row, col, 1]
+                        + weights[2] * picture[row, col, 2]
+                    )
+            out[i, j] = min(255, (2 * total + denominator) // (2 * denominator))

@@ -244,11 +244,16 @@ def preprocess_frames(
         )
     top, _ = screen_window((height, width))
     pixel = SCREEN_WIDTH / width
+    frames = np.empty((len(pictures), height, width), dtype=np.uint8)
+    if pixel.is_integer() and top.is_integer():  # whole screen pixels per output pixel (30x100)
+        weights_int = np.round(1000 * np.asarray(GRAY_WEIGHTS)).astype(np.int64)
+        for frame, picture in zip(frames, pictures, strict=True):
+            _kernels().gray_blocks(picture, int(top), int(pixel), weights_int, frame)
+        return frames
     first = math.floor(top)
     last = min(SCREEN_HEIGHT, math.ceil(top + height * pixel))
     # Gray levels times 1000 (299 R + 587 G + 114 B): whole numbers below 2**24, exact in float32.
     weights = np.round(1000 * np.asarray(GRAY_WEIGHTS, dtype=np.float32))
-    frames = np.empty((len(pictures), height, width), dtype=np.uint8)
     for frame, picture in zip(frames, pictures, strict=True):  # one at a time: stays in cache
         gray = picture[first:last].astype(np.float32) @ weights
         columns = _box_average(gray, 0.0, pixel, width, axis=1)  # along rows first: contiguous
