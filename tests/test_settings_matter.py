@@ -442,6 +442,16 @@ def test_eval_episodes_and_eval_simulator_shape_the_full_evaluation_and_the_verd
         assert outcome.report.episodes == episodes and outcome.report.simulator == simulator
 
 
+def test_verdict_simulator_judges_the_final_policy_apart_from_the_evaluations_in_training(
+    cem_run: Path,
+) -> None:
+    overrides = {"eval_simulator": "fast", "verdict_simulator": "gymnasium"}
+    outcome = train("cem", seed=0, overrides=overrides, runs_dir=cem_run.parent)
+    full = [row for row in eval_rows(outcome) if row["eval/mean_return"] >= CARTPOLE.reward_threshold]
+    assert full and all(row["eval/simulator"] == "fast" for row in full)
+    assert outcome.report is not None and outcome.report.simulator == "gymnasium"
+
+
 def test_stop_when_solved_setting(tmp_path: Path) -> None:
     iterations = {}
     for stop in (True, False):

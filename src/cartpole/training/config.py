@@ -30,7 +30,11 @@ class TrainSettings:
     eval_episodes: int = 100
     """Episodes of the full evaluation (Gymnasium's rule needs >= 100 to call it solved)."""
     eval_simulator: str = "gymnasium"
-    """Simulator of the full evaluation: "gymnasium" (the reference) or "fast"."""
+    """Simulator of the full evaluations during training (the ones that stop a run at a solve):
+    "gymnasium" (the reference) or "fast"."""
+    verdict_simulator: str | None = None
+    """Simulator of the final verdict: "gymnasium" or "fast"; none: the ``eval_simulator``. (The
+    pixel presets evaluate on our renderer during training and judge on Gymnasium's pictures.)"""
     checkpoint_fraction: float = 0.05
     """Share of the budget between writes of checkpoints/latest.pt (also written at start and end)."""
     checkpoint_seconds: float = 30.0
@@ -40,12 +44,18 @@ class TrainSettings:
     stop_when_solved: bool = True
     """End training at the first verified solve."""
 
+    @property
+    def final_simulator(self) -> str:
+        """Where the final verdict is played: ``verdict_simulator``, else ``eval_simulator``."""
+        return self.eval_simulator if self.verdict_simulator is None else self.verdict_simulator
+
     def validate(self) -> None:
         parse_budget(self.budget)
         require(self.eval_every >= 0, "eval_every must be >= 0")
         require(self.eval_screen_episodes >= 1, "eval_screen_episodes must be >= 1")
         require(self.eval_episodes >= 1, "eval_episodes must be >= 1")
         check_simulator(self.eval_simulator, "eval_simulator")
+        check_simulator(self.final_simulator, "verdict_simulator")
         require(0 < self.checkpoint_fraction <= 1, "checkpoint_fraction must be in (0, 1]")
         require(0 < self.checkpoint_seconds < float("inf"), "checkpoint_seconds must be > 0")
         require(self.checkpoint_every >= 0, "checkpoint_every must be >= 0 (0: off)")

@@ -375,7 +375,7 @@ def play_final_episodes(members: list[Member], checkpoint: CheckpointName) -> di
     """Each member's ``checkpoint`` policy on its verdict's episodes, all members in one vector env."""
     first = members[0].setup
     episodes = max(first.settings.eval_episodes, MIN_EPISODES_FOR_SOLVED)
-    simulator = check_simulator(first.settings.eval_simulator)
+    simulator = check_simulator(first.settings.final_simulator)
     policies = [
         m.setup.spec.policy_from_checkpoint(load_checkpoint(m.setup.run.checkpoint_path(checkpoint)))
         for m in members
