@@ -3,6 +3,7 @@ matmul, a policy head's weight gradient in both orientations, and the Adam step 
 
     python benchmarks/kernels.py
     python benchmarks/kernels.py --seeds 100 --rows 128 --width 64
+    python benchmarks/kernels.py --pixels      # the pixel trunk's convolutions, and a pixel PPO update
 
 Shapes are a 100-seed PPO population's full-batch step: ``[seeds, rows, width]`` activations, and
 ``[seeds, rows, width] x [seeds, width, width]`` for a hidden layer. Printed: nanoseconds an element
@@ -14,6 +15,11 @@ rows, width]``, the one ``agents/nn/stacked_linear.py`` takes), and one Adam ste
 parameters (a 64x64 actor-critic) in torch's elementwise form and in the numba pass of
 ``agents/nn/population_optimizers.py``. Which kernels NumPy and torch pick depends on the CPU (AVX-512
 or not), so the CPU is printed first.
+
+``--pixels``: instead, one seed's conv trunk (a 512-row batch of 4x30x100 frame stacks through
+``agents/actor_critic/network.py``'s ``CONV_LAYERS``, forward and backward) with the images laid
+out as torch makes them and channels-last (what ``agents/nn/stacked_conv.py`` does), then one
+``learn()`` of PPO's ``pixels`` preset (a 512-step rollout and its 4 epochs), per env step.
 """
 
 from __future__ import annotations
@@ -50,14 +56,68 @@ def adam_step(seeds: int, size: int, fused: bool | None) -> Callable[[], None]:
     return lambda: adam.step(params, grads, lr, active)
 
 
+def conv_trunk(channels_last: bool) -> Callable[[], None]:
+    """One forward and backward pass of a 512-row batch through the pixel trunk's conv layers."""
+    from torch.nn import functional
+
+    from cartpole.agents.actor_critic.network import CONV_LAYERS
+
+    generator = torch.Generator().manual_seed(0)
+    images = torch.rand(512, 4, 30, 100, generator=generator)
+    if channels_last:
+        images = images.contiguous(memory_format=torch.channels_last)
+    weights, channels = [], 4
+    for filters, kernel, stride in CONV_LAYERS:
+        weight = torch.randn(filters, channels, kernel, kernel, generator=generator) * 0.05
+        weights.append((weight.requires_grad_(True), stride))
+        channels = filters
+
+    def step() -> None:
+        x = images
+        for weight, stride in weights:
+            x = torch.relu(functional.conv2d(x, weight, stride=stride))
+        x.sum().backward()
+
+    return step
+
+
+def pixel_ppo_learn() -> tuple[Callable[[], object], int]:
+    """One ``learn()`` of a single seed with PPO's ``pixels`` preset, and its env steps."""
+    from cartpole.agents.registry import build_population, get_agent
+    from cartpole.envs import env_info
+    from cartpole.training.config import resolve_config
+
+    spec = get_agent("ppo")
+    config, _ = resolve_config("ppo", spec.config_cls, "pixels")
+    population = build_population(spec, config, env_info("cartpole/CartPolePixels-v1"), [1], "cpu")
+    return population.learn, config.num_envs * config.n_steps
+
+
+def pixels() -> None:
+    for channels_last in (False, True):
+        seconds = seconds_per_call(conv_trunk(channels_last), 3)
+        layout = "channels-last" if channels_last else "as made (NCHW)"
+        print(f"conv trunk, 512 rows, forward + backward, {layout:<15} {seconds * 1e3:7.1f} ms")
+    learn, steps = pixel_ppo_learn()
+    seconds = seconds_per_call(learn, 2)
+    print(
+        f"PPO pixels preset, one learn() of {steps} env steps: {seconds:.2f} s, {steps / seconds:.0f} steps/s"
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, default=100)
     parser.add_argument("--rows", type=int, default=128)
     parser.add_argument("--width", type=int, default=64)
     parser.add_argument("--repeats", type=int, default=50)
+    parser.add_argument("--pixels", action="store_true", help="the pixel trunk and a pixel PPO update")
     args = parser.parse_args()
     torch.set_num_threads(1)
+    if args.pixels:
+        print(f"cpu: {describe_cpu()}, torch CPU capability {torch.backends.cpu.get_cpu_capability()}")
+        pixels()
+        return
     shape = (args.seeds, args.rows, args.width)
     generator = torch.Generator().manual_seed(0)
     x = 2 * torch.randn(*shape, generator=generator)

@@ -68,7 +68,7 @@ from cartpole.agents.learner import LearnResult
 from cartpole.agents.nn.fast_tanh import tanh
 from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step
 from cartpole.agents.nn.population_optimizers import PopulationAdam, PopulationOptimizer, PopulationRMSprop
-from cartpole.agents.nn.stacked_conv import stacked_conv2d
+from cartpole.agents.nn.stacked_conv import channels_last, stacked_conv2d
 from cartpole.agents.nn.stacked_linear import stacked_linear
 from cartpole.agents.population import SeedRows
 from cartpole.agents.registry import AgentSpec
@@ -120,11 +120,17 @@ def flatten_images(x: torch.Tensor) -> torch.Tensor:
     return x.flatten(2)
 
 
+def scale_stacked_pixels(x: torch.Tensor) -> torch.Tensor:
+    """:func:`scale_pixels` of [S, B, C, H, W] pixels laid out channels-last first (while uint8:
+    a quarter of the bytes), as :func:`stacked_conv2d` takes them."""
+    return scale_pixels(channels_last(x))
+
+
 SHAPE_STEPS: dict[type[nn.Module], Callable[[torch.Tensor], torch.Tensor]] = {
-    ScalePixels: scale_pixels,
     nn.Flatten: flatten_images,
 }
-"""The parameter-free layers of an image trunk, on a seed axis."""
+"""The parameter-free layers of an image trunk, on a seed axis, but for ``ScalePixels`` (see
+:meth:`StackedActorCritic.run`)."""
 
 
 class StackedActorCritic:
@@ -146,6 +152,8 @@ class StackedActorCritic:
             self.offsets[name] = (offset, offset + math.prod(shape))
             offset += math.prod(shape)
         self.size = offset
+        self.scaled: tuple[torch.Tensor, torch.Tensor] | None = None
+        """The last pixels :meth:`scale_once` scaled, and their scaled values."""
         with torch.no_grad():
             self.flat = torch.stack([torch.cat([p.reshape(-1) for p in m.parameters()]) for m in models])
             self.flat = self.flat.to(device)
@@ -164,28 +172,47 @@ class StackedActorCritic:
             self.params[name] = leaf
 
     @staticmethod
-    def run(plan: list[Layer], params: dict[str, torch.Tensor], x: torch.Tensor) -> torch.Tensor:
+    def run(
+        plan: list[Layer],
+        params: dict[str, torch.Tensor],
+        x: torch.Tensor,
+        scale: Callable[[torch.Tensor], torch.Tensor] = scale_stacked_pixels,
+    ) -> torch.Tensor:
         """``x`` [S, B, *obs_shape] through ``plan``: one baddbmm per linear layer for all seeds, one
-        conv2d per seed and convolutional layer."""
+        conv2d per seed and convolutional layer; pixels scaled by ``scale``."""
         for step in plan:
             if isinstance(step, tuple):
                 weight, bias = params[step[0]], params[step[1]]
                 x = stacked_linear(x, weight, bias)
             elif isinstance(step, ConvStep):
                 x = stacked_conv2d(x, params[step.weight], params[step.bias], step.stride)
+            elif step is ScalePixels:
+                x = scale(x)
             elif step in SHAPE_STEPS:
                 x = SHAPE_STEPS[step](x)
             else:
                 x = TORCH_ACTIVATIONS[step](x)
         return x
 
+    def scale_once(self, pixels: torch.Tensor) -> torch.Tensor:
+        """:func:`scale_stacked_pixels` of ``pixels``, computed once while the same tensor comes
+        again (the actor and the critic see the same observations; PPO's epochs of one whole batch
+        the same rollout), until :meth:`forget_scaled`. Pixels take no gradient: sharing is safe."""
+        if self.scaled is None or self.scaled[0] is not pixels:
+            self.scaled = (pixels, scale_stacked_pixels(pixels))
+        return self.scaled[1]
+
+    def forget_scaled(self) -> None:
+        """Let go of the scaled pixels that :meth:`scale_once` keeps (4 bytes a pixel)."""
+        self.scaled = None
+
     def logits(self, observations: torch.Tensor) -> torch.Tensor:
         """Action logits [S, B, n_actions] of observations [S, B, *obs_shape]."""
-        return self.run(self.actor_plan, self.params, observations)
+        return self.run(self.actor_plan, self.params, observations, self.scale_once)
 
     def values(self, observations: torch.Tensor) -> torch.Tensor:
         """State values [S, B]."""
-        return self.run(self.critic_plan, self.params, observations).squeeze(-1)
+        return self.run(self.critic_plan, self.params, observations, self.scale_once).squeeze(-1)
 
     def logits_and_values(self, observations: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return self.logits(observations), self.values(observations)
@@ -716,6 +743,7 @@ class PopulationPPO(PopulationActorCritic):
         metrics = self.update(
             rollout, torch.tensor(lr, device=self.device), torch.tensor(clip, device=self.device).unsqueeze(1)
         )
+        self.model.forget_scaled()
         extra = [{"train/learning_rate": r, "train/clip_range": c} for r, c in zip(lr, clip, strict=True)]
         self.attach_metrics(results, rollout.counts, [m | e for m, e in zip(metrics, extra, strict=True)])
         return results
@@ -847,6 +875,7 @@ class PopulationA2C(PopulationActorCritic):
         loss = policy_loss - config.ent_coef * entropy + config.vf_coef * value_loss
         active = count > 0
         self.backward_and_step(loss, torch.tensor(lr, device=self.device), active)
+        self.model.forget_scaled()
         self.updates += active.cpu().numpy()
         with torch.no_grad():  # how far the step moved each policy on its own batch
             new_log_probs = torch.log_softmax(self.model.logits(rollout.observations), dim=-1)
@@ -961,8 +990,10 @@ class PopulationReinforce(PopulationActorCritic):
             transitions.columns(columns, length), detached, len(rows), 1.0, config.baseline
         )
         valid, count = rollout.valid.float(), rollout.counts
-        logits = StackedActorCritic.run(self.model.actor_plan, params, rollout.observations)
-        values = StackedActorCritic.run(self.model.critic_plan, params, rollout.observations).squeeze(-1)
+        scale = self.model.scale_once
+        logits = StackedActorCritic.run(self.model.actor_plan, params, rollout.observations, scale)
+        values = StackedActorCritic.run(self.model.critic_plan, params, rollout.observations, scale)
+        values = values.squeeze(-1)
         log_probs_all = torch.log_softmax(logits, dim=-1)
         log_probs = log_probs_all.gather(-1, rollout.actions.unsqueeze(-1)).squeeze(-1)
         entropy = masked_mean(-(log_probs_all.exp() * log_probs_all).sum(dim=-1), valid, count)
@@ -980,6 +1011,7 @@ class PopulationReinforce(PopulationActorCritic):
             # The gradients are views of one [S, P] tensor on purpose (see StackedActorCritic).
             warnings.filterwarnings("ignore", "grad and param do not obey the gradient layout")
             loss.sum().backward()
+        self.model.forget_scaled()
         explained = self.explained_variances(rollout).tolist()
         values_of = torch.stack([policy_loss, value_loss, entropy], dim=1).tolist()
         for i, row in enumerate(rows):
