@@ -144,3 +144,30 @@ def test_episodes_that_do_not_fill_their_blocks_are_refused(always_left):
 
     with pytest.raises(ValueError, match="blocks of 3"):
         play_greedy_blocks(lambda o, b: always_left.act(o), "CartPole-v1", list(range(10)), "fast", 3)
+
+
+def test_envs_whose_episode_ended_stand_still_while_the_others_play(monkeypatch):
+    """Gymnasium's envs of an evaluation (here MountainCar, one by one in a SyncVectorEnv) are
+    stepped only while their episode counts: an ended one costs nothing more (a pixel verdict's
+    steps cost a picture each). The returns are those of a plain loop over the single env."""
+    from gymnasium.envs.classic_control.mountain_car import MountainCarEnv
+
+    class PushWithTheSpeed:
+        def act(self, observations: np.ndarray) -> np.ndarray:
+            return np.where(observations[:, 1] >= 0, 2, 0)  # pumps energy: the flag in < 200 steps
+
+    policy, seeds = PushWithTheSpeed(), [0, 1, 2]
+    expected = reference_returns(policy, "MountainCar-v0", seeds)
+    steps = 0
+    original = MountainCarEnv.step
+
+    def counted(self, action):
+        nonlocal steps
+        steps += 1
+        return original(self, action)
+
+    monkeypatch.setattr(MountainCarEnv, "step", counted)
+    report = evaluate(policy, "MountainCar-v0", episodes=3, seed=0)
+    assert report.returns == expected
+    assert len(set(report.lengths)) > 1 and max(report.lengths) < 200
+    assert steps == sum(report.lengths)
