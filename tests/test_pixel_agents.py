@@ -1,6 +1,7 @@
 """CartPole from pixels with the actor-critic agents: the convolutional trunk, seed independence in
 the batched engine, the pixel envs they train on, honest verdicts on Gymnasium's own pictures, and
-one-line refusals from the agents that have no convolutional network."""
+one-line refusals from the agents that have no convolutional network (DQN's pixels:
+tests/test_dqn_pixels.py)."""
 
 from __future__ import annotations
 
@@ -128,6 +129,24 @@ def test_a_pixel_seed_alone_is_bit_identical_to_the_seed_in_a_population(agent):
     assert np.array_equal(act(observations, np.array([0])), alone.seed_policy(4).act(observations))
 
 
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+@pytest.mark.parametrize("agent", sorted(TINY_CONFIGS))
+def test_a_pixel_population_trains_on_cuda_and_its_checkpoints_load_on_the_cpu(agent):
+    spec, env = get_agent(agent), env_info(PIXELS)
+    on_gpu = build_population(spec, TINY_CONFIGS[agent], env, [4, 9], "cuda")
+    assert on_gpu.model.flat.device.type == "cuda"
+    for _ in range(3):
+        assert on_gpu.learn()[4].env_steps > 0
+    observations = on_gpu.envs.observations()
+    actions = on_gpu.greedy_actor([4])(observations[:4], np.array([0]))
+    tensors, data = on_gpu.seed_state_dict(4, resume=True)
+    assert all(t.device.type == "cpu" for t in tensors.values())
+    on_cpu = build_population(spec, TINY_CONFIGS[agent], env, [4], "cpu")
+    on_cpu.load_seed_state_dict(4, tensors, data)
+    assert torch.equal(on_cpu.model.flat[0], on_gpu.model.flat[0].cpu())
+    assert actions.shape == (4,) and set(actions.tolist()) <= {0, 1}
+
+
 def test_pixel_seed_envs_draw_frame_stacks_and_resume_them():
     envs = make_seed_envs(env_info(PIXELS), "fast", [1, 2], 3)
     assert isinstance(envs, PixelSeedEnvs)
@@ -214,13 +233,14 @@ def test_train_and_eval_a_pixel_ppo_judge_it_on_gymnasiums_pictures(tmp_path, mo
 # --- agents without a convolutional network --------------------------------------------------------
 
 
-@pytest.mark.parametrize("agent", ["dqn", "cem", "random-search", "hill-climbing"])
+@pytest.mark.parametrize("agent", ["cem", "random-search", "hill-climbing"])
 def test_agents_without_a_conv_network_refuse_pixels_in_one_line(agent, tmp_path, capsys):
     runs = tmp_path / "runs"
     code = main(["train", agent, "--env", PIXELS, "--runs-dir", str(runs), "--quiet"])
     err = capsys.readouterr().err
     assert code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
     assert f"{agent} has no convolutional network yet" in err and "ppo" in err and PIXELS in err
+    assert "dqn" in err  # DQN learns from pixels too (tests/test_dqn_pixels.py)
     assert not runs.exists() or not any(Path(runs).iterdir())
 
 

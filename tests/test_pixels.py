@@ -150,6 +150,23 @@ def test_preprocess_frames_is_gray_and_a_box_average_as_pillow_computes_them(
         preprocess_frames(rgb[0])
 
 
+@pytest.mark.parametrize("frame_size", [DEFAULT_FRAME_SIZE, (40, 60)])
+def test_frames_of_whole_screen_pixels_are_their_blocks_mean_gray_rounded_half_up(frame_size) -> None:
+    """Where an output pixel covers whole screen pixels, a frame is exactly the mean gray level of
+    each block, halves rounded up (also on noise, and on blocks whose mean is exactly a half)."""
+    rng = np.random.default_rng(0)
+    noise = rng.integers(0, 256, (2, 400, 600, 3), dtype=np.uint8)
+    halves = np.indices((400, 600)).sum(axis=0) % 2  # a checkerboard of gray 0 and 1: means of 0.5
+    rgb = np.concatenate([noise, np.repeat(halves[None, :, :, None], 3, axis=3).astype(np.uint8)])
+    height, width = frame_size
+    top, pixel = int(screen_window(frame_size)[0]), 600 // width
+    gray = rgb.astype(np.int64) @ np.array([299, 587, 114])
+    blocks = gray[:, top : top + height * pixel].reshape(3, height, pixel, width, pixel).sum(axis=(2, 4))
+    expected = (2 * blocks + 1000 * pixel * pixel) // (2000 * pixel * pixel)
+    frames = preprocess_frames(rgb, frame_size)
+    assert np.array_equal(frames, expected) and (frames[2] == 1).all()
+
+
 def test_vector_env_observations_and_stacks() -> None:
     envs = CartPolePixelsVectorEnv(num_envs=5, stack=3, frame_size=(24, 80))
     assert envs.observation_space.shape == (5, 3, 24, 80)
@@ -332,15 +349,15 @@ def test_edge_sizes_are_allowed() -> None:
 
 
 def test_training_a_pixel_env_without_a_conv_network_is_refused_in_one_line(tmp_path, capsys):
-    """Only the actor-critic agents have a convolutional network: asking another agent to learn from
-    pixels is bad input, said in one line before a run folder exists (tests/test_pixel_agents.py
-    trains the ones that can)."""
+    """Only the actor-critic agents and DQN have a convolutional network: asking a linear agent to
+    learn from pixels is bad input, said in one line before a run folder exists
+    (tests/test_pixel_agents.py and tests/test_dqn_pixels.py train the ones that can)."""
     from cartpole.cli.main import main
 
     runs = tmp_path / "runs"
     assert (
-        main(["train", "dqn", "--env", "cartpole/CartPolePixels-v1", "--runs-dir", str(runs), "--quiet"]) == 2
+        main(["train", "cem", "--env", "cartpole/CartPolePixels-v1", "--runs-dir", str(runs), "--quiet"]) == 2
     )
     lines = capsys.readouterr().err.strip().splitlines()
-    assert len(lines) == 1 and "dqn has no convolutional network yet" in lines[0], lines
+    assert len(lines) == 1 and "cem has no convolutional network yet" in lines[0], lines
     assert not runs.exists()

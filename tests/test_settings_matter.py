@@ -69,6 +69,8 @@ DQN_CHANGES: dict[str, Change] = {
     "gamma": ({}, 0.5),
     "loss": ({}, "mse"),
     "max_grad_norm": ({}, 0.05),
+    "max_grad_value": ({}, 1e-4),
+    "optimizer": ({}, "rmsprop"),
     # the target net frozen at its start and a fast-moving online net: their argmaxes part early
     "double_dqn": ({"lr": 1e-2, "tau": 1.0, "target_update_interval": 1000}, False),
     "target_network": ({}, False),
@@ -152,6 +154,8 @@ NOT_APPLICABLE: dict[str, dict[str, str]] = {
     "dqn": {
         # (gone once agents stop setting process-wide state; an entry for a missing field is harmless)
         "torch_threads": "a process-wide thread count, not learning behaviour (results do not depend on it)",
+        "conv_layers": "image observations only: tests/test_dqn_pixels.py",
+        "frame_difference": "image observations only: tests/test_dqn_pixels.py",
     },
     "random-search": {
         "noise": "hill climbing only",

@@ -25,6 +25,8 @@ import numpy as np
 import torch
 from torch import nn
 
+from cartpole.agents.nn import conv
+from cartpole.agents.nn.conv import PIXEL_SCALE, ScalePixels, scale_pixels
 from cartpole.agents.nn.numpy_mlp import NumpyMLP, StackedNumpyMLP
 from cartpole.evaluation import BlockActor
 
@@ -55,37 +57,11 @@ features), about 1.2 M multiply-adds a frame with the first hidden layer, cheap 
 a CPU (a 256-row forward and backward pass: ~45 ms on one core, against ~110 ms for 5x5 stride 2
 then 3x3 stride 2). The 8x8 windows overlap by half, so the pole's edges (1.7 pixels wide) and
 their motion across the stacked frames still show in every window's gray levels."""
-PIXEL_SCALE = 1.0 / 255.0
-"""uint8 pixels to [0, 1]."""
-
-
-def scale_pixels(observations: torch.Tensor) -> torch.Tensor:
-    """Pixels (uint8, or floats of the same values) as float32 darkness in [0, 1]: ``1 - x / 255``.
-
-    Inverted because Gymnasium draws the cart-pole dark on a white screen: as darkness the
-    background is 0, so the convolutions' outputs are sparse and start from what moves (as Atari's
-    dark backgrounds give DQN's networks), instead of a large constant from the white that hides the
-    pole. The network's first step, so rollouts can keep observations as uint8."""
-    return 1.0 - observations.to(torch.float32) * PIXEL_SCALE
-
-
-class ScalePixels(nn.Module):
-    """:func:`scale_pixels` as a layer (no parameters)."""
-
-    def forward(self, observations: torch.Tensor) -> torch.Tensor:
-        return scale_pixels(observations)
 
 
 def conv_output_size(obs_shape: Sequence[int]) -> int:
     """Features the :data:`CONV_LAYERS` make of one image ``[channels, height, width]``."""
-    _, height, width = obs_shape
-    channels = obs_shape[0]
-    for filters, kernel, stride in CONV_LAYERS:
-        height, width = (height - kernel) // stride + 1, (width - kernel) // stride + 1
-        channels = filters
-    if height < 1 or width < 1:
-        raise ValueError(f"images {tuple(obs_shape)} are too small for the convolutional layers")
-    return channels * height * width
+    return conv.conv_output_size(obs_shape, CONV_LAYERS)
 
 
 def trunk(obs_shape: tuple[int, ...], hidden_sizes: tuple[int, ...], activation: str) -> nn.Sequential:
@@ -108,15 +84,12 @@ def parameter_count(
 ) -> int:
     """Parameters of an :class:`ActorCritic` (without building it: memory estimates use it)."""
     features = obs_shape[0]
-    conv = 0
+    conv_weights = 0
     if len(obs_shape) == 3:
-        channels = obs_shape[0]
-        for filters, kernel, _ in CONV_LAYERS:
-            conv += filters * channels * kernel * kernel + filters
-            channels = filters
+        conv_weights = conv.conv_parameters(obs_shape[0], CONV_LAYERS)
         features = conv_output_size(obs_shape)
     sizes = [features, *hidden_sizes]
-    one_trunk = conv + sum(n_in * n_out + n_out for n_in, n_out in itertools.pairwise(sizes))
+    one_trunk = conv_weights + sum(n_in * n_out + n_out for n_in, n_out in itertools.pairwise(sizes))
     heads = sizes[-1] * (n_actions + 1) + n_actions + 1
     return one_trunk * (1 if shared else 2) + heads
 
@@ -290,6 +263,7 @@ def stacked_greedy_actor(policies: Sequence[object], obs_dim: int) -> BlockActor
 __all__ = [
     "ACTIVATIONS",
     "CONV_LAYERS",
+    "PIXEL_SCALE",
     "SCHEDULES",
     "ActorCritic",
     "CategoricalPolicy",

@@ -25,14 +25,17 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from cartpole.agents.dqn.q_network import ACTIVATIONS, QNetwork, QNetworkPolicy
+from cartpole.agents.dqn.q_network import ACTIVATIONS, QNetwork, QNetworkPolicy, network_input_shape
 from cartpole.agents.memory import dqn_memory_problem
+from cartpole.agents.nn.conv import conv_output_size
 from cartpole.core.config import build_config, require
-from cartpole.envs import check_simulator
+from cartpole.core.errors import ConfigError
+from cartpole.envs import EnvInfo, check_simulator
 from cartpole.runs import Checkpoint, CheckpointError
 
 SCHEDULES = ("linear", "exponential", "multiplicative")
 LOSSES = ("huber", "mse")
+OPTIMIZERS = ("adam", "rmsprop")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -46,22 +49,34 @@ class DQNConfig:
 
     # network
     hidden_sizes: tuple[int, ...] = (64, 64)
-    """Widths of the hidden layers of the Q-network MLP."""
+    """Widths of the hidden layers of the Q-network MLP (none: a linear head on the inputs or the
+    convolutional features)."""
     activation: str = "relu"
     """Hidden-layer activation: relu, tanh, elu or gelu."""
     dropout: float = 0.0
     """Dropout after each hidden layer while training (0 = none); acting and targets run without it."""
     dueling: bool = False
     """Dueling head: Q = V + A - mean(A)."""
+    conv_layers: tuple[tuple[int, int, int], ...] = ((16, 8, 4), (32, 3, 1))
+    """Image observations only: the convolutional layers before the MLP, each [filters, kernel size,
+    stride] (no padding, ReLU after each); the default is the actor-critic agents' trunk."""
+    frame_difference: bool = False
+    """Image observations only: show the network the last frame minus the one before it (one
+    channel), the old PyTorch tutorial's screen difference, instead of the whole frame stack."""
     # learning
+    optimizer: str = "adam"
+    """adam, or rmsprop (torch.optim.RMSprop's defaults: alpha 0.99, eps 1e-8, no momentum)."""
     lr: float = 2e-3
-    """Adam learning rate."""
+    """Learning rate of the optimizer."""
     gamma: float = 0.99
     """Discount factor."""
     loss: str = "huber"
     """TD loss: huber (smooth L1) or mse."""
     max_grad_norm: float | None = None
     """Clip the gradient's global norm to this (none: no clipping)."""
+    max_grad_value: float | None = None
+    """Clamp every gradient value to [-max_grad_value, max_grad_value] (none: no clamping; the old
+    PyTorch tutorial clamped to 1)."""
     double_dqn: bool = True
     """Double DQN: the online net picks the next action, the target net values it."""
     target_network: bool = True
@@ -108,14 +123,20 @@ class DQNConfig:
 
     def validate(self) -> None:
         """Reject bad values with one clear line each."""
-        require(len(self.hidden_sizes) >= 1, "hidden_sizes needs at least one layer, e.g. 128,128")
         require(all(h >= 1 for h in self.hidden_sizes), "hidden_sizes must all be >= 1")
+        require(
+            all(len(layer) == 3 and all(n >= 1 for n in layer) for layer in self.conv_layers),
+            "conv_layers must be [filters, kernel size, stride] triples of whole numbers >= 1, "
+            "e.g. [[16, 8, 4], [32, 3, 1]]",
+        )
+        require(self.optimizer in OPTIMIZERS, f"optimizer must be one of {', '.join(OPTIMIZERS)}")
         require(self.activation in ACTIVATIONS, f"activation must be one of {', '.join(ACTIVATIONS)}")
         require(0.0 <= self.dropout < 1.0, "dropout must be in [0, 1)")
         require(self.lr > 0, f"lr must be > 0, got {self.lr}")
         require(0.0 <= self.gamma <= 1.0, f"gamma must be in [0, 1], got {self.gamma}")
         require(self.loss in LOSSES, f"loss must be one of {', '.join(LOSSES)}, got {self.loss!r}")
         require(self.max_grad_norm is None or self.max_grad_norm > 0, "max_grad_norm must be > 0 or none")
+        require(self.max_grad_value is None or self.max_grad_value > 0, "max_grad_value must be > 0 or none")
         require(self.target_update_interval >= 1, "target_update_interval must be >= 1")
         require(0.0 < self.tau <= 1.0, f"tau must be in (0, 1], got {self.tau}")
         require(self.buffer_size >= 1, f"buffer_size must be >= 1, got {self.buffer_size}")
@@ -135,6 +156,27 @@ class DQNConfig:
         check_simulator(self.simulator)
         problem = dqn_memory_problem(self.buffer_size, self.hidden_sizes, self.batch_size)
         require(problem is None, problem or "")
+
+    def check_env(self, env: EnvInfo) -> None:
+        """Reject settings that do not fit ``env``'s observations, one line each (before a run starts)."""
+        if not env.is_image:
+            require(
+                not self.frame_difference,
+                f"frame_difference needs image observations (e.g. cartpole/CartPolePixels-v1); "
+                f"{env.env_id}'s are not images",
+            )
+            return
+        require(
+            not self.frame_difference or env.obs_shape[0] >= 2,
+            f"frame_difference needs at least 2 frames a stack; {env.env_id} has {env.obs_shape[0]}",
+        )
+        try:
+            conv_output_size(network_input_shape(env.obs_shape, self.frame_difference), self.conv_layers)
+        except ValueError:
+            raise ConfigError(
+                f"conv_layers {[list(layer) for layer in self.conv_layers]} shrink {env.env_id}'s images "
+                f"{list(env.obs_shape)} to nothing: use smaller kernels or strides, or fewer layers"
+            ) from None
 
 
 # ----------------------------------------------------------------------------------------------
@@ -213,7 +255,8 @@ def policy_from_checkpoint(checkpoint: Checkpoint) -> QNetworkPolicy:
         known = {f.name for f in dataclasses.fields(DQNConfig)}  # older checkpoints hold retired settings
         config = build_config(DQNConfig, {k: v for k, v in checkpoint.meta["config"].items() if k in known})
         data = checkpoint.meta["learner"]
-        q_net = QNetwork(int(data["obs_dim"]), int(data["n_actions"]), config)
+        obs_shape = [int(n) for n in data.get("obs_shape", [data["obs_dim"]])]
+        q_net = QNetwork(obs_shape, int(data["n_actions"]), config)
         q_net.load_state_dict(unprefixed("q_net.", checkpoint.tensors))
     except (KeyError, RuntimeError, TypeError, AttributeError) as err:
         raise CheckpointError(f"not a usable dqn checkpoint: {err!s:.120}") from err

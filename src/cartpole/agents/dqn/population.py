@@ -13,7 +13,9 @@ arithmetic, along a leading seed axis:
   target networks in a third: a Polyak update is one ``lerp`` over the flat tensors.
 - ``StackedReplay``: the replay memories as one ``[S, capacity, 2 * obs_dim + 3]`` table (the row
   layout: obs | next_obs | action | reward | terminated) with a write position and a fill count per
-  seed; a minibatch of every seed is one ``index_select``.
+  seed; a minibatch of every seed is one ``index_select``. Image observations are kept apart, as
+  uint8 pixels in one ``[2, S, capacity, C, H, W]`` store (obs and next obs; a float32 row would
+  take four times the memory), beside a ``[S, capacity, 3]`` table of action | reward | terminated.
 - :func:`~cartpole.envs.seed_envs.make_seed_envs` gives each seed its own ``num_envs`` envs (on
   CartPole's fast simulator all S x ``num_envs`` step in one call), and
   :class:`~cartpole.agents.nn.population_optimizers.PopulationAdam` steps every seed's Adam in one pass.
@@ -38,6 +40,11 @@ torch's kernels would otherwise betray a seed's position in the batch:
   seed's elements ever fall into the scalar tail.
 - A value head (one output) multiplies in the orientation whose bits do not depend on the number
   of seeds (:func:`~cartpole.agents.nn.stacked_linear.linear_forward`), so a lone seed needs no company.
+
+Image networks (:class:`~cartpole.agents.dqn.q_network.QNetwork` with a convolutional trunk)
+run their convolutions one ``conv2d`` per seed
+(:func:`~cartpole.agents.nn.stacked_conv.stacked_conv2d`, for the same reason) and take their
+gradients from autograd; they act through torch (no NumPy twin).
 
 Torch's batched products give every seed the same bits wherever it sits in the batch when the
 layer widths are multiples of 4 (every preset's are; ``tests/test_one_engine.py``); for other widths
@@ -67,11 +74,20 @@ from cartpole.agents.dqn.algorithm import (
     shaped_rewards,
     td_targets,
 )
-from cartpole.agents.dqn.q_network import ACTIVATIONS, QNetwork, QNetworkPolicy
+from cartpole.agents.dqn.q_network import ACTIVATIONS, QNetwork, QNetworkPolicy, network_input_shape
 from cartpole.agents.learner import LearnResult
+from cartpole.agents.nn.conv import (
+    LastFrameDifference,
+    conv_activations,
+    conv_output_size,
+    conv_parameters,
+    last_frame_difference,
+    scale_pixels,
+)
 from cartpole.agents.nn.fast_tanh import tanh
 from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step, run_steps
-from cartpole.agents.nn.population_optimizers import PopulationAdam
+from cartpole.agents.nn.population_optimizers import PopulationAdam, PopulationOptimizer, PopulationRMSprop
+from cartpole.agents.nn.stacked_conv import stacked_conv2d
 from cartpole.agents.nn.stacked_linear import input_gradient, stacked_linear, weight_gradient
 from cartpole.agents.population import SeedRows
 from cartpole.agents.registry import AgentSpec
@@ -87,6 +103,8 @@ AVX-512 vectors, the widest step of torch's vectorized CPU loops (see the module
 
 ADAM_EPS = 1e-8
 """Adam's epsilon (torch's default)."""
+RMSPROP_ALPHA, RMSPROP_EPS = 0.99, 1e-8
+"""RMSprop's smoothing constant and epsilon (torch's defaults)."""
 
 TORCH_ACTIVATIONS: dict[str, Callable[[torch.Tensor], torch.Tensor]] = {
     "relu": torch.relu,
@@ -111,7 +129,7 @@ def seeded_q_network(config: DQNConfig, env: EnvInfo, seed: int) -> QNetwork:
     """Seed ``seed``'s initial Q-network on the CPU, from its own ``init`` generator."""
     with torch.device("cpu"):
         generator = torch.Generator(device="cpu").manual_seed(derived_seed(seed, "init"))
-        return QNetwork(env.obs_dim, env.n_actions, config, generator).eval()
+        return QNetwork(env.obs_shape, env.n_actions, config, generator).eval()
 
 
 # ----------------------------------------------------------------------------------------------
@@ -148,13 +166,21 @@ class StackedQNetwork:
         for index, layer in enumerate(template.body):
             if isinstance(layer, torch.nn.Linear):
                 self.hidden.append((f"body.{index}.weight", f"body.{index}.bias"))
+        self.convs: list[tuple[str, str, int]] = []
+        """(weight, bias, stride) of each convolutional layer of an image network, in order; a ReLU
+        follows each (none for flat observations)."""
+        conv: list[torch.nn.Module] = list(template.conv) if template.conv is not None else []
+        for index, layer in enumerate(conv):
+            if isinstance(layer, torch.nn.Conv2d):
+                self.convs.append((f"conv.{index}.weight", f"conv.{index}.bias", int(layer.stride[0])))
+        self.frame_difference = any(isinstance(layer, LastFrameDifference) for layer in conv)
         self.dueling = template.value is not None
         dropouts = template.dropout_layers()
         self.dropout = dropouts[0].p if dropouts else 0.0
         activations = {type(layer) for layer in template.body if not isinstance(layer, torch.nn.Linear)}
-        self.plain_relu = activations == {torch.nn.ReLU} and not self.dueling
-        """Whether this is a plain ReLU MLP (no dropout, no dueling head), whose gradients
-        :meth:`backward_by_hand` computes."""
+        self.plain_relu = activations == {torch.nn.ReLU} and not self.dueling and not self.convs
+        """Whether this is a plain ReLU MLP (no dropout, no dueling head, no convolutions), whose
+        gradients :meth:`backward_by_hand` computes."""
         self.bind()
 
     def bind(self) -> None:
@@ -182,10 +208,13 @@ class StackedQNetwork:
         keeps: list[torch.Tensor] | None = None,
         inputs: list[torch.Tensor] | None = None,
     ) -> torch.Tensor:
-        """Q-values ``[S, B, n_actions]`` of observations ``x`` [S, B, obs_dim], as
-        ``QNetwork.forward``; ``keeps`` (one bool mask ``[S, B, width]`` per hidden layer) applies
-        dropout as :class:`~cartpole.agents.dqn.q_network.GeneratorDropout` does. ``inputs``, when
-        given, receives each linear layer's input, in order (for :meth:`backward_by_hand`)."""
+        """Q-values ``[S, B, n_actions]`` of observations ``x`` [S, B, obs_dim] (images: [S, B, C, H,
+        W] pixels), as ``QNetwork.forward``; ``keeps`` (one bool mask ``[S, B, width]`` per hidden
+        layer) applies dropout as :class:`~cartpole.agents.dqn.q_network.GeneratorDropout` does.
+        ``inputs``, when given, receives each linear layer's input, in order (for
+        :meth:`backward_by_hand`)."""
+        if self.convs:
+            x = self.conv_features(params, x)
         for index, (weight, bias) in enumerate(self.hidden):
             if inputs is not None:
                 inputs.append(x)
@@ -202,6 +231,16 @@ class StackedQNetwork:
                 - q.mean(dim=2, keepdim=True)
             )
         return q
+
+    def conv_features(self, params: dict[str, torch.Tensor], pixels: torch.Tensor) -> torch.Tensor:
+        """The convolutional trunk's flattened features [S, B, F] of pixels [S, B, C, H, W], as
+        ``QNetwork.conv``: scaled, (their last frames' difference,) one conv2d per seed and layer."""
+        x = scale_pixels(pixels)
+        if self.frame_difference:
+            x = last_frame_difference(x)
+        for weight, bias, stride in self.convs:
+            x = torch.relu(stacked_conv2d(x, params[weight], params[bias], stride))
+        return x.flatten(2)
 
     @torch.no_grad()
     def backward_by_hand(self, inputs: list[torch.Tensor], grad: torch.Tensor) -> None:
@@ -269,23 +308,43 @@ class StackedQNetwork:
 class StackedReplay:
     """S ring buffers of transitions in one ``[S, capacity, 2 * obs_dim + 3]`` table, each row laid
     out as obs | next_obs | action | reward | terminated; each seed has its own write position and
-    fill count."""
+    fill count.
 
-    def __init__(self, seeds: int, capacity: int, obs_dim: int, device: torch.device):
-        self.capacity, self.obs_dim = capacity, obs_dim
+    Image observations (``obs_shape`` [C, H, W]) stay uint8 in their own store, ``images`` [2, S,
+    capacity, C, H, W] (obs, then next obs), and the table's rows hold only action | reward |
+    terminated (``obs_dim`` is then 0: no observation floats in a row)."""
+
+    def __init__(self, seeds: int, capacity: int, obs_shape: int | tuple[int, ...], device: torch.device):
+        shape = (obs_shape,) if isinstance(obs_shape, int) else tuple(obs_shape)
+        self.capacity = capacity
+        self.obs_dim = shape[0] if len(shape) == 1 else 0
+        """Observation floats in a table row (0 for images, which live in ``images``)."""
         # Uninitialized, not zeros: ``torch.zeros`` writes every page of the table at once, so a
         # population's whole capacity would be resident from the start; here a page costs memory when
         # it is first written. No row at or past a seed's fill count is ever read (minibatches draw
         # below it), except row 0, the padding slot of a seed with no rows yet: zeroed.
-        self.table = torch.empty(seeds, capacity, 2 * obs_dim + 3, device=device)
+        self.table = torch.empty(seeds, capacity, 2 * self.obs_dim + 3, device=device)
         self.table[:, 0] = 0.0
+        self.images: torch.Tensor | None = None
+        """Image observations: uint8 [2, S, capacity, C, H, W], obs then next obs (None: flat ones)."""
+        if len(shape) == 3:
+            self.images = torch.empty(2, seeds, capacity, *shape, dtype=torch.uint8, device=device)
+            self.images[:, :, 0] = 0
         self.pos = np.zeros(seeds, dtype=np.int64)
         self.size = np.zeros(seeds, dtype=np.int64)
         self.host_view()
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the stores (allocated; a page is resident once written)."""
+        images = 0 if self.images is None else self.images.nbytes
+        return self.table.nbytes + images
+
     def host_view(self) -> None:
         """On the CPU rows are written through a numpy view of the table (cheaper for a few rows)."""
         self.host = self.table.numpy() if self.table.device.type == "cpu" else None
+        on_cpu = self.images is not None and self.images.device.type == "cpu"
+        self.host_images = self.images.numpy() if on_cpu and self.images is not None else None
 
     def add(self, valid: np.ndarray, fields: list[np.ndarray]) -> None:
         """Append the transitions of the envs where ``valid`` [S, N] is True to their seeds' buffers,
@@ -302,8 +361,9 @@ class StackedReplay:
             envs = seed_rows * valid.shape[1] + env_columns
             observations, actions, rewards, next_observations, terminated = fields
             rows = np.empty((len(envs), 2 * d + 3), dtype=np.float32)
-            rows[:, :d] = observations[envs]
-            rows[:, d : 2 * d] = next_observations[envs]
+            if self.images is None:
+                rows[:, :d] = observations[envs]
+                rows[:, d : 2 * d] = next_observations[envs]
             rows[:, 2 * d] = actions[envs]
             rows[:, 2 * d + 1] = rewards[envs]
             rows[:, 2 * d + 2] = terminated[envs]
@@ -316,8 +376,37 @@ class StackedReplay:
                     to_device(torch.from_numpy(slots), device),
                 )
                 self.table[index] = to_device(torch.from_numpy(rows), device)
+            if self.images is not None:
+                self.add_images(seed_rows, slots, observations[envs], next_observations[envs])
         self.pos = (self.pos + counts) % self.capacity
         self.size = np.minimum(self.size + counts, self.capacity)
+
+    def add_images(
+        self,
+        seed_rows: np.ndarray,
+        slots: np.ndarray,
+        observations: np.ndarray,
+        next_observations: np.ndarray,
+    ) -> None:
+        """Write the pixels of new transitions (uint8 [k, C, H, W] each) at ``slots`` of ``seed_rows``."""
+        if self.host_images is not None:
+            self.host_images[0, seed_rows, slots] = observations
+            self.host_images[1, seed_rows, slots] = next_observations
+            return
+        assert self.images is not None
+        device = self.images.device
+        index = (to_device(torch.from_numpy(seed_rows), device), to_device(torch.from_numpy(slots), device))
+        self.images[0][index] = to_device(torch.from_numpy(np.ascontiguousarray(observations)), device)
+        self.images[1][index] = to_device(torch.from_numpy(np.ascontiguousarray(next_observations)), device)
+
+    def gather_images(self, index: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The uint8 observations and next observations [S, B, C, H, W] of the rows ``index`` [S, B]."""
+        assert self.images is not None
+        _, seeds, capacity, *shape = self.images.shape
+        base = torch.arange(seeds, device=index.device).unsqueeze(1) * capacity
+        both = self.images.view(2, seeds * capacity, *shape).index_select(1, (index + base).view(-1))
+        both = both.view(2, seeds, index.shape[1], *shape)
+        return both[0], both[1]
 
     def gather(self, index: torch.Tensor) -> torch.Tensor:
         """The rows ``index`` [S, B] (slot numbers within each seed's buffer): [S, B, 2 * obs_dim + 3]."""
@@ -336,7 +425,11 @@ class StackedReplay:
             if new != old:
                 filled = int(self.size[old])
                 self.table[new, :filled] = self.table[old, :filled]
+                if self.images is not None:
+                    self.images[:, new, :filled] = self.images[:, old, :filled]
         self.table = self.table[: len(rows_np)]
+        if self.images is not None:
+            self.images = self.images[:, : len(rows_np)]
         self.pos, self.size = self.pos[rows_np], self.size[rows_np]
         self.host_view()
 
@@ -351,6 +444,9 @@ class StackedReplay:
             "next_observations": written[:, d : 2 * d].clone(),
             "terminated": written[:, 2 * d + 2].clone(),
         }
+        if self.images is not None:  # uint8 pixels
+            tensors["observations"] = self.images[0, row, :size].to("cpu", copy=True)
+            tensors["next_observations"] = self.images[1, row, :size].to("cpu", copy=True)
         return tensors, {"capacity": self.capacity, "pos": int(self.pos[row]), "size": size}
 
     def load_row_state(self, row: int, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None:
@@ -358,8 +454,12 @@ class StackedReplay:
             raise ConfigError(f"replay capacity {data['capacity']} in the checkpoint, {self.capacity} here")
         d, size = self.obs_dim, int(data["size"])
         rows = torch.zeros(self.capacity, 2 * d + 3, device="cpu")
-        rows[:size, :d] = tensors["observations"]
-        rows[:size, d : 2 * d] = tensors["next_observations"]
+        if self.images is not None:  # in place, as the table
+            self.images[0, row, :size] = tensors["observations"].to(self.images.device)
+            self.images[1, row, :size] = tensors["next_observations"].to(self.images.device)
+        else:
+            rows[:size, :d] = tensors["observations"]
+            rows[:size, d : 2 * d] = tensors["next_observations"]
         rows[:size, 2 * d] = tensors["actions"].to(torch.float32)
         rows[:size, 2 * d + 1] = tensors["rewards"]
         rows[:size, 2 * d + 2] = tensors["terminated"]
@@ -378,6 +478,7 @@ class PopulationDQN(SeedRows):
 
     def __init__(self, config: DQNConfig, env: EnvInfo, seeds: list[int], device: str = "cpu"):
         config.validate()
+        config.check_env(env)
         if not seeds:
             raise ConfigError("a population needs at least one seed")
         self.config, self.env_info = config, env
@@ -390,8 +491,13 @@ class PopulationDQN(SeedRows):
         self.net = StackedQNetwork(
             [seeded_q_network(config, env, s) for s in self.seeds], config.target_network, self.device
         )
-        self.optimizer = PopulationAdam(len(self.seeds), self.net.flat.shape[1], ADAM_EPS, device=self.device)
-        self.replay = StackedReplay(len(self.seeds), config.buffer_size, env.obs_dim, self.device)
+        width = self.net.flat.shape[1]
+        self.optimizer: PopulationOptimizer = (
+            PopulationAdam(len(self.seeds), width, ADAM_EPS, device=self.device)
+            if config.optimizer == "adam"
+            else PopulationRMSprop(len(self.seeds), width, RMSPROP_ALPHA, RMSPROP_EPS, device=self.device)
+        )
+        self.replay = StackedReplay(len(self.seeds), config.buffer_size, env.obs_shape, self.device)
         self.explore_rngs = [np.random.default_rng(derived_seed(s, "explore")) for s in self.seeds]
         self.replay_generators = [self.cpu_generator(derived_seed(s, "replay")) for s in self.seeds]
         self.dropout_generators = [self.cpu_generator(derived_seed(s, "dropout")) for s in self.seeds]
@@ -503,16 +609,18 @@ class PopulationDQN(SeedRows):
     @torch.no_grad()
     def greedy_q_argmax(self) -> torch.Tensor:
         """The online networks' greedy actions [S, num_envs] for ``observations`` (on the device)."""
-        seeds, n, obs_dim = len(self.seeds), self.config.num_envs, self.env_info.obs_dim
-        x = torch.zeros(seeds, self.acting_rows, obs_dim, device="cpu")
-        x[:, :n] = torch.from_numpy(self.observations).view(seeds, n, obs_dim)
+        seeds, n, obs_shape = len(self.seeds), self.config.num_envs, self.env_info.obs_shape
+        dtype = torch.uint8 if self.env_info.is_image else torch.float32  # pixels stay uint8
+        x = torch.zeros(seeds, self.acting_rows, *obs_shape, dtype=dtype, device="cpu")
+        x[:, :n] = torch.from_numpy(self.observations).view(seeds, n, *obs_shape)
         q = self.net.forward(self.net.params, to_device(x, self.device), self.activation)
         return q[:, :n].argmax(dim=2)
 
     def greedy_actions(self) -> np.ndarray:
         """The online networks' greedy actions [S, num_envs] for ``observations``: on the CPU through
-        NumPy views of the weights (:meth:`numpy_q_values`: cheaper than torch for a few rows)."""
-        if self.device.type == "cpu":
+        NumPy views of the weights (:meth:`numpy_q_values`: cheaper than torch for a few rows); an
+        image network through torch."""
+        if self.device.type == "cpu" and not self.env_info.is_image:
             n, obs_dim = self.config.num_envs, self.env_info.obs_dim
             return self.numpy_q_values(self.observations.reshape(-1, n, obs_dim)).argmax(axis=2)
         return self.greedy_q_argmax().cpu().numpy()
@@ -614,8 +722,9 @@ class PopulationDQN(SeedRows):
         metrics = torch.zeros(len(self.seeds), 2, device=device)
         for step in range(config.gradient_steps):
             batch = self.replay.gather(slots[:, step])
+            images = self.replay.gather_images(slots[:, step]) if self.replay.images is not None else None
             keeps = self.dropout_keeps(training, counts) if self.net.dropout > 0 else None
-            metrics = self.gradient_step(batch, keeps, mask, count, active, lr)
+            metrics = self.gradient_step(batch, keeps, mask, count, active, lr, images)
             self.after_step(training)
         return metrics
 
@@ -670,12 +779,18 @@ class PopulationDQN(SeedRows):
         count: torch.Tensor,
         active: torch.Tensor,
         lr: torch.Tensor,
+        images: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> torch.Tensor:
         """One update of the online networks of the ``active`` seeds on ``batch`` [S, B, row width]
-        (rows where ``mask`` is 0 are padding); each seed's loss and Q mean [S, 2] (detached)."""
-        config, net, d = self.config, self.net, self.env_info.obs_dim
-        observations = batch[..., :d].contiguous()
-        next_observations = batch[..., d : 2 * d].contiguous()
+        (rows where ``mask`` is 0 are padding), the observations and next observations of image
+        networks being ``images`` (uint8 [S, B, C, H, W] each); each seed's loss and Q mean [S, 2]
+        (detached)."""
+        config, net, d = self.config, self.net, self.replay.obs_dim
+        if images is not None:
+            observations, next_observations = images
+        else:
+            observations = batch[..., :d].contiguous()
+            next_observations = batch[..., d : 2 * d].contiguous()
         actions = batch[..., 2 * d].long().unsqueeze(2)
         rewards, terminated = batch[..., 2 * d + 1], batch[..., 2 * d + 2]
         by_hand = net.plain_relu and keeps is None
@@ -697,6 +812,8 @@ class PopulationDQN(SeedRows):
                 # The gradients are views of one [S, P] tensor on purpose (see StackedQNetwork).
                 warnings.filterwarnings("ignore", "grad and param do not obey the gradient layout")
                 (losses * active.to(losses.dtype)).sum().backward()
+        if config.max_grad_value is not None:  # every value on its own, as clip_grad_value_
+            net.grad.clamp_(-config.max_grad_value, config.max_grad_value)
         if config.max_grad_norm is not None:  # each seed's global norm, as clip_grad_norm_ computes it
             norms = torch.linalg.vector_norm(net.grad, dim=1, keepdim=True)
             net.grad.mul_((config.max_grad_norm / (norms + 1e-6)).clamp(max=1.0))
@@ -733,7 +850,8 @@ class PopulationDQN(SeedRows):
         next_q_online = None
         if config.double_dqn and net.target is not None:  # both networks in one pass
             both = torch.cat([net.target, net.flat])  # [2S, P]: the targets, then the online nets
-            q = net.forward(net.views(both), next_observations.repeat(2, 1, 1), self.activation)
+            repeats = (2,) + (1,) * (next_observations.dim() - 1)
+            q = net.forward(net.views(both), next_observations.repeat(*repeats), self.activation)
             next_q_target, next_q_online = q.chunk(2)
         else:
             next_q_target = net.forward(net.target_params, next_observations, self.activation)
@@ -772,9 +890,29 @@ class PopulationDQN(SeedRows):
     def greedy_actor(self, seeds: list[int]) -> BlockActor:
         """The greedy policies of ``seeds`` as one :data:`~cartpole.evaluation.BlockActor` (block i
         holds seed i's rows): one stacked NumPy forward pass per call, as
-        :class:`~cartpole.agents.dqn.q_network.QNetworkPolicy` acts alone."""
+        :class:`~cartpole.agents.dqn.q_network.QNetworkPolicy` acts alone (through torch for image
+        networks)."""
+        if self.env_info.is_image:
+            return self.torch_block_actor([self.row(seed) for seed in seeds])
         body, head, value = self.numpy_plans([self.row(seed) for seed in seeds], copy=True)
         return block_greedy_q_actor(body, head, value, self.env_info.obs_dim)
+
+    def torch_block_actor(self, rows: list[int]) -> BlockActor:
+        """The greedy actions of the online networks of ``rows`` as one :data:`BlockActor` (block b:
+        row ``rows[b]``'s episodes), through torch on a frozen copy of their weights: for image
+        networks (no NumPy twin)."""
+        device, shape = self.device, self.env_info.obs_shape
+        chosen = torch.tensor(rows, dtype=torch.int64, device=device)
+        frozen = {name: p.detach()[chosen] for name, p in self.net.params.items()}
+
+        @torch.no_grad()
+        def act(observations: np.ndarray, blocks: np.ndarray) -> np.ndarray:
+            index = torch.as_tensor(np.asarray(blocks, dtype=np.int64), device=device)
+            params = frozen if len(blocks) == len(rows) else {k: v[index] for k, v in frozen.items()}
+            x = torch.as_tensor(np.asarray(observations)).to(device).reshape(len(blocks), -1, *shape)
+            return self.net.forward(params, x, self.activation).argmax(dim=-1).reshape(-1).cpu().numpy()
+
+        return act
 
     def seed_state_dict(self, seed: int, resume: bool) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
         """Seed ``seed``'s checkpoint: ``q_net.*`` (what
@@ -783,6 +921,8 @@ class PopulationDQN(SeedRows):
         row = self.row(seed)
         tensors = self.network_tensors("q_net.", self.net.flat, row)
         data: dict[str, Any] = {"obs_dim": self.env_info.obs_dim, "n_actions": self.env_info.n_actions}
+        if self.env_info.is_image:
+            data["obs_shape"] = list(self.env_info.obs_shape)
         if not resume:
             return tensors, data
         if self.net.target is not None:
@@ -899,24 +1039,42 @@ def block_greedy_q_actor(
 
 def q_network_parameters(config: DQNConfig, env: EnvInfo) -> int:
     """Parameters of one Q-network."""
-    sizes = [env.obs_dim, *config.hidden_sizes]
+    features, conv = env.obs_dim, 0
+    if env.is_image:
+        inputs = network_input_shape(env.obs_shape, config.frame_difference)
+        conv = conv_parameters(inputs[0], config.conv_layers)
+        features = conv_output_size(inputs, config.conv_layers)
+    sizes = [features, *config.hidden_sizes]
     body = sum(n_in * n_out + n_out for n_in, n_out in itertools.pairwise(sizes))
     head = sizes[-1] * env.n_actions + env.n_actions
     value = sizes[-1] + 1 if config.dueling else 0
-    return body + head + value
+    return conv + body + head + value
+
+
+def replay_bytes(config: DQNConfig, env: EnvInfo) -> int:
+    """The bytes of one seed's replay memory: float32 rows, or for images uint8 pixels (obs and next
+    obs) beside a float32 action | reward | terminated."""
+    if env.is_image:
+        return config.buffer_size * (2 * env.obs_dim + 3 * 4)
+    return config.buffer_size * (2 * env.obs_dim + 3) * 4
 
 
 def dqn_bytes_per_seed(config: DQNConfig, env: EnvInfo) -> int:
     """What one seed of a DQN population holds, roughly: its replay rows, its parameters five times
     (online, target, gradient, Adam's two moments), a minibatch's activations (the online pass with
     its gradients, the target and online passes over the next states, dropout masks) and the
-    per-seed bookkeeping (run folder, callbacks)."""
-    replay = config.buffer_size * (2 * env.obs_dim + 3) * 4
+    per-seed bookkeeping (run folder, callbacks). Image networks' activations include the scaled
+    pixels and every convolutional layer's output."""
+    config.check_env(env)  # settings that cannot fit the env's images: one line, not an estimate
     parameters = padded(q_network_parameters(config, env)) * 4 * 5
     rows = padded(config.batch_size)
-    activations = rows * (sum(config.hidden_sizes) + env.n_actions + 2 * env.obs_dim + 8) * 4 * 8
+    inputs = 2 * env.obs_dim
+    if env.is_image:
+        shown = network_input_shape(env.obs_shape, config.frame_difference)
+        inputs = env.obs_dim + math.prod(shown) + conv_activations(shown, config.conv_layers)
+    activations = rows * (sum(config.hidden_sizes) + env.n_actions + inputs + 8) * 4 * 8
     bookkeeping = 2 * 1024**2
-    return replay + parameters + activations + bookkeeping
+    return replay_bytes(config, env) + parameters + activations + bookkeeping
 
 
 AGENT = AgentSpec(
@@ -928,6 +1086,7 @@ AGENT = AgentSpec(
     make_population=PopulationDQN,
     iteration="step",
     score_label="Q-values",
+    image_observations=True,
 )
 """DQN: its settings (dqn.py) and its learner, batched over seeds (above)."""
 
@@ -940,4 +1099,5 @@ __all__ = [
     "block_greedy_q_actor",
     "dqn_bytes_per_seed",
     "q_network_parameters",
+    "replay_bytes",
 ]

@@ -1,4 +1,7 @@
 """The Q-network of DQN: an MLP from observations to one Q-value per action, and its greedy policy.
+For image observations ``[channels, height, width]`` a small convolutional network comes first
+(pixels scaled as darkness, optionally only the last two frames' difference, then ``conv_layers``),
+its flattened output feeding the MLP.
 
 Every random draw of a network comes from a ``torch.Generator`` its owner passes in (weight
 initialization, dropout masks), never from torch's process-wide generator: building or training a
@@ -15,18 +18,22 @@ only because ``nn.Dropout`` cannot draw from an owned generator.
 
 The greedy policy (``QNetworkPolicy``) is a numpy snapshot of the weights, as PPO's is: training acts
 through torch, but evaluations and the web app's episodes act a few rows at a time, where torch's
-per-op overhead makes its forward pass several times dearer than the snapshot's.
+per-op overhead makes its forward pass several times dearer than the snapshot's. A convolutional
+network has no numpy twin: its policy is a frozen torch copy (convolutions are torch's strength).
 """
 
 from __future__ import annotations
 
+import copy
 import math
+from collections.abc import Sequence
 from typing import Protocol
 
 import numpy as np
 import torch
 from torch import nn
 
+from cartpole.agents.nn.conv import LastFrameDifference, ScalePixels, conv_output_size
 from cartpole.agents.nn.numpy_mlp import NumpyMLP
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {"relu": nn.ReLU, "tanh": nn.Tanh, "elu": nn.ELU, "gelu": nn.GELU}
@@ -39,6 +46,8 @@ class NetworkShape(Protocol):
     activation: str
     dropout: float
     dueling: bool
+    conv_layers: tuple[tuple[int, int, int], ...]
+    frame_difference: bool
 
 
 class GeneratorDropout(nn.Module):
@@ -73,20 +82,67 @@ def seeded_linear(in_features: int, out_features: int, generator: torch.Generato
     return layer
 
 
-class QNetwork(nn.Module):
-    """MLP from observations to one Q-value per action (optional dropout, optional dueling head).
+def seeded_conv2d(
+    in_channels: int, out_channels: int, kernel: int, stride: int, generator: torch.Generator
+) -> nn.Conv2d:
+    """``nn.Conv2d`` (no padding) with its default initialization drawn from ``generator``, as
+    :func:`seeded_linear` (fan-in: ``in_channels x kernel x kernel``)."""
+    layer = nn.utils.skip_init(nn.Conv2d, in_channels, out_channels, kernel, stride)
+    nn.init.kaiming_uniform_(layer.weight, a=math.sqrt(5), generator=generator)
+    bound = 1.0 / math.sqrt(in_channels * kernel * kernel)
+    assert layer.bias is not None
+    nn.init.uniform_(layer.bias, -bound, bound, generator=generator)
+    return layer
 
-    ``generator`` draws the initial weights (on CPU) and, until :meth:`use_dropout_generator` gives
-    another, the dropout masks. Without one, a generator seeded 0 is made: still nothing global.
+
+def network_input_shape(obs_shape: Sequence[int], frame_difference: bool) -> tuple[int, ...]:
+    """What the first layer sees of an observation: the image, or its last frames' difference (one
+    channel)."""
+    shape = tuple(obs_shape)
+    return (1, *shape[1:]) if frame_difference and len(shape) == 3 else shape
+
+
+def conv_trunk(obs_shape: Sequence[int], shape: NetworkShape, generator: torch.Generator) -> nn.Sequential:
+    """Scaled pixels (their last frames' difference with ``frame_difference``) through
+    ``conv_layers`` (ReLU each), flattened."""
+    layers: list[nn.Module] = [ScalePixels()]
+    if shape.frame_difference:
+        layers.append(LastFrameDifference())
+    channels = network_input_shape(obs_shape, shape.frame_difference)[0]
+    for filters, kernel, stride in shape.conv_layers:
+        layers += [seeded_conv2d(channels, filters, kernel, stride, generator), nn.ReLU()]
+        channels = filters
+    return nn.Sequential(*layers, nn.Flatten())
+
+
+class QNetwork(nn.Module):
+    """MLP from observations to one Q-value per action (optional dropout, optional dueling head);
+    for image observations, a convolutional trunk (``conv``) first.
+
+    ``obs_shape`` is an observation's shape (an int: a flat observation of that size).
+    ``generator`` draws the initial weights (on CPU; the convolutions' first) and, until
+    :meth:`use_dropout_generator` gives another, the dropout masks. Without one, a generator seeded
+    0 is made: still nothing global.
     """
 
     def __init__(
-        self, obs_dim: int, n_actions: int, shape: NetworkShape, generator: torch.Generator | None = None
+        self,
+        obs_shape: int | Sequence[int],
+        n_actions: int,
+        shape: NetworkShape,
+        generator: torch.Generator | None = None,
     ):
         super().__init__()
         init = generator if generator is not None else torch.Generator().manual_seed(0)
+        self.obs_shape = (obs_shape,) if isinstance(obs_shape, int) else tuple(int(n) for n in obs_shape)
+        self.conv: nn.Sequential | None = None
+        """The convolutional trunk of an image network (None for flat observations)."""
         layers: list[nn.Module] = []
-        width = obs_dim
+        width = self.obs_shape[0]
+        if len(self.obs_shape) == 3:
+            self.conv = conv_trunk(self.obs_shape, shape, init)
+            inputs = network_input_shape(self.obs_shape, shape.frame_difference)
+            width = conv_output_size(inputs, shape.conv_layers)
         for hidden in shape.hidden_sizes:
             layers += [seeded_linear(width, hidden, init), ACTIVATIONS[shape.activation]()]
             if shape.dropout > 0:
@@ -96,7 +152,14 @@ class QNetwork(nn.Module):
         self.head = seeded_linear(width, n_actions, init)
         self.value = seeded_linear(width, 1, init) if shape.dueling else None
 
+    @property
+    def is_image(self) -> bool:
+        """True when it starts with convolutional layers (image observations)."""
+        return self.conv is not None
+
     def forward(self, observations: torch.Tensor) -> torch.Tensor:
+        if self.conv is not None:
+            observations = self.conv(observations)
         features = self.body(observations)
         q = self.head(features)
         if self.value is not None:  # dueling: the head gives advantages
@@ -115,6 +178,9 @@ class QNetwork(nn.Module):
         """Q-values [N, n_actions] of numpy observations, without autograd (dropout as the mode says)."""
         device = self.head.weight.device
         with torch.inference_mode():
+            if self.conv is not None:  # uint8 pixels (or their float values): the trunk scales them
+                pixels = torch.as_tensor(np.asarray(observations), device=device)
+                return self(pixels.reshape(-1, *self.obs_shape)).cpu().numpy()
             observations_t = torch.as_tensor(np.asarray(observations, dtype=np.float32), device=device)
             return self(observations_t).cpu().numpy()
 
@@ -124,16 +190,24 @@ class QNetworkPolicy:
 
     A frozen snapshot: numpy copies of the network's weights taken when it is built, run without
     dropout (:class:`~cartpole.agents.nn.numpy_mlp.NumpyMLP`: for one row several times faster than a torch
-    forward pass, which the web app's episodes and every evaluation pay per step).
+    forward pass, which the web app's episodes and every evaluation pay per step). A convolutional
+    network has no numpy twin: its snapshot is a frozen torch copy (``torch_net``), run in eval mode.
     """
 
     def __init__(self, q_net: QNetwork):
+        self.torch_net: QNetwork | None = None
+        """The frozen torch copy of a convolutional network (None: the numpy snapshot acts)."""
+        if q_net.is_image:
+            self.torch_net = copy.deepcopy(q_net).requires_grad_(False).eval()
+            return
         self.body = NumpyMLP(q_net.body)
         self.head = NumpyMLP([q_net.head])
         self.value = None if q_net.value is None else NumpyMLP([q_net.value])
 
     def scores(self, observations: np.ndarray) -> np.ndarray:
         """Q-values, shape [N, n_actions] (as ``QNetwork.forward`` in eval mode)."""
+        if self.torch_net is not None:
+            return self.torch_net.q_values(observations)
         features = self.body(observations)
         q = self.head(features)
         if self.value is not None:  # dueling: the head gives advantages
