@@ -15,6 +15,15 @@ import torch
 torch.set_num_threads(1)
 
 
+@pytest.fixture(autouse=True)
+def one_torch_thread() -> Iterator[None]:
+    """Every test starts on one torch thread (a test that runs the CLI with ``--torch-threads``
+    changes it): bit-identity between a seed alone and in a population is promised for one thread
+    count, and on a shared 2-core machine a second thread makes small ops wait for each other."""
+    torch.set_num_threads(1)
+    yield
+
+
 class AlwaysLeft:
     """Pushes left every step: the pole falls in about ten steps."""
 

@@ -39,15 +39,6 @@ TINY = DQNConfig(
 """A pixel DQN small enough for a few seconds of one core."""
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    """One torch thread, as ``cartpole train`` runs (and as seed independence is stated for)."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 def population(seeds: list[int], **changes):
     return build_population(DQN, dataclasses.replace(TINY, **changes), env_info(PIXELS), seeds, "cpu")
 

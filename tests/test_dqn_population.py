@@ -37,16 +37,6 @@ SMALL: dict[str, Any] = {
 }
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    """As ``cartpole train`` runs (--threads 1): bit-identity is promised for one thread count, and on
-    a shared 2-core machine a second torch thread makes these small ops wait for each other."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 def small_config(**changes: Any) -> DQNConfig:
     return DQNConfig(**(SMALL | changes))
 

@@ -30,15 +30,6 @@ SMALL = {
 """Per agent: small settings and a budget that trains a few updates and evaluates on the way."""
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    """The same thread count for every run compared (as ``cartpole train`` sets it: 1)."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 def test_every_agent_is_covered():
     assert set(SMALL) == set(agent_names())
 

@@ -36,15 +36,6 @@ PIXELS = "cartpole/CartPolePixels-v1"
 SHAPE = (4, 30, 100)
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    """One torch thread, as ``cartpole train`` runs (and as seed independence is stated for)."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 # --- the network ------------------------------------------------------------------------------------
 
 
