@@ -19,8 +19,13 @@ def test_every_preset_value_reaches_the_config_and_the_settings(agent):
             if key == "description":
                 continue
             resolved = getattr(config, key) if hasattr(config, key) else getattr(settings, key)
-            expected = None if value == "none" else tuple(value) if isinstance(value, list) else value
+            expected = None if value == "none" else as_tuples(value)
             assert resolved == expected, (preset, key)
+
+
+def as_tuples(value):
+    """A TOML value as a config holds it: lists (and lists of lists) as tuples."""
+    return tuple(as_tuples(v) for v in value) if isinstance(value, list) else value
 
 
 def test_an_override_beats_the_preset_and_the_preset_beats_the_default():
