@@ -87,7 +87,7 @@ from cartpole.agents.nn.conv import (
 from cartpole.agents.nn.fast_tanh import tanh
 from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step, run_steps
 from cartpole.agents.nn.population_optimizers import PopulationAdam, PopulationOptimizer, PopulationRMSprop
-from cartpole.agents.nn.stacked_conv import stacked_conv2d
+from cartpole.agents.nn.stacked_conv import channels_last, stacked_conv2d
 from cartpole.agents.nn.stacked_linear import input_gradient, stacked_linear, weight_gradient
 from cartpole.agents.population import SeedRows
 from cartpole.agents.registry import AgentSpec
@@ -235,7 +235,7 @@ class StackedQNetwork:
     def conv_features(self, params: dict[str, torch.Tensor], pixels: torch.Tensor) -> torch.Tensor:
         """The convolutional trunk's flattened features [S, B, F] of pixels [S, B, C, H, W], as
         ``QNetwork.conv``: scaled, (their last frames' difference,) one conv2d per seed and layer."""
-        x = scale_pixels(pixels)
+        x = scale_pixels(channels_last(pixels))  # laid out while uint8: a quarter of the bytes
         if self.frame_difference:
             x = last_frame_difference(x)
         for weight, bias, stride in self.convs:
