@@ -1,9 +1,10 @@
-"""The arithmetic under a population's update, one thread: float32 tanh three ways, the batched
-matmul, a policy head's weight gradient in both orientations, and the Adam step two ways.
+"""The arithmetic under a population's update, one thread (``--threads``): float32 tanh three ways,
+the batched matmul, a policy head's weight gradient in both orientations, and the Adam step two ways.
 
     python benchmarks/kernels.py
     python benchmarks/kernels.py --seeds 100 --rows 128 --width 64
     python benchmarks/kernels.py --pixels      # the pixel trunk's convolutions, and a pixel PPO update
+    python benchmarks/kernels.py --pixels --threads 2
 
 Shapes are a 100-seed PPO population's full-batch step: ``[seeds, rows, width]`` activations, and
 ``[seeds, rows, width] x [seeds, width, width]`` for a hidden layer. Printed: nanoseconds an element
@@ -112,10 +113,12 @@ def main() -> None:
     parser.add_argument("--width", type=int, default=64)
     parser.add_argument("--repeats", type=int, default=50)
     parser.add_argument("--pixels", action="store_true", help="the pixel trunk and a pixel PPO update")
+    parser.add_argument("--threads", type=int, default=1, help="torch's CPU threads (default: 1)")
     args = parser.parse_args()
-    torch.set_num_threads(1)
+    torch.set_num_threads(args.threads)
     if args.pixels:
-        print(f"cpu: {describe_cpu()}, torch CPU capability {torch.backends.cpu.get_cpu_capability()}")
+        capability = torch.backends.cpu.get_cpu_capability()
+        print(f"cpu: {describe_cpu()}, torch CPU capability {capability}, {args.threads} torch thread(s)")
         pixels()
         return
     shape = (args.seeds, args.rows, args.width)

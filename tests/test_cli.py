@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
 
 from cartpole.cli.main import main
 
@@ -108,3 +109,13 @@ def test_help_prints_its_text_as_written(command, capsys):
     assert exit_info.value.code == 0
     out = capsys.readouterr().out
     assert f"usage: cartpole {command}" in out and "%%" not in out
+
+
+@pytest.mark.parametrize(("env_id", "threads"), [("CartPole-v1", 1), ("cartpole/CartPolePixels-v1", 3)])
+def test_train_takes_one_torch_thread_on_states_and_leaves_the_count_on_images(env_id, threads, capsys):
+    """Without --torch-threads, `cartpole train` sets torch to one thread for the small networks on
+    state observations, and leaves it as it is (torch's default: one per core) on images."""
+    torch.set_num_threads(3)
+    assert main(["train", "ppo", "--env", env_id, "--budget", "never"]) == 2  # refused after the setup
+    assert "--budget" in capsys.readouterr().err
+    assert torch.get_num_threads() == threads

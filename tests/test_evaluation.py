@@ -171,3 +171,32 @@ def test_envs_whose_episode_ended_stand_still_while_the_others_play(monkeypatch)
     assert report.returns == expected
     assert len(set(report.lengths)) > 1 and max(report.lengths) < 200
     assert steps == sum(report.lengths)
+
+
+def test_worker_processes_draw_gymnasiums_pictures_with_the_same_results(monkeypatch):
+    """workers=3 has three processes draw Gymnasium's pictures of a pixel env (none is drawn here),
+    and every episode comes out as it does in this process alone."""
+    from gymnasium.envs.classic_control.cartpole import CartPoleEnv
+
+    class PixelHash:  # a deterministic policy of the frames, with episodes of varied lengths
+        def act(self, observations: np.ndarray) -> np.ndarray:
+            return (observations[:, -1].sum(axis=(1, 2), dtype=np.int64) // 7) % 2
+
+    drawn_here = 0
+    original = CartPoleEnv.render
+
+    def render(self):
+        nonlocal drawn_here
+        drawn_here += 1
+        return original(self)
+
+    monkeypatch.setattr(CartPoleEnv, "render", render)
+    env_id = "cartpole/CartPolePixels-v1"
+    alone = evaluate(PixelHash(), env_id, episodes=7, seed=3, simulator="gymnasium")
+    assert drawn_here == 7 + sum(alone.lengths) and len(set(alone.lengths)) > 1  # a reset and each step
+    drawn_here = 0
+    shared = evaluate(PixelHash(), env_id, episodes=7, seed=3, simulator="gymnasium", workers=3)
+    assert drawn_here == 0
+    assert shared.returns == alone.returns and shared.lengths == alone.lengths
+    with pytest.raises(ValueError, match="workers must be >= 1"):
+        evaluate(PixelHash(), env_id, episodes=7, seed=3, simulator="gymnasium", workers=0)

@@ -7,7 +7,9 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -196,11 +198,16 @@ def test_evaluations_of_pixels_start_where_gymnasiums_cartpole_starts(simulator)
 
 
 def test_train_and_eval_a_pixel_ppo_judge_it_on_gymnasiums_pictures(tmp_path, monkeypatch, capsys):
+    """Trained and judged from pixels; on images `cartpole train` leaves torch's thread count as
+    it is (torch's own default: one per core), and that many processes draw the verdict's pictures."""
     runs = tmp_path / "runs"
     args = ["train", "ppo", "--env", PIXELS, "--preset", "pixels", "--seed", "3", "--budget", "512"]
     settings = ["n_steps=16", "num_envs=4", "minibatch_size=64", "eval_every=100000"]
+    torch.set_num_threads(2)
+    drawn_here = count_gymnasium_pictures(monkeypatch)
     code = main([*args, "--runs-dir", str(runs), "--quiet", *[x for s in settings for x in ("--set", s)]])
     assert code == 0, capsys.readouterr().err
+    assert torch.get_num_threads() == 2 and drawn_here() == 0  # 2 worker processes drew them
     (run,) = runs.iterdir()
     verdict = json.loads((run / "eval.json").read_text())
     assert (verdict["env_id"], verdict["simulator"], verdict["episodes"]) == (PIXELS, "gymnasium", 100)
@@ -219,6 +226,22 @@ def test_train_and_eval_a_pixel_ppo_judge_it_on_gymnasiums_pictures(tmp_path, mo
     assert (report["env_id"], report["simulator"], report["episodes"]) == (PIXELS, "gymnasium", 3)
     assert all(shape == SHAPE for shape, _ in seen)  # frame stacks, never states
     assert sum(dtype == np.uint8 for _, dtype in seen) >= 3  # the episodes' frames (uint8, unscaled)
+
+
+def count_gymnasium_pictures(monkeypatch: pytest.MonkeyPatch) -> Callable[[], int]:
+    """Counts the pictures Gymnasium's CartPole draws in this process from now on."""
+    from gymnasium.envs.classic_control.cartpole import CartPoleEnv
+
+    drawn = 0
+    original = CartPoleEnv.render
+
+    def render(self: CartPoleEnv) -> Any:
+        nonlocal drawn
+        drawn += 1
+        return original(self)
+
+    monkeypatch.setattr(CartPoleEnv, "render", render)
+    return lambda: drawn
 
 
 # --- agents without a convolutional network --------------------------------------------------------

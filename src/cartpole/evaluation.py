@@ -17,7 +17,8 @@ from typing import Any, Protocol, runtime_checkable
 import gymnasium as gym
 import numpy as np
 
-from cartpole.envs import Simulator, env_info, make_vec_env, resolve_simulator
+from cartpole.envs import Simulator, env_info, make_eval_envs, resolve_simulator
+from cartpole.envs.shards import ShardedEnvs
 
 MIN_EPISODES_FOR_SOLVED = 100
 """Gymnasium's rule averages over 100 consecutive episodes; fewer cannot be called solved."""
@@ -150,9 +151,11 @@ def start_states(env_id: str, seeds: list[int]) -> np.ndarray:
         env.close()
 
 
-def _reset_to_seeds(env: gym.vector.VectorEnv, env_id: str, seeds: list[int]) -> np.ndarray:
+def _reset_to_seeds(env: gym.vector.VectorEnv | ShardedEnvs, env_id: str, seeds: list[int]) -> np.ndarray:
     """Reset ``env`` so that env i starts where Gymnasium's single env does for ``seeds[i]``."""
     info = env_info(env_id)
+    if isinstance(env, ShardedEnvs):  # Gymnasium's pictures, drawn by worker processes
+        return env.reset(seed=seeds)[0]
     base = env.unwrapped
     if info.pixels_of and hasattr(base, "restart_at"):  # our pixel renderer: Gymnasium's states, drawn
         env.reset(seed=seeds[0])
@@ -180,26 +183,42 @@ actor re-packs its weights a few times per evaluation, not once per block)."""
 
 
 def play_greedy_episodes(
-    act: Callable[[np.ndarray], np.ndarray], env_id: str, seeds: list[int], simulator: Simulator
+    act: Callable[[np.ndarray], np.ndarray],
+    env_id: str,
+    seeds: list[int],
+    simulator: Simulator,
+    workers: int = 1,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Play one episode from each of ``seeds`` (the start state Gymnasium's single env gives for
     it), all at once in one vector env, with ``act`` mapping observations ``[n, obs_dim]`` to
-    actions ``[n]``; the returns and lengths ``[n]``."""
-    return play_greedy_blocks(lambda observations, _: act(observations), env_id, seeds, simulator, len(seeds))
+    actions ``[n]``; the returns and lengths ``[n]``. ``workers``: see :func:`play_greedy_blocks`."""
+    return play_greedy_blocks(
+        lambda observations, _: act(observations), env_id, seeds, simulator, len(seeds), workers
+    )
 
 
 def play_greedy_blocks(
-    act: BlockActor, env_id: str, seeds: list[int], simulator: Simulator, block_size: int
+    act: BlockActor,
+    env_id: str,
+    seeds: list[int],
+    simulator: Simulator,
+    block_size: int,
+    workers: int = 1,
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`play_greedy_episodes` for many policies: the episodes come in blocks of
     ``block_size`` (block b: ``seeds[b * block_size:(b + 1) * block_size]``, played by policy b), and
     ``act`` serves every block (see :data:`BlockActor`). Once most blocks have ended all their
     episodes, ``act`` is asked only for the blocks still playing, so a policy whose episodes end
-    early costs no more forward passes than it would alone. The returns and lengths ``[n]``."""
+    early costs no more forward passes than it would alone. The returns and lengths ``[n]``.
+
+    ``workers`` > 1: Gymnasium's pictures (a pixel env on ``"gymnasium"``, ~3 ms a step) are drawn
+    by that many processes (:func:`~cartpole.envs.make_eval_envs`); the episodes are the same."""
     n = len(seeds)
     if n % block_size:
         raise ValueError(f"{n} episodes do not split into blocks of {block_size}")
-    env = make_vec_env(env_id, n, simulator=simulator)
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    env = make_eval_envs(env_id, n, simulator=simulator, workers=workers)
     try:
         observations = _reset_to_seeds(env, env_id, seeds)
         returns = np.zeros(n, dtype=np.float64)
@@ -217,7 +236,11 @@ def play_greedy_blocks(
             else:
                 actions = np.zeros(n, dtype=np.int64)  # envs of ended blocks: stepped, not counted
                 actions[rows] = np.asarray(act(observations[rows], acting)).reshape(-1)
-            if isinstance(env, gym.vector.SyncVectorEnv):
+            if isinstance(env, ShardedEnvs):
+                observations, rewards, terminated, truncated = env.step_playing(
+                    actions, running, observations
+                )
+            elif isinstance(env, gym.vector.SyncVectorEnv):
                 observations, rewards, terminated, truncated = step_playing(
                     env, actions, running, observations
                 )
@@ -255,12 +278,15 @@ def evaluate(
     seed: int | None = None,
     *,
     simulator: Simulator = "gymnasium",
+    workers: int = 1,
 ) -> EvalReport:
     """Play ``episodes`` greedy episodes from seeds ``seed, seed + 1, ...`` and judge them.
 
     With ``seed=None`` a fresh seed is drawn from the OS, above every training seed.
     ``simulator="gymnasium"`` (default) uses Gymnasium's own env, so the verdict does not rest on our
     physics; ``"fast"`` uses our simulator for CartPole (same start states, same equations).
+    ``workers``: how many processes draw Gymnasium's pictures for a pixel env (see
+    :func:`play_greedy_blocks`).
     """
     if not 1 <= episodes <= MAX_EPISODES:
         raise ValueError(f"episodes must be between 1 and {MAX_EPISODES:,}, got {episodes:,}")
@@ -275,7 +301,7 @@ def evaluate(
     lengths: list[int] = []
     for start in range(0, episodes, MAX_ENVS_PER_BATCH):
         batch_returns, batch_lengths = play_greedy_episodes(
-            policy.act, env_id, seeds[start : start + MAX_ENVS_PER_BATCH], used
+            policy.act, env_id, seeds[start : start + MAX_ENVS_PER_BATCH], used, workers
         )
         returns += batch_returns.tolist()
         lengths += batch_lengths.tolist()

@@ -53,6 +53,7 @@ def run(args: argparse.Namespace) -> int:
     from cartpole.cli.errors import UsageError
     from cartpole.cli.record import tell_skipped
     from cartpole.evaluation import MAX_EPISODES, evaluate
+    from cartpole.training.engine import picture_workers
 
     if not 1 <= args.episodes <= MAX_EPISODES:
         raise UsageError(
@@ -65,7 +66,9 @@ def run(args: argparse.Namespace) -> int:
     path, checkpoint, policy = opened.path, opened.checkpoint, opened.policy
     tell_skipped(opened.skipped, path)
     env_id = args.env or checkpoint.env_id
-    report = evaluate(policy, env_id, args.episodes, seed=args.seed, simulator=args.simulator)
+    report = evaluate(
+        policy, env_id, args.episodes, seed=args.seed, simulator=args.simulator, workers=picture_workers()
+    )
     video: dict[str, str] = {}
     if args.render is not None:  # --render (issue 5)
         from cartpole.cli.record import write_eval_video

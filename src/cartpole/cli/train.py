@@ -98,9 +98,11 @@ def add_parser(sub: Any) -> None:
         type=int,
         default=None,
         metavar="N",
-        help="CPU threads for torch (default: 1, the least CPU for these small networks, one seed "
-        "or a population: a second thread costs more CPU than it saves time, see "
-        "benchmarks/population.py --population-threads 0); 0: torch's default, one per core",
+        help="CPU threads for torch, and for drawing Gymnasium's pictures in a pixel env's evaluations "
+        "(default: 1, the least CPU for the small networks on state observations, one seed or a "
+        "population: a second thread costs more CPU than it saves time, see benchmarks/population.py "
+        "--population-threads 0; on image observations 0, where a conv net's batches keep every core "
+        "busy); 0: torch's default, one per core",
     )
     parser.add_argument("--resume", metavar="RUN_DIR", help="continue this run from checkpoints/latest.pt")
     parser.add_argument(
@@ -144,6 +146,22 @@ def configure_process(torch_threads: int, seed: int) -> None:
     torch.manual_seed(seed)
 
 
+def default_torch_threads(args: argparse.Namespace) -> int:
+    """1 (one thread: the least CPU for small networks), or 0 (one per core) where the run's agent
+    sees images: the env asked for, or the one recorded in the run folder being resumed."""
+    from pathlib import Path
+
+    from cartpole.core.errors import InputError
+    from cartpole.envs import env_info
+    from cartpole.runs import RunDir
+
+    try:
+        env_id = RunDir.open(Path(args.resume)).config()["env_id"] if args.resume else args.env
+        return 0 if env_info(env_id).is_image else 1
+    except InputError:  # a bad run folder or env id is reported, in one line, when the run starts
+        return 1
+
+
 def run(args: argparse.Namespace) -> int:
     from cartpole.cli.errors import UsageError
     from cartpole.training import parse_budget, resume, train
@@ -154,7 +172,8 @@ def run(args: argparse.Namespace) -> int:
     if args.from_scratch and not args.resume:
         raise UsageError("--from-scratch goes with --resume RUN_DIR (a new run always starts from scratch)")
     population = args.seeds is not None or bool(args.resume and is_population_run(args.resume))
-    configure_process(1 if args.torch_threads is None else args.torch_threads, args.seed)
+    threads = default_torch_threads(args) if args.torch_threads is None else args.torch_threads
+    configure_process(threads, args.seed)
     console = Console(soft_wrap=True)
     if population:
         return run_population(args)

@@ -11,13 +11,17 @@ same way), so their verdicts rest on Gymnasium's physics and drawing too.
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from functools import partial
+from typing import TYPE_CHECKING, Any, Literal
 
 import gymnasium as gym
 
 from cartpole.core.errors import ConfigError
 from cartpole.envs.registration import register_fast_envs, register_pixel_envs
 from cartpole.envs.spec import EnvInfo, UnsupportedEnvError, env_info
+
+if TYPE_CHECKING:
+    from cartpole.envs.shards import ShardedEnvs
 
 register_fast_envs()  # cheap: string entry points, nothing compiled until an env is made
 register_pixel_envs()
@@ -64,15 +68,30 @@ def gymnasium_pixels_vec_env(
     """``num_envs`` of Gymnasium's own ``reference_id`` (CartPole) seen as frame stacks of
     ``obs_shape`` through :class:`~cartpole.envs.pixels.GymnasiumPixels`, stepped in turn (each
     draws Gymnasium's 600x400 picture every step: the honest reference, not a fast one)."""
+    return gym.vector.SyncVectorEnv([partial(make_gymnasium_pixels, reference_id, obs_shape)] * num_envs)
+
+
+def make_gymnasium_pixels(reference_id: str, obs_shape: tuple[int, ...]) -> gym.Env[Any, Any]:
+    """One of Gymnasium's own ``reference_id`` envs seen as frame stacks of ``obs_shape``."""
     from cartpole.envs.pixels import GymnasiumPixels  # numba kernels: only when pixels are asked for
 
     stack, height, width = obs_shape
+    env = gym.make(reference_id, render_mode="rgb_array")
+    return GymnasiumPixels(env, frame_size=(height, width), stack=stack)
 
-    def make() -> gym.Env[Any, Any]:
-        env = gym.make(reference_id, render_mode="rgb_array")
-        return GymnasiumPixels(env, frame_size=(height, width), stack=stack)
 
-    return gym.vector.SyncVectorEnv([make] * num_envs)
+def make_eval_envs(
+    env_id: str, num_envs: int, *, simulator: str = "gymnasium", workers: int = 1
+) -> gym.vector.VectorEnv | ShardedEnvs:
+    """The envs an evaluation plays: :func:`make_vec_env`'s, except that Gymnasium's pictures (a
+    pixel env on ``simulator="gymnasium"``) are drawn by ``workers`` processes when ``workers`` > 1
+    (:class:`~cartpole.envs.shards.ShardedEnvs`: the same episodes, sooner)."""
+    info = env_info(env_id)
+    if workers > 1 and info.pixels_of and resolve_simulator(env_id, simulator) == "gymnasium":
+        from cartpole.envs.shards import ShardedEnvs
+
+        return ShardedEnvs(partial(make_gymnasium_pixels, info.pixels_of, info.obs_shape), num_envs, workers)
+    return make_vec_env(env_id, num_envs, simulator=simulator)
 
 
 __all__ = [
@@ -83,6 +102,7 @@ __all__ = [
     "check_simulator",
     "env_info",
     "fast_env_id",
+    "make_eval_envs",
     "make_vec_env",
     "resolve_simulator",
 ]

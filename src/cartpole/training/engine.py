@@ -162,7 +162,7 @@ class PopulationEvaluations:
         episode_seeds = [[first + i for i in range(episodes)] for first in first_seeds]
         flat = [s for row in episode_seeds for s in row]
         returns, lengths = play_greedy_blocks(
-            self.population.greedy_actor(seeds), self.env.env_id, flat, simulator, episodes
+            self.population.greedy_actor(seeds), self.env.env_id, flat, simulator, episodes, picture_workers()
         )
         return [
             EvalReport(
@@ -371,6 +371,14 @@ def final_verdicts(members: list[Member]) -> tuple[dict[int, EvalReport], dict[i
     return reports, lasts
 
 
+def picture_workers() -> int:
+    """How many processes draw Gymnasium's pictures in a pixel env's evaluations: as many as the
+    threads torch computes with (the CLI's ``--torch-threads``; read here, never changed)."""
+    import torch
+
+    return torch.get_num_threads()
+
+
 def play_final_episodes(members: list[Member], checkpoint: CheckpointName) -> dict[int, EvalReport]:
     """Each member's ``checkpoint`` policy on its verdict's episodes, all members in one vector env."""
     first = members[0].setup
@@ -386,7 +394,7 @@ def play_final_episodes(members: list[Member], checkpoint: CheckpointName) -> di
     flat_seeds = [s for row in episode_seeds for s in row]
     returns, lengths = (
         x.reshape(len(members), episodes)
-        for x in play_greedy_blocks(act, first.env.env_id, flat_seeds, simulator, episodes)
+        for x in play_greedy_blocks(act, first.env.env_id, flat_seeds, simulator, episodes, picture_workers())
     )
     reports = {}
     for i, member in enumerate(members):
