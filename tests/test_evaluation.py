@@ -173,14 +173,17 @@ def test_envs_whose_episode_ended_stand_still_while_the_others_play(monkeypatch)
     assert steps == sum(report.lengths)
 
 
+class PixelHash:
+    """A deterministic policy of pixel frames, with episodes of varied lengths."""
+
+    def act(self, observations: np.ndarray) -> np.ndarray:
+        return (observations[:, -1].sum(axis=(1, 2), dtype=np.int64) // 7) % 2
+
+
 def test_worker_processes_draw_gymnasiums_pictures_with_the_same_results(monkeypatch):
     """workers=3 has three processes draw Gymnasium's pictures of a pixel env (none is drawn here),
     and every episode comes out as it does in this process alone."""
     from gymnasium.envs.classic_control.cartpole import CartPoleEnv
-
-    class PixelHash:  # a deterministic policy of the frames, with episodes of varied lengths
-        def act(self, observations: np.ndarray) -> np.ndarray:
-            return (observations[:, -1].sum(axis=(1, 2), dtype=np.int64) // 7) % 2
 
     drawn_here = 0
     original = CartPoleEnv.render
@@ -200,3 +203,30 @@ def test_worker_processes_draw_gymnasiums_pictures_with_the_same_results(monkeyp
     assert shared.returns == alone.returns and shared.lengths == alone.lengths
     with pytest.raises(ValueError, match="workers must be >= 1"):
         evaluate(PixelHash(), env_id, episodes=7, seed=3, simulator="gymnasium", workers=0)
+
+
+def test_an_evaluation_interrupted_while_its_workers_draw_leaves_no_worker_and_no_traceback(
+    monkeypatch, capfd
+):
+    """Ctrl-C while the workers send their pictures (larger than a pipe holds): the evaluation
+    stops, the workers end, and none of them prints a traceback."""
+    import multiprocessing
+    from multiprocessing.connection import Connection
+
+    original = Connection.recv
+    answers = 0
+
+    def interrupted(self: Connection) -> object:
+        nonlocal answers
+        answers += 1
+        if answers == 3:  # the two workers' resets came; the first step's pictures are on their way
+            raise KeyboardInterrupt
+        return original(self)
+
+    monkeypatch.setattr(Connection, "recv", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        evaluate(
+            PixelHash(), "cartpole/CartPolePixels-v1", episodes=64, seed=0, simulator="gymnasium", workers=2
+        )
+    assert multiprocessing.active_children() == []
+    assert "Traceback" not in capfd.readouterr().err

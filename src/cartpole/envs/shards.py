@@ -33,25 +33,30 @@ class WorkerError(RuntimeError):
 
 
 def _serve(connection: Connection, make: EnvMaker, count: int) -> None:
-    """A worker: ``count`` envs from ``make``, reset and stepped on request until "close" (or until
-    the parent is gone). Ctrl-C is the parent's to handle: it closes the workers."""
+    """A worker: ``count`` envs from ``make``, reset and stepped on request until "close", or
+    until the parent is gone (killed, or interrupted while this worker answered: it closed its
+    end). Ctrl-C is the parent's to handle: it closes the workers."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     envs = [make() for _ in range(count)]
     try:
-        while True:
-            try:
-                command, payload = connection.recv()
-            except EOFError:  # the parent ended without closing us (killed)
-                return
-            if command == "close":
-                return
-            try:
-                connection.send(("ok", _answer(envs, command, payload)))
-            except Exception as err:  # sent to the parent, which raises it there
-                connection.send(("error", f"{type(err).__name__}: {err}"))
+        _answer_requests(connection, envs)
+    except (EOFError, OSError):  # the parent is gone: nobody is left to answer
+        pass
     finally:
         for env in envs:
             env.close()
+
+
+def _answer_requests(connection: Connection, envs: list[gym.Env[Any, Any]]) -> None:
+    while True:
+        command, payload = connection.recv()
+        if command == "close":
+            return
+        try:
+            answer = ("ok", _answer(envs, command, payload))
+        except Exception as err:  # an env's own error: raised in the parent
+            answer = ("error", f"{type(err).__name__}: {err}")
+        connection.send(answer)
 
 
 def _answer(envs: list[gym.Env[Any, Any]], command: str, payload: Any) -> Any:
