@@ -295,3 +295,13 @@ def test_a_pixel_run_stopped_and_resumed_trains_the_rows_of_a_run_never_stopped(
     assert (
         finished.state.env_steps == whole.state.env_steps and finished.state.episodes == whole.state.episodes
     )
+
+
+def test_pictures_are_drawn_by_as_many_processes_as_torch_threads_at_most_four():
+    from cartpole.training.engine import MAX_PICTURE_WORKERS, picture_workers
+
+    assert MAX_PICTURE_WORKERS == 4
+    torch.set_num_threads(3)
+    assert picture_workers() == 3
+    torch.set_num_threads(16)  # each worker holds ~170 MB of imports: a big machine gets 4, not 16
+    assert picture_workers() == 4

@@ -98,11 +98,11 @@ def add_parser(sub: Any) -> None:
         type=int,
         default=None,
         metavar="N",
-        help="CPU threads for torch, and for drawing Gymnasium's pictures in a pixel env's evaluations "
-        "(default: 1, the least CPU for the small networks on state observations, one seed or a "
-        "population: a second thread costs more CPU than it saves time, see benchmarks/population.py "
-        "--population-threads 0; on image observations 0, where a conv net's batches keep every core "
-        "busy); 0: torch's default, one per core",
+        help="CPU threads for torch, and processes (at most 4) that draw Gymnasium's pictures in a "
+        "pixel env's evaluations (default: 1, the least CPU for the small networks on state "
+        "observations, one seed or a population: a second thread costs more CPU than it saves time, see "
+        "benchmarks/population.py --population-threads 0; on image observations 0, where a conv net's "
+        "batches keep every core busy); 0: torch's default, one per core",
     )
     parser.add_argument("--resume", metavar="RUN_DIR", help="continue this run from checkpoints/latest.pt")
     parser.add_argument(

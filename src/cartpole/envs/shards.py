@@ -96,7 +96,7 @@ class ShardedEnvs:
         for connection in self._connections:
             try:
                 status, answer = connection.recv()
-            except EOFError:
+            except (EOFError, OSError):  # it died, or never started (e.g. spawn could not import)
                 raise WorkerError("an env worker process ended unexpectedly") from None
             if status != "ok":
                 raise WorkerError(answer)

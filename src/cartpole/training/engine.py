@@ -371,12 +371,19 @@ def final_verdicts(members: list[Member]) -> tuple[dict[int, EvalReport], dict[i
     return reports, lasts
 
 
+MAX_PICTURE_WORKERS = 4
+"""The most processes that draw Gymnasium's pictures in one evaluation: each holds about 170 MB of
+imports (numba's compiler among them) and 2 MB an env, and four already draw a 100-episode verdict
+in well under a minute."""
+
+
 def picture_workers() -> int:
     """How many processes draw Gymnasium's pictures in a pixel env's evaluations: as many as the
-    threads torch computes with (the CLI's ``--torch-threads``; read here, never changed)."""
+    threads torch computes with (the CLI's ``--torch-threads``; read here, never changed), at most
+    :data:`MAX_PICTURE_WORKERS`."""
     import torch
 
-    return torch.get_num_threads()
+    return min(torch.get_num_threads(), MAX_PICTURE_WORKERS)
 
 
 def play_final_episodes(members: list[Member], checkpoint: CheckpointName) -> dict[int, EvalReport]:
