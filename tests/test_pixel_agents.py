@@ -197,17 +197,23 @@ def test_evaluations_of_pixels_start_where_gymnasiums_cartpole_starts(simulator)
                 env.close()
 
 
-def test_train_and_eval_a_pixel_ppo_judge_it_on_gymnasiums_pictures(tmp_path, monkeypatch, capsys):
+def test_train_and_eval_a_pixel_ppo_judge_it_on_gymnasiums_pictures(tmp_path, monkeypatch, capfd):
     """Trained and judged from pixels; on images `cartpole train` leaves torch's thread count as
-    it is (torch's own default: one per core), and that many processes draw the verdict's pictures."""
+    it is (torch's own default: one per core), and that many processes draw the verdict's pictures,
+    without SDL's complaint about a missing desktop session (capfd: the workers write to this
+    process's stderr)."""
+    monkeypatch.delenv("XDG_RUNTIME_DIR", raising=False)
+    monkeypatch.delenv("SDL_VIDEODRIVER", raising=False)
     runs = tmp_path / "runs"
     args = ["train", "ppo", "--env", PIXELS, "--preset", "pixels", "--seed", "3", "--budget", "512"]
     settings = ["n_steps=16", "num_envs=4", "minibatch_size=64", "eval_every=100000"]
     torch.set_num_threads(2)
     drawn_here = count_gymnasium_pictures(monkeypatch)
     code = main([*args, "--runs-dir", str(runs), "--quiet", *[x for s in settings for x in ("--set", s)]])
-    assert code == 0, capsys.readouterr().err
+    err = capfd.readouterr().err
+    assert code == 0, err
     assert torch.get_num_threads() == 2 and drawn_here() == 0  # 2 worker processes drew them
+    assert "XDG_RUNTIME_DIR" not in err
     (run,) = runs.iterdir()
     verdict = json.loads((run / "eval.json").read_text())
     assert (verdict["env_id"], verdict["simulator"], verdict["episodes"]) == (PIXELS, "gymnasium", 100)
@@ -220,9 +226,9 @@ def test_train_and_eval_a_pixel_ppo_judge_it_on_gymnasiums_pictures(tmp_path, mo
         return original(self, observations)
 
     monkeypatch.setattr(TorchActor, "__call__", recording)
-    capsys.readouterr()
+    capfd.readouterr()
     assert main(["eval", str(run), "--episodes", "3", "--json"]) == 0
-    report = json.loads(capsys.readouterr().out)
+    report = json.loads(capfd.readouterr().out)
     assert (report["env_id"], report["simulator"], report["episodes"]) == (PIXELS, "gymnasium", 3)
     assert all(shape == SHAPE for shape, _ in seen)  # frame stacks, never states
     assert sum(dtype == np.uint8 for _, dtype in seen) >= 3  # the episodes' frames (uint8, unscaled)

@@ -60,6 +60,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"--version takes no other arguments, got {' '.join(a for a in argv if a != '--version')}"
         )
     args = parser.parse_args(argv)
+    headless_pygame()
     try:
         return int(args.run(args) or 0)
     except (InputError, FileNotFoundError) as err:
@@ -73,6 +74,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"cartpole {args.command}: interrupted", file=sys.stderr)
         return 130
+
+
+def headless_pygame() -> None:
+    """No display and no sound card for pygame, which draws Gymnasium's ``rgb_array`` pictures
+    here and in the picture workers this process starts: no command opens a window or plays a
+    sound, and on a machine without a desktop session SDL prints ``error: XDG_RUNTIME_DIR is
+    invalid or not set`` from every process that draws; nor does pygame greet on stdout (``--json``
+    output stays JSON). Values the user set win."""
+    os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
+    os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
+    os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
 
 
 def one_line(message: str) -> str:
