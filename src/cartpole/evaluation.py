@@ -18,7 +18,7 @@ import gymnasium as gym
 import numpy as np
 
 from cartpole.envs import Simulator, env_info, make_eval_envs, resolve_simulator
-from cartpole.envs.shards import ShardedEnvs
+from cartpole.envs.shards import ShardedEnvs, gather_steps, step_playing
 
 MIN_EPISODES_FOR_SOLVED = 100
 """Gymnasium's rule averages over 100 consecutive episodes; fewer cannot be called solved."""
@@ -241,9 +241,8 @@ def play_greedy_blocks(
                     actions, running, observations
                 )
             elif isinstance(env, gym.vector.SyncVectorEnv):
-                observations, rewards, terminated, truncated = step_playing(
-                    env, actions, running, observations
-                )
+                steps = step_playing(env.envs, actions, running)
+                observations, rewards, terminated, truncated = gather_steps(observations, steps)
             else:
                 observations, rewards, terminated, truncated, _ = env.step(actions)
             returns += np.where(running, rewards, 0.0)
@@ -252,23 +251,6 @@ def play_greedy_blocks(
         return returns, lengths
     finally:
         env.close()
-
-
-def step_playing(
-    env: gym.vector.SyncVectorEnv, actions: np.ndarray, playing: np.ndarray, observations: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Step only the envs of ``env`` whose episodes are ``playing``, one by one (an env one at a
-    time, as ``SyncVectorEnv.step`` steps them, without its autoreset): those that ended stand
-    still, which saves what their steps would cost (Gymnasium's pictures: ~3 ms a step). The
-    observations (the ended envs' last ones), rewards, terminations and truncations ``[n]``."""
-    observations = np.array(observations, copy=True)
-    n = len(actions)
-    rewards, terminated, truncated = np.zeros(n), np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
-    for i in np.flatnonzero(playing):
-        observation, reward, ended, cut, _ = env.envs[i].step(actions[i])
-        observations[i] = observation
-        rewards[i], terminated[i], truncated[i] = float(reward), ended, cut
-    return observations, rewards, terminated, truncated
 
 
 def evaluate(

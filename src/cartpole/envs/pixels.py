@@ -409,6 +409,26 @@ def render_frames(
     return _cached_renderer(check_frame_size(frame_size), params).render(states)
 
 
+class FrameStack:
+    """The last ``stack`` frames of one env, oldest first: the observation ``[stack, height, width]``
+    uint8. ``start(frame)`` fills the stack with an episode's first frame; ``push(frame)`` drops the
+    oldest and appends the newest. Both return a new array."""
+
+    def __init__(self, stack: int, frame_size: tuple[int, int]) -> None:
+        self._frames = np.zeros((check_stack(stack), *frame_size), dtype=np.uint8)
+
+    def start(self, frame: NDArray[np.uint8]) -> NDArray[np.uint8]:
+        """The first observation of an episode: its first frame, ``stack`` times."""
+        self._frames[:] = frame
+        return self._frames.copy()
+
+    def push(self, frame: NDArray[np.uint8]) -> NDArray[np.uint8]:
+        """The observation after a step whose new frame is ``frame``."""
+        self._frames[:-1] = self._frames[1:]
+        self._frames[-1] = frame
+        return self._frames.copy()
+
+
 def _frame_space(frame_size: tuple[int, int], stack: int) -> spaces.Space[NDArray[np.uint8]]:
     """``Box(0, 255, (stack, height, width), uint8)``."""
     return cast("spaces.Space[NDArray[np.uint8]]", spaces.Box(0, 255, (stack, *frame_size), dtype=np.uint8))
@@ -576,7 +596,7 @@ class CartPolePixelsEnv(gym.Env[NDArray[np.uint8], int]):
         self.render_mode = render_mode
         self.action_space = self._sim.action_space
         self.observation_space = _frame_space(self.frame_size, self.stack)
-        self._frames = np.zeros((self.stack, *self.frame_size), dtype=np.uint8)
+        self._frames = FrameStack(self.stack, self.frame_size)
 
     @property
     def simulator(self) -> CartPoleEnv:
@@ -617,17 +637,14 @@ class CartPolePixelsEnv(gym.Env[NDArray[np.uint8], int]):
         super().reset(seed=seed)
         self._sim.np_random = self.np_random  # one generator: check_env and seeding see this env's
         _, info = self._sim.reset(options=options)
-        self._frames[:] = self._frame()
-        return self._frames.copy(), info
+        return self._frames.start(self._frame()), info
 
     def step(
         self, action: int | np.integer[Any] | NDArray[np.integer[Any]]
     ) -> tuple[NDArray[np.uint8], SupportsFloat, bool, bool, dict[str, Any]]:
         """Push the cart (0 left, 1 right); the new frame goes at the end of the stack."""
         _, reward, terminated, truncated, info = self._sim.step(action)
-        self._frames[:-1] = self._frames[1:]
-        self._frames[-1] = self._frame()
-        return self._frames.copy(), reward, terminated, truncated, info
+        return self._frames.push(self._frame()), reward, terminated, truncated, info
 
     def render(self) -> NDArray[np.uint8] | None:
         """Gymnasium's picture of the state (``render_mode="rgb_array"``), through the simulator."""
@@ -661,7 +678,7 @@ class GymnasiumPixels(gym.Wrapper[NDArray[np.uint8], Any, Any, Any]):
             )
         super().__init__(env)
         self.observation_space = _frame_space(self.frame_size, self.stack)
-        self._frames = np.zeros((self.stack, *self.frame_size), dtype=np.uint8)
+        self._frames = FrameStack(self.stack, self.frame_size)
 
     def _frame(self) -> NDArray[np.uint8]:
         picture = self.env.render()
@@ -672,15 +689,12 @@ class GymnasiumPixels(gym.Wrapper[NDArray[np.uint8], Any, Any, Any]):
     ) -> tuple[NDArray[np.uint8], dict[str, Any]]:
         """Reset the env and fill the stack with its first picture."""
         _, info = self.env.reset(seed=seed, options=options)
-        self._frames[:] = self._frame()
-        return self._frames.copy(), info
+        return self._frames.start(self._frame()), info
 
     def step(self, action: Any) -> tuple[NDArray[np.uint8], SupportsFloat, bool, bool, dict[str, Any]]:
         """Step the env; its new picture goes at the end of the stack."""
         _, reward, terminated, truncated, info = self.env.step(action)
-        self._frames[:-1] = self._frames[1:]
-        self._frames[-1] = self._frame()
-        return self._frames.copy(), reward, terminated, truncated, info
+        return self._frames.push(self._frame()), reward, terminated, truncated, info
 
 
 __all__ = [
@@ -689,6 +703,7 @@ __all__ = [
     "GRAY_WEIGHTS",
     "CartPolePixelsEnv",
     "CartPolePixelsVectorEnv",
+    "FrameStack",
     "GymnasiumPixels",
     "PixelRenderer",
     "check_frame_size",

@@ -61,7 +61,7 @@ class FrameStacker:
     """
 
     def __init__(self, view: PixelView, params: CartPoleParams | None = None):
-        from cartpole.envs.pixels import PixelRenderer  # numba kernels: only for pixel runs
+        from cartpole.envs.pixels import FrameStack, PixelRenderer  # numba kernels: only for pixel runs
 
         self.view = view
         try:
@@ -73,7 +73,7 @@ class FrameStacker:
                 f"the agent's {height}x{width} frames cannot show a pole of half-length {length:g} m (it "
                 f"reaches above them): choose a shorter pole (the default is {CartPoleParams().length:g} m)"
             ) from err
-        self._stack = np.zeros((view.stack, *view.frame_size), dtype=np.uint8)
+        self._stack = FrameStack(view.stack, view.frame_size)
         self.frames: list[NDArray[np.uint8]] = []
 
     def frame(self, state: NDArray[Any]) -> NDArray[np.uint8]:
@@ -85,16 +85,13 @@ class FrameStacker:
         """The first observation of an episode: its first frame, ``stack`` times."""
         frame = self.frame(state)
         self.frames = [frame]
-        self._stack[:] = frame
-        return self._stack.copy()
+        return self._stack.start(frame)
 
     def push(self, state: NDArray[Any]) -> NDArray[np.uint8]:
         """The observation after a step that reached ``state``."""
         frame = self.frame(state)
         self.frames.append(frame)
-        self._stack[:-1] = self._stack[1:]
-        self._stack[-1] = frame
-        return self._stack.copy()
+        return self._stack.push(frame)
 
 
 def stacks_of(frames: NDArray[np.uint8], stack: int) -> NDArray[np.uint8]:
