@@ -38,6 +38,26 @@ def test_an_override_beats_the_preset_and_the_preset_beats_the_default():
 
 
 @pytest.mark.parametrize(
+    ("text", "hidden_sizes", "conv_layers"),
+    [
+        ("256,256", (256, 256), None),
+        ("[256, 256]", (256, 256), None),  # as the presets and `cartpole presets` write it
+        ("[]", (), None),
+        ("[[16, 8, 4], [32, 3, 1]]", None, ((16, 8, 4), (32, 3, 1))),
+    ],
+)
+def test_a_list_setting_from_the_command_line_as_commas_or_as_a_toml_array(text, hidden_sizes, conv_layers):
+    key = "conv_layers" if conv_layers else "hidden_sizes"
+    config, _ = resolve_config("dqn", get_agent("dqn").config_cls, "default", {key: text})
+    assert getattr(config, key) == (conv_layers or hidden_sizes)
+
+
+def test_a_broken_list_setting_is_one_line():
+    with pytest.raises(ConfigError, match=r"hidden_sizes='\[256,' is not a valid tuple\[int, ...\]"):
+        resolve_config("dqn", get_agent("dqn").config_cls, "default", {"hidden_sizes": "[256,"})
+
+
+@pytest.mark.parametrize(
     ("overrides", "message"),
     [
         ({"population": "0"}, "population must be >= 1"),

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import tomllib
 import types
 import typing
 from dataclasses import fields
@@ -44,7 +45,7 @@ def _coerce(value: Any, annotation: Any, key: str) -> Any:
             elif origin is str:
                 return str(value)
             elif origin in (list, tuple):
-                items = value if isinstance(value, list | tuple) else str(value).split(",")
+                items = value if isinstance(value, list | tuple) else _items(str(value))
                 (item_type,) = typing.get_args(option)[:1] or (str,)
                 return origin(_coerce(v, item_type, key) for v in items if v != "")
         except (TypeError, ValueError, OverflowError):
@@ -59,6 +60,20 @@ def _coerce(value: Any, annotation: Any, key: str) -> Any:
         else ""
     )
     raise ConfigError(f"{key}={value!r} is not a valid {name}{rule}")
+
+
+def _items(text: str) -> list[Any]:
+    """A list from the command line: ``64,64``, or as the presets write it, ``[64, 64]`` and
+    ``[[16, 8, 4], [32, 3, 1]]`` (a TOML array); ValueError if it is neither."""
+    if not text.strip().startswith("["):
+        return text.split(",")
+    try:
+        items = tomllib.loads(f"items = {text}")["items"]
+    except tomllib.TOMLDecodeError as err:
+        raise ValueError(str(err)) from None
+    if not isinstance(items, list):
+        raise ValueError(f"not a list: {text!r}")
+    return items
 
 
 def _number(value: Any, kind: type) -> int | float:
