@@ -2,7 +2,7 @@
 
 Usage (from the repository root)::
 
-    python benchmarks/kill_resume.py                 # trials over every agent and three populations
+    python benchmarks/kill_resume.py                 # 5 trials for every agent, alone and as a population
     python benchmarks/kill_resume.py --agents dqn,ppo-population --trials 4
     python benchmarks/kill_resume.py --trials 6 --jobs 3 --device cpu
 
@@ -37,12 +37,10 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-AGENTS = (
-    "dqn", "ppo", "a2c", "reinforce", "cem", "hill-climbing", "random-search", "ppo-population",
-    "cem-population", "dqn-population",
-)  # fmt: skip
+SINGLE = ("dqn", "ppo", "a2c", "reinforce", "cem", "hill-climbing", "random-search")
 POPULATION = "-population"
 """An entry ``AGENT-population`` trains :data:`POPULATION_SEEDS` seeds of AGENT in one process."""
+AGENTS = SINGLE + tuple(agent + POPULATION for agent in SINGLE)
 POPULATION_SEEDS = 4
 
 
@@ -192,7 +190,7 @@ def run_trial(trial: Trial, base: Path, device: str | None) -> Trial:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--trials", type=int, default=45, help="kills, spread over --agents in turn")
+    parser.add_argument("--trials", type=int, default=5 * len(AGENTS), help="kills, spread over --agents")
     parser.add_argument("--agents", default=",".join(AGENTS), help="comma-separated; AGENT-population too")
     parser.add_argument("--jobs", type=int, default=1, help="trials at once (default 1)")
     parser.add_argument("--seed", type=int, default=0, help="seeds the kill times")
