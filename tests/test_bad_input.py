@@ -344,6 +344,14 @@ BAD_TRAIN_VALUES = {
     "seed huge": ["cem", "--seed", str(2**70)],
     "preset unknown": ["cem", "--preset", "turbo"],
     "env continuous": ["cem", "--env", "Pendulum-v1"],
+    "observation_std of another length": ["ppo", "--set", "observation_std=1,2,3"],
+    "observation_mean of another length": ["a2c", "--env", "MountainCar-v0", "--set", "observation_mean=0"],
+    "observation_std 0": ["reinforce", "--set", "observation_std=1,0,1,1"],
+    "observation_std nan": ["ppo", "--set", "observation_std=1,nan,1,1"],
+    "observation_mean on images": [
+        *("ppo", "--env", "cartpole/CartPolePixels-v1"),
+        *("--set", "observation_mean=0"),
+    ],
 }
 
 

@@ -84,6 +84,7 @@ def test_a_single_run_is_its_seed_in_a_population(agent, tmp_path):
 OTHER_ENVS = [
     ("ppo", "Acrobot-v1", "default"),
     ("a2c", "MountainCar-v0", "default"),
+    ("ppo", "MountainCar-v0", "mountaincar"),  # observations standardized
     ("reinforce", "Acrobot-v1", "default"),
     ("dqn", "Acrobot-v1", "default"),
     ("dqn", "CartPole-v1", "tutorial-pytorch"),

@@ -115,6 +115,8 @@ PG_CHANGES: dict[str, Change] = {
     "activation": ({}, "relu"),
     "shared_trunk": ({}, True),
     "orthogonal_init": ({}, False),
+    "observation_mean": ({}, (0.3, -0.3, 0.3, -0.3)),
+    "observation_std": ({}, (0.2, 0.2, 0.2, 0.2)),
     "num_envs": ({}, 3),
     "gamma": ({}, 0.5),
     "lr": ({}, 1e-2),

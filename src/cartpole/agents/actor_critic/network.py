@@ -28,6 +28,7 @@ from torch import nn
 from cartpole.agents.nn import conv
 from cartpole.agents.nn.conv import PIXEL_SCALE, ScalePixels, scale_pixels
 from cartpole.agents.nn.numpy_mlp import NumpyMLP, StackedNumpyMLP
+from cartpole.agents.nn.standardize import StandardizeObservations
 from cartpole.evaluation import BlockActor
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
@@ -64,6 +65,10 @@ def conv_output_size(obs_shape: Sequence[int]) -> int:
     return conv.conv_output_size(obs_shape, CONV_LAYERS)
 
 
+Standardization = tuple[tuple[float, ...], tuple[float, ...]]
+"""(mean, std) of each observation dimension, for :class:`StandardizeObservations`."""
+
+
 def trunk(obs_shape: tuple[int, ...], hidden_sizes: tuple[int, ...], activation: str) -> nn.Sequential:
     """The layers from an observation to the last hidden layer: an MLP for flat observations
     ``(obs_dim,)``; for images ``(channels, height, width)``, scaled pixels through the
@@ -98,7 +103,8 @@ class ActorCritic(nn.Module):
     """Action logits and state values from one trunk (shared) or two (separate): an MLP, or for
     images a convolutional network and an MLP (:func:`trunk`).
 
-    ``obs_shape`` is an observation's shape (an int: a flat observation of that size). ``forward``
+    ``obs_shape`` is an observation's shape (an int: a flat observation of that size); flat
+    observations are standardized first when ``standardize`` gives (mean, std) per dimension. ``forward``
     returns both outputs; ``logits`` and ``values`` compute one of them alone (acting needs only the
     logits, and with separate trunks skips the critic).
     """
@@ -112,10 +118,13 @@ class ActorCritic(nn.Module):
         shared_trunk: bool = False,
         orthogonal_init: bool = True,
         generator: torch.Generator | None = None,
+        standardize: Standardization | None = None,
     ):
         super().__init__()
         self.shared_trunk = shared_trunk
         self.obs_shape = (obs_shape,) if isinstance(obs_shape, int) else tuple(obs_shape)
+        self.standardize = StandardizeObservations(*standardize) if standardize else None
+        """Before both trunks (not in them: the layers' names, and so checkpoints, stay the same)."""
         features = hidden_sizes[-1]
         # nn.Linear and nn.Conv2d initialize themselves from torch's global generator: build under
         # fork_rng, which puts the global state back, then initialize every parameter from
@@ -158,11 +167,10 @@ class ActorCritic(nn.Module):
                 bound = 1.0 / math.sqrt(layer.weight[0].numel())  # 1 / sqrt(fan_in)
                 nn.init.uniform_(bias, -bound, bound, generator=generator)
 
-    @staticmethod
-    def _run(trunk: nn.Sequential, observations: torch.Tensor) -> torch.Tensor:
+    def _run(self, trunk: nn.Sequential, observations: torch.Tensor) -> torch.Tensor:
         # module.forward(x), not module(x): nn.Module.__call__'s hook handling costs more than a small
         # layer's matmul (no hooks are used on these layers).
-        features = observations
+        features = observations if self.standardize is None else self.standardize.forward(observations)
         for layer in trunk:
             features = layer.forward(features)
         return features
@@ -180,9 +188,13 @@ class ActorCritic(nn.Module):
     def values(self, observations: torch.Tensor) -> torch.Tensor:
         return self.value_head.forward(self._run(self.critic_trunk, observations)).squeeze(-1)
 
+    def input_layers(self) -> list[StandardizeObservations]:
+        """What comes before either trunk: the observations' standardization, if any."""
+        return [] if self.standardize is None else [self.standardize]
+
     def actor_layers(self) -> list[nn.Module]:
         """The modules from observation to logits, in order."""
-        return [*self.actor_trunk, self.policy_head]
+        return [*self.input_layers(), *self.actor_trunk, self.policy_head]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -268,6 +280,7 @@ __all__ = [
     "ActorCritic",
     "CategoricalPolicy",
     "ScalePixels",
+    "Standardization",
     "TorchActor",
     "block_greedy_actor",
     "conv_output_size",

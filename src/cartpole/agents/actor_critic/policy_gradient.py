@@ -20,8 +20,10 @@ from cartpole.agents.actor_critic.network import (
     SCHEDULES,
     ActorCritic,
     CategoricalPolicy,
+    Standardization,
 )
 from cartpole.core.config import build_config, require
+from cartpole.core.errors import ConfigError
 from cartpole.core.seeding import derived_seed
 from cartpole.envs import EnvInfo, check_simulator
 from cartpole.runs import Checkpoint, CheckpointError
@@ -40,6 +42,12 @@ class PolicyGradientConfig:
     """One trunk for actor and critic (two heads); false: two separate MLPs."""
     orthogonal_init: bool = True
     """Orthogonal init (gain sqrt(2) hidden, 0.01 policy head, 1 value head); false: torch's default."""
+    observation_mean: tuple[float, ...] = ()
+    """Subtracted from each observation dimension before the network (with observation_std); fixed,
+    not estimated; empty: 0 for every dimension. Flat observations only."""
+    observation_std: tuple[float, ...] = ()
+    """Each observation dimension is divided by this after observation_mean is subtracted (e.g.
+    MountainCar's 0.1,0.005); empty: 1 for every dimension."""
     # collection
     num_envs: int = 8
     """Vector envs stepped together, with one batched forward pass per step."""
@@ -78,6 +86,13 @@ class PolicyGradientConfig:
         require(self.schedule_steps >= 1, f"schedule_steps must be >= 1, got {self.schedule_steps}")
         require(self.ent_coef >= 0, f"ent_coef must be >= 0, got {self.ent_coef}")
         require(self.vf_coef >= 0, f"vf_coef must be >= 0, got {self.vf_coef}")
+        require(
+            all(math.isfinite(m) for m in self.observation_mean), "observation_mean must be finite numbers"
+        )
+        require(
+            all(math.isfinite(s) and s > 0 for s in self.observation_std),
+            "observation_std must be finite numbers > 0",
+        )
         require(self.max_grad_norm is None or self.max_grad_norm > 0, "max_grad_norm must be > 0 or none")
         check_simulator(self.simulator)
 
@@ -110,6 +125,26 @@ def generalized_advantages(
     return advantages[:steps]
 
 
+def standardization(config: PolicyGradientConfig, obs_shape: tuple[int, ...]) -> Standardization | None:
+    """The (mean, std) constants of ``config.observation_mean``/``observation_std`` for observations
+    of ``obs_shape``, None when both are empty; ConfigError when they do not fit the observations."""
+    mean, std = config.observation_mean, config.observation_std
+    if not mean and not std:
+        return None
+    if len(obs_shape) != 1:
+        raise ConfigError(
+            f"observation_mean and observation_std apply to flat observations, not images {list(obs_shape)}: "
+            "leave them empty"
+        )
+    (dims,) = obs_shape
+    for name, values in (("observation_mean", mean), ("observation_std", std)):
+        if values and len(values) != dims:
+            raise ConfigError(
+                f"{name} needs {dims} numbers (one for each observation dimension), not {len(values)}"
+            )
+    return (tuple(mean) or (0.0,) * dims, tuple(std) or (1.0,) * dims)
+
+
 def seeded_actor_critic(config: PolicyGradientConfig, env: EnvInfo, seed: int) -> ActorCritic:
     """The network a learner of ``seed`` starts from (a population's seeds start from the same)."""
     return ActorCritic(
@@ -120,6 +155,7 @@ def seeded_actor_critic(config: PolicyGradientConfig, env: EnvInfo, seed: int) -
         config.shared_trunk,
         config.orthogonal_init,
         generator=torch.Generator().manual_seed(derived_seed(seed, "init")),
+        standardize=standardization(config, env.obs_shape),
     )
 
 
@@ -142,14 +178,16 @@ def policy_loader(agent: str, config_cls: type) -> Callable[[Checkpoint], Catego
         try:
             config = build_config(config_cls, checkpoint.meta["config"])
             data = checkpoint.meta["learner"]
+            obs_shape = observation_shape(data)
             model = ActorCritic(
-                observation_shape(data),
+                obs_shape,
                 int(data["n_actions"]),
                 config.hidden_sizes,
                 config.activation,
                 config.shared_trunk,
                 orthogonal_init=False,
                 generator=torch.Generator(),
+                standardize=standardization(config, obs_shape),
             )
             model.load_state_dict(with_prefix(checkpoint.tensors, "model."))
         except (KeyError, RuntimeError, TypeError, ValueError) as err:

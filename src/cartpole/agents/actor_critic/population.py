@@ -70,6 +70,7 @@ from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Ste
 from cartpole.agents.nn.population_optimizers import PopulationAdam, PopulationOptimizer, PopulationRMSprop
 from cartpole.agents.nn.stacked_conv import channels_last, stacked_conv2d
 from cartpole.agents.nn.stacked_linear import stacked_linear
+from cartpole.agents.nn.standardize import StandardizeObservations
 from cartpole.agents.population import SeedRows
 from cartpole.agents.registry import AgentSpec
 from cartpole.core.errors import ConfigError
@@ -94,14 +95,15 @@ class ConvStep:
     stride: int
 
 
-Layer = tuple[str, str] | ConvStep | type[nn.Module]
-"""A step of a forward pass: (weight name, bias name) of a linear layer, a convolutional layer, or a
-parameter-free layer's type (an activation, ScalePixels, Flatten)."""
+Layer = tuple[str, str] | ConvStep | StandardizeObservations | type[nn.Module]
+"""A step of a forward pass: (weight name, bias name) of a linear layer, a convolutional layer, the
+observations' standardization (its constants are the same for every seed), or a parameter-free
+layer's type (an activation, ScalePixels, Flatten)."""
 
 
 def forward_plan(model: ActorCritic, trunk_name: str, head_name: str) -> list[Layer]:
     """The steps from observation to one head's output, by parameter name."""
-    plan: list[Layer] = []
+    plan: list[Layer] = list(model.input_layers())
     for index, layer in enumerate(getattr(model, trunk_name)):
         name = f"{trunk_name}.{index}"
         if isinstance(layer, nn.Linear):
@@ -186,6 +188,8 @@ class StackedActorCritic:
                 x = stacked_linear(x, weight, bias)
             elif isinstance(step, ConvStep):
                 x = stacked_conv2d(x, params[step.weight], params[step.bias], step.stride)
+            elif isinstance(step, StandardizeObservations):
+                x = step.forward(x)
             elif step is ScalePixels:
                 x = scale(x)
             elif step in SHAPE_STEPS:
@@ -234,6 +238,8 @@ class StackedActorCritic:
                 )
             elif isinstance(step, ConvStep):
                 raise ValueError("a convolutional actor has no numpy copy: act with rollout_actor")
+            elif isinstance(step, StandardizeObservations):
+                plan.append(step.constants)
             else:
                 plan.append(NUMPY_ACTIVATIONS[step])
         return StackedNumpyMLP(plan)

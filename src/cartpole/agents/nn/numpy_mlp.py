@@ -15,6 +15,7 @@ import numpy as np
 from torch import nn
 
 from cartpole.agents.nn.fast_tanh import tanh_array
+from cartpole.agents.nn.standardize import StandardizeObservations
 
 
 def _relu(x: np.ndarray) -> np.ndarray:
@@ -45,7 +46,8 @@ NUMPY_ACTIVATIONS: dict[type[nn.Module], Callable[[np.ndarray], np.ndarray]] = {
 
 
 Step = tuple[np.ndarray, np.ndarray] | Callable[[np.ndarray], np.ndarray]
-"""A step of a numpy forward pass: (weight ``[..., in, out]``, bias ``[..., out]``) or an activation."""
+"""A step of a numpy forward pass: (weight ``[..., in, out]``, bias ``[..., out]``), or an activation
+or the observations' standardization (:class:`~cartpole.agents.nn.standardize.Standardize`)."""
 
 
 def run_steps(plan: list[Step], features: np.ndarray) -> np.ndarray:
@@ -79,6 +81,8 @@ class NumpyMLP:
                 self.plan.append((weight, layer.bias.detach().cpu().numpy().copy()))
             elif type(layer) in NUMPY_ACTIVATIONS:
                 self.plan.append(NUMPY_ACTIVATIONS[type(layer)])
+            elif isinstance(layer, StandardizeObservations):
+                self.plan.append(layer.constants)
             elif not is_dropout(layer):
                 raise TypeError(f"no numpy form for {type(layer).__name__}")
 
@@ -111,7 +115,7 @@ class StackedNumpyMLP:
                 weights = np.stack([s[0] for s in steps])  # type: ignore[index]
                 biases = np.stack([s[1] for s in steps])[:, None, :]  # type: ignore[index]
                 plan.append((weights, biases))
-            elif all(s is step for s in steps):
+            elif all(s == step for s in steps):  # the same activation, or equal constants
                 plan.append(step)
             else:
                 return None
