@@ -6,17 +6,38 @@
 #
 #   DEVICE=cuda BUDGET=380s WAVE=1 bash benchmarks/pixel_settings.sh
 #   DEVICE=cpu BUDGET=2000 WAVE=2 bash benchmarks/pixel_settings.sh    # a smoke test
+#   DEVICE=cuda BUDGET=330s WAVE=dqn bash benchmarks/pixel_settings.sh  # DQN's pixels preset, 8 x 2 seeds
 #
+# Each run's best checkpoint is copied to $OUT/best/NAME.pt, to be judged on Gymnasium's pictures with
+# `cartpole eval` where the CPU time is (the wave's own verdicts use our renderer).
 # The runs of a wave go at once: give the machine a core per run (14 or 16 of them).
 DEVICE=${DEVICE:-cuda}; BUDGET=${BUDGET:-380s}; WAVE=${WAVE:-1}; OUT=${OUT:-/tmp/pixel_settings}
 CARTPOLE=${CARTPOLE:-cartpole}
 rm -rf "$OUT"; mkdir -p "$OUT"
 # The settings of the preset before 2026-11-26 (8 envs x 16 steps, batch 128), then each run's changes.
 base="--set num_envs=8 --set minibatch_size=128 --set eval_simulator=fast --set verdict_simulator=fast --set eval_every=10000 --set schedule_steps=500000"
+AGENT=ppo
+if [ "$WAVE" = dqn ]; then
+  # The DQN pixels preset's own settings, evaluated as the PPO waves were; latest.pt (the whole replay)
+  # only every 10 minutes, so that 16 runs do not spend the machine's disk on it.
+  AGENT=dqn; base="--set eval_simulator=fast --set verdict_simulator=fast --set eval_every=10000 --set checkpoint_seconds=600"
+fi
 run() { name=$1; seed=$2; device=$3; shift 3
-  $CARTPOLE train ppo --env cartpole/CartPolePixels-v1 --preset pixels --budget "$BUDGET" --seed "$seed" \
-    --device "$device" $base "$@" --runs-dir "$OUT/$name" > "$OUT/$name.log" 2>&1 & }
-if [ "$WAVE" = 1 ]; then
+  $CARTPOLE train $AGENT --env cartpole/CartPolePixels-v1 --preset pixels --budget "$BUDGET" --seed "$seed" \
+    --device "$device" --torch-threads 1 $base "$@" --runs-dir "$OUT/$name" > "$OUT/$name.log" 2>&1 & }
+if [ "$WAVE" = dqn ]; then
+  b128="--set batch_size=128"; e8="--set num_envs=8 --set gradient_steps=2"
+  for s in 1 2; do
+    run base_s$s $s $DEVICE
+    run b128lr5_s$s $s $DEVICE $b128 --set lr=5e-4
+    run e8b128_s$s $s $DEVICE $e8 $b128
+    run buf50tau5_s$s $s $DEVICE --set buffer_size=50000 --set tau=0.005
+    run heavy_s$s $s $DEVICE --set num_envs=8 --set gradient_steps=4 --set batch_size=256 --set lr=5e-4
+    run duelb128_s$s $s $DEVICE --set dueling=true $b128
+    run hard500b128_s$s $s $DEVICE --set tau=1 --set target_update_interval=500 $b128
+    run combo_s$s $s $DEVICE $e8 $b128 --set buffer_size=50000 --set lr=5e-4 --set tau=0.005
+  done
+elif [ "$WAVE" = 1 ]; then
   run base_s1 1 $DEVICE; run base_s2 2 $DEVICE
   run shared_s1 1 $DEVICE --set shared_trunk=true; run shared_s2 2 $DEVICE --set shared_trunk=true
   run ep8_s1 1 $DEVICE --set n_epochs=8; run ep8_s2 2 $DEVICE --set n_epochs=8
@@ -48,13 +69,16 @@ import json, pathlib, sys
 root = pathlib.Path(sys.argv[1])
 for log in sorted(root.glob("*.log")):
     evals, last = [], {}
+    for best in (root / log.stem).glob("*/checkpoints/best.pt"):
+        (root / "best").mkdir(exist_ok=True)
+        (root / "best" / f"{log.stem}.pt").write_bytes(best.read_bytes())
     for metrics in (root / log.stem).glob("*/metrics.jsonl"):
         for line in metrics.read_text().splitlines():
             row = json.loads(line)
             if "eval/mean_return" in row:
                 full = "/100" if row["eval/episodes"] >= 100 else ""
                 evals.append(f"{row['step'] // 1000}k:{row['eval/mean_return']:.0f}{full}{'*' if row['eval/solved'] else ''}")
-            elif "train/iteration" in row:
+            elif "time" in row:
                 last = row
     rate = last.get("step", 0) / max(last.get("time", 1), 1)
     print(f"{log.stem}: {rate:.0f} steps/s, {last.get('step')} steps; {' '.join(evals)}")
