@@ -401,13 +401,16 @@ def test_presets() -> None:
     assert (a2c_zoo.num_envs, a2c_zoo.ent_coef, settings.budget) == (8, 0.0, "500k")
 
 
+PRESET_ENVS = {"mountaincar": "MountainCar-v0", "acrobot": "Acrobot-v1"}
+
+
 @pytest.mark.parametrize("agent", AGENTS)
 def test_each_preset_runs_a_few_steps(agent: str) -> None:
     """Each preset on its env: the mountaincar presets' standardization fits MountainCar's two numbers."""
     spec = get_agent(agent)
     for preset in preset_names(agent):
         config, _ = resolve_config(agent, spec.config_cls, preset)
-        env = env_info("MountainCar-v0") if preset == "mountaincar" else CARTPOLE
+        env = env_info(PRESET_ENVS[preset]) if preset in PRESET_ENVS else CARTPOLE
         assert one_seed(spec, config, env, 0).learn().env_steps > 0
 
 
