@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import torch
@@ -26,8 +27,13 @@ class Standardize:
     mean: tuple[float, ...]
     std: tuple[float, ...]
 
+    @cached_property
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """The constants as float32 arrays, made once (a policy standardizes at every env step)."""
+        return np.asarray(self.mean, dtype=np.float32), np.asarray(self.std, dtype=np.float32)
+
     def __call__(self, x: np.ndarray) -> np.ndarray:
-        mean, std = np.asarray(self.mean, dtype=np.float32), np.asarray(self.std, dtype=np.float32)
+        mean, std = self.arrays
         return (np.asarray(x, dtype=np.float32) - mean) / std
 
 
