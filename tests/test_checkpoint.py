@@ -2,8 +2,14 @@
 
 from __future__ import annotations
 
+import errno
+import os
 import pickle
 import re
+import resource
+import signal
+import subprocess
+import sys
 import zipfile
 
 import pytest
@@ -74,6 +80,45 @@ def test_interrupted_save_keeps_the_previous_file(tmp_path, monkeypatch):
     monkeypatch.undo()
     assert load_checkpoint(path).meta["v"] == 1
     assert [p.name for p in tmp_path.iterdir()] == ["c.pt"]
+
+
+def test_a_disk_that_fills_up_during_a_save_raises_its_os_error_and_keeps_the_previous_file(tmp_path):
+    """A real write failure, not a mock: a file-size limit (RLIMIT_FSIZE, SIGXFSZ ignored) makes the
+    write fail with EFBIG partway, as a full disk fails with ENOSPC. The OSError comes out as itself,
+    named for the checkpoint (torch's zip writer would turn it into a RuntimeError with no errno)."""
+    path = tmp_path / "c.pt"
+    save_checkpoint(path, Checkpoint(meta={"agent": "cem", "env_id": "CartPole-v1", "v": 1}))
+    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+    previous = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (64 * 1024, hard))
+    try:
+        with pytest.raises(OSError) as raised:
+            save_checkpoint(path, Checkpoint(meta={"agent": "cem", "env_id": "CartPole-v1", "v": 2},
+                                             tensors={"w": torch.zeros(1_000_000)}))  # fmt: skip
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+        signal.signal(signal.SIGXFSZ, previous)
+    assert raised.value.errno == errno.EFBIG and raised.value.filename == str(path)
+    assert load_checkpoint(path).meta["v"] == 1
+    assert [p.name for p in tmp_path.iterdir()] == ["c.pt"]
+
+
+def test_a_save_holds_no_second_copy_of_its_tensors_in_memory(tmp_path):
+    """A pixel DQN's checkpoint carries its 600 MB replay: the save streams it into the file, so a
+    200 MB tensor raises the peak memory of a fresh process by far less than 200 MB."""
+    script = (
+        "import resource, sys, torch\n"
+        "from cartpole.runs import Checkpoint, save_checkpoint\n"
+        "big = torch.ones(200_000_000, dtype=torch.uint8)\n"
+        "before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss\n"
+        "save_checkpoint(__import__('pathlib').Path(sys.argv[1]),\n"
+        "                Checkpoint(meta={'agent': 'dqn', 'env_id': 'x'}, tensors={'replay': big}))\n"
+        "print((resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before) // 1024)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", script, str(tmp_path / "big.pt")], capture_output=True,
+                         text=True, check=True, env={**os.environ, "OMP_NUM_THREADS": "1"})  # fmt: skip
+    assert int(out.stdout.strip()) < 50, f"the save raised the peak by {out.stdout.strip()} MB"
+    assert load_checkpoint(tmp_path / "big.pt").tensors["replay"].shape == (200_000_000,)
 
 
 # What a file that is not a readable checkpoint is: said in its own words, not lumped together.

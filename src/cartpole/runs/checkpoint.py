@@ -7,18 +7,18 @@ atomic, so an interrupted save leaves the previous checkpoint intact.
 
 from __future__ import annotations
 
-import io
 import json
 import pickle
 import warnings
 import zipfile
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import IO, TYPE_CHECKING, Any
 
 from cartpole.core.errors import InputError
 from cartpole.core.version import __version__
-from cartpole.runs.atomic import write_bytes_atomic
+from cartpole.runs.atomic import write_atomic
 
 if TYPE_CHECKING:
     import torch
@@ -76,9 +76,38 @@ def save_checkpoint(path: Path, checkpoint: Checkpoint) -> None:
         "meta": json.dumps(meta, allow_nan=False),
         "tensors": {k: v.detach().cpu().contiguous() for k, v in checkpoint.tensors.items()},
     }
-    buffer = io.BytesIO()  # serialized in memory first: torch.save reports a full disk as a RuntimeError
-    torch.save(payload, buffer)
-    write_bytes_atomic(path, buffer.getbuffer(), durable=True)
+    write_atomic(path, lambda handle: _save_into(handle, payload, torch.save), durable=True)
+
+
+class _KeepWriteErrors:
+    """A file's ``write`` for torch.save, keeping the OSError it raised (a full disk): torch's zip writer
+    may report it as a RuntimeError that names no errno."""
+
+    def __init__(self, handle: IO[bytes]):
+        self.handle = handle
+        self.errors: list[OSError] = []
+
+    def write(self, data: bytes) -> int:
+        try:
+            return self.handle.write(data)
+        except OSError as err:
+            self.errors.append(err)
+            raise
+
+    def flush(self) -> None:
+        self.handle.flush()
+
+
+def _save_into(handle: IO[bytes], payload: dict[str, Any], save: Callable[..., None]) -> None:
+    """``save`` (torch.save) straight into the file, with no copy of the payload in memory (a pixel DQN's
+    replay is 600 MB); a write's OSError is raised as itself."""
+    writer = _KeepWriteErrors(handle)
+    try:
+        save(payload, writer)
+    except RuntimeError:
+        if writer.errors:
+            raise writer.errors[0] from None
+        raise
 
 
 TORCH_ZIP_RECORD = "data.pkl"
