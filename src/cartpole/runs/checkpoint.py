@@ -11,10 +11,9 @@ import json
 import pickle
 import warnings
 import zipfile
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, TYPE_CHECKING, Any
+from typing import IO, TYPE_CHECKING, Any, cast
 
 from cartpole.core.errors import InputError
 from cartpole.core.version import __version__
@@ -76,38 +75,35 @@ def save_checkpoint(path: Path, checkpoint: Checkpoint) -> None:
         "meta": json.dumps(meta, allow_nan=False),
         "tensors": {k: v.detach().cpu().contiguous() for k, v in checkpoint.tensors.items()},
     }
-    write_atomic(path, lambda handle: _save_into(handle, payload, torch.save), durable=True)
+
+    def stream(handle: IO[bytes]) -> None:  # straight into the file: no in-memory copy of a 600 MB replay
+        writer = _KeepWriteError(handle)
+        try:
+            torch.save(payload, cast(IO[bytes], writer))  # torch calls only write and flush
+        except RuntimeError:  # torch's zip writer may turn the file's OSError (a full disk) into this
+            if writer.error is not None:
+                raise writer.error from None
+            raise
+
+    write_atomic(path, stream, durable=True)
 
 
-class _KeepWriteErrors:
-    """A file's ``write`` for torch.save, keeping the OSError it raised (a full disk): torch's zip writer
-    may report it as a RuntimeError that names no errno."""
+class _KeepWriteError:
+    """A file's ``write`` for torch.save that keeps the OSError it raised, errno and all."""
 
     def __init__(self, handle: IO[bytes]):
         self.handle = handle
-        self.errors: list[OSError] = []
+        self.error: OSError | None = None
 
     def write(self, data: bytes) -> int:
         try:
             return self.handle.write(data)
         except OSError as err:
-            self.errors.append(err)
+            self.error = err
             raise
 
     def flush(self) -> None:
         self.handle.flush()
-
-
-def _save_into(handle: IO[bytes], payload: dict[str, Any], save: Callable[..., None]) -> None:
-    """``save`` (torch.save) straight into the file, with no copy of the payload in memory (a pixel DQN's
-    replay is 600 MB); a write's OSError is raised as itself."""
-    writer = _KeepWriteErrors(handle)
-    try:
-        save(payload, writer)
-    except RuntimeError:
-        if writer.errors:
-            raise writer.errors[0] from None
-        raise
 
 
 TORCH_ZIP_RECORD = "data.pkl"
