@@ -655,7 +655,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--agents", default=",".join(ALL_AGENTS), help="comma-separated agent names")
     parser.add_argument("--presets", default="default",
-                        help="comma-separated presets; each agent runs those it has")  # fmt: skip
+                        help="comma-separated presets; each agent runs those it has (a .toml preset "
+                             "file runs for every agent)")  # fmt: skip
     parser.add_argument("--seeds", type=int, default=10, help="seeds 0..N-1 per agent/preset")
     parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--env", default="CartPole-v1")
@@ -701,7 +702,7 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(result))
         return 0
 
-    from cartpole.agents.presets import preset_names
+    from cartpole.agents.presets import is_preset_file, preset_names
     from cartpole.agents.registry import get_agent
     from cartpole.training.config import resolve_config
 
@@ -710,7 +711,7 @@ def main(argv: list[str] | None = None) -> int:
     for agent in [a.strip() for a in args.agents.split(",") if a.strip()]:
         get_agent(agent)
         for preset in [p.strip() for p in args.presets.split(",") if p.strip()]:
-            if preset not in preset_names(agent):
+            if not is_preset_file(preset) and preset not in preset_names(agent):
                 continue
             tasks += [{"agent": agent, "preset": preset, "seed": s, "max_seconds": args.max_seconds_per_run,
                        "env": args.env, "budget": args.budget} for s in seeds]  # fmt: skip

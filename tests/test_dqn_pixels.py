@@ -62,12 +62,12 @@ def test_a_pixel_seed_alone_is_bit_identical_to_the_seed_in_a_population(changes
     assert torch.equal(alone.net.flat[0], among.net.flat[1])
     assert not torch.equal(among.net.flat[0], among.net.flat[1])
     # The greedy actor of evaluations acts as the seed's own policy (a frozen torch copy) does.
-    observations = alone.envs.observations()
+    observations = alone.episodes.envs.observations()
     assert observations.dtype == np.uint8 and observations.shape == (4, *SHAPE)
     policy = alone.seed_policy(4)
     assert isinstance(policy, QNetworkPolicy) and policy.torch_net is not None
     act = among.greedy_actor([9, 4])
-    both = np.concatenate([among.envs.observations()[:4], observations])
+    both = np.concatenate([among.episodes.envs.observations()[:4], observations])
     assert np.array_equal(act(both, np.array([0, 1]))[4:], policy.act(observations))
 
 
@@ -78,7 +78,7 @@ def test_a_pixel_population_trains_on_cuda_and_its_checkpoints_load_on_the_cpu()
     for _ in range(12):
         result = on_gpu.learn()[4]
     assert result.scalars["train/gradient_steps"] > 0 and math.isfinite(result.scalars["train/loss"])
-    observations = on_gpu.envs.observations()
+    observations = on_gpu.episodes.envs.observations()
     actions = on_gpu.greedy_actor([4])(observations[:4], np.array([0]))
     assert actions.shape == (4,) and set(actions.tolist()) <= {0, 1}
     tensors, data = through_a_checkpoint_file(*on_gpu.seed_state_dict(4, resume=True))
@@ -148,10 +148,10 @@ def test_the_replay_keeps_pixels_as_uint8_and_the_memory_estimate_counts_them():
     assert measured <= estimated <= 1.01 * measured
     big, replay = pops[1], pops[1].replay
     # It holds the frame stacks the envs showed, unchanged: obs, and next obs.
-    shown = big.envs.observations().copy()
+    shown = big.episodes.envs.observations().copy()
     big.learn()
     assert np.array_equal(replay.images[0, 0, :4].numpy(), shown)
-    assert np.array_equal(replay.images[1, 0, :4].numpy(), big.envs.observations())
+    assert np.array_equal(replay.images[1, 0, :4].numpy(), big.episodes.envs.observations())
 
 
 def test_conv_layers_make_the_network():

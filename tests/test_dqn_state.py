@@ -80,7 +80,7 @@ def test_a_resume_checkpoint_holds_plain_data_and_tensors_only() -> None:
                 learner.learn()
             tensors, data = learner.state_dict(resume=True)
             assert all(isinstance(t, torch.Tensor) for t in tensors.values())
-            assert data["env_state"] is not None, (env_id, simulator)
+            assert data["collector"]["env_state"] is not None, (env_id, simulator)
             assert json.loads(json.dumps(data)) == data
 
 
@@ -122,7 +122,7 @@ def test_resume_mid_episode_continues_the_episodes_in_progress(
     first = one_seed(DQN, config, env, 2, "cpu")
     before, before_steps = episodes_of(first, stop_at)
     tensors, data = first.state_dict(resume=True)
-    assert any(length > 0 for length in data["episode_lengths"]), "the stop must fall mid-episode"
+    assert any(length > 0 for length in data["collector"]["episode_lengths"]), "the stop must fall mid-episode"
     path = tmp_path / "latest.pt"
     save_checkpoint(path, Checkpoint(tensors=tensors, meta={"learner": data}))
     saved = load_checkpoint(path)

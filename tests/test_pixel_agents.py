@@ -115,7 +115,7 @@ def test_a_pixel_seed_alone_is_bit_identical_to_the_seed_in_a_population(agent):
         assert left.env_steps == right.env_steps and left.scalars == right.scalars
     assert torch.equal(alone.model.flat[0], among.model.flat[1])
     assert not torch.equal(among.model.flat[0], among.model.flat[1])
-    observations = alone.envs.observations()
+    observations = alone.episodes.envs.observations()
     assert observations.dtype == np.uint8 and observations.shape == (4, *SHAPE)
     # The stacked greedy actor acts as the seed's own policy does.
     act = among.greedy_actor([4])
@@ -130,7 +130,7 @@ def test_a_pixel_population_trains_on_cuda_and_its_checkpoints_load_on_the_cpu(a
     assert on_gpu.model.flat.device.type == "cuda"
     for _ in range(3):
         assert on_gpu.learn()[4].env_steps > 0
-    observations = on_gpu.envs.observations()
+    observations = on_gpu.episodes.envs.observations()
     actions = on_gpu.greedy_actor([4])(observations[:4], np.array([0]))
     tensors, data = on_gpu.seed_state_dict(4, resume=True)
     assert all(t.device.type == "cpu" for t in tensors.values())

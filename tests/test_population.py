@@ -200,8 +200,8 @@ def test_seeds_start_from_their_own_network_and_envs():
     for name, value in seeded_actor_critic(config, CARTPOLE, 9).state_dict().items():
         assert torch.equal(tensors[f"model.{name}"], value), name
     alone = PopulationPPO(config, CARTPOLE, [9])
-    assert (population.observations[config.num_envs :] == alone.observations).all()
-    assert not (population.observations[: config.num_envs] == alone.observations).all()
+    assert (population.episodes.observations[config.num_envs :] == alone.episodes.observations).all()
+    assert not (population.episodes.observations[: config.num_envs] == alone.episodes.observations).all()
 
 
 SETTINGS = {
@@ -257,8 +257,8 @@ def test_reinforce_batches_start_where_the_seed_alone_starts_them():
     for _ in range(3):
         population.restart()
         alone.restart()
-        assert (population.observations[envs] == alone.observations).all()
-        starts.append(alone.observations.copy())
+        assert (population.episodes.observations[envs] == alone.episodes.observations).all()
+        starts.append(alone.episodes.observations.copy())
     assert not (starts[0] == starts[1]).all()  # each batch starts fresh episodes
 
 

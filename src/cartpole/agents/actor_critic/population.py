@@ -66,17 +66,17 @@ from cartpole.agents.actor_critic.ppo import PPOConfig
 from cartpole.agents.actor_critic.reinforce import ReinforceConfig
 from cartpole.agents.learner import LearnResult
 from cartpole.agents.nn.fast_tanh import tanh
+from cartpole.agents.nn.flat_parameters import FlatParameters
 from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step
 from cartpole.agents.nn.population_optimizers import PopulationAdam, PopulationOptimizer, PopulationRMSprop
 from cartpole.agents.nn.stacked_conv import channels_last, stacked_conv2d
 from cartpole.agents.nn.stacked_linear import stacked_linear
 from cartpole.agents.nn.standardize import StandardizeObservations
-from cartpole.agents.population import SeedRows
+from cartpole.agents.population import Finished, SeedEpisodes, SeedRows, require_training_state
 from cartpole.agents.registry import AgentSpec
-from cartpole.core.errors import ConfigError
 from cartpole.core.seeding import derived_seed
 from cartpole.envs import EnvInfo
-from cartpole.envs.seed_envs import LONGEST_EPISODE_WITHOUT_TIME_LIMIT, make_seed_envs
+from cartpole.envs.seed_envs import LONGEST_EPISODE_WITHOUT_TIME_LIMIT
 from cartpole.evaluation import BlockActor
 
 TORCH_ACTIVATIONS: dict[type[nn.Module], Callable[[torch.Tensor], torch.Tensor]] = {
@@ -135,43 +135,19 @@ SHAPE_STEPS: dict[type[nn.Module], Callable[[torch.Tensor], torch.Tensor]] = {
 :meth:`StackedActorCritic.run`)."""
 
 
-class StackedActorCritic:
-    """The actor-critics of S seeds: all parameters in one ``[S, P]`` tensor (``flat``), each
-    parameter a ``[S, *shape]`` view of it, each linear layer one ``torch.baddbmm`` for all seeds.
+class StackedActorCritic(FlatParameters):
+    """The actor-critics of S seeds (:class:`~cartpole.agents.nn.flat_parameters.FlatParameters`),
+    each linear layer one ``torch.baddbmm`` for all seeds."""
 
-    The gradients likewise live in one ``[S, P]`` tensor (``grad``; autograd accumulates into the
-    views in place), so clipping and Adam are a handful of operations for the whole population.
-    """
+    template: ActorCritic
 
     def __init__(self, models: list[ActorCritic], device: torch.device):
-        template = models[0]
-        self.template = template
-        self.names = [name for name, _ in template.named_parameters()]
-        self.shapes = {name: tuple(p.shape) for name, p in template.named_parameters()}
-        self.offsets: dict[str, tuple[int, int]] = {}
-        offset = 0
-        for name, shape in self.shapes.items():
-            self.offsets[name] = (offset, offset + math.prod(shape))
-            offset += math.prod(shape)
-        self.size = offset
+        super().__init__(list(models), device)
         self.scaled: tuple[torch.Tensor, torch.Tensor] | None = None
         """The last pixels :meth:`scale_once` scaled, and their scaled values."""
-        with torch.no_grad():
-            self.flat = torch.stack([torch.cat([p.reshape(-1) for p in m.parameters()]) for m in models])
-            self.flat = self.flat.to(device)
-        self.bind()
-        critic_trunk = "actor_trunk" if template.shared_trunk else "critic_trunk"
-        self.actor_plan = forward_plan(template, "actor_trunk", "policy_head")
-        self.critic_plan = forward_plan(template, critic_trunk, "value_head")
-
-    def bind(self) -> None:
-        """Make the per-parameter leaves (views of ``flat``) and their gradients (views of ``grad``)."""
-        self.grad = torch.zeros_like(self.flat)
-        self.params: dict[str, torch.Tensor] = {}
-        for name, (start, end) in self.offsets.items():
-            leaf = self.flat[:, start:end].view(-1, *self.shapes[name]).requires_grad_(True)
-            leaf.grad = self.grad[:, start:end].view(-1, *self.shapes[name])
-            self.params[name] = leaf
+        critic_trunk = "actor_trunk" if self.template.shared_trunk else "critic_trunk"
+        self.actor_plan = forward_plan(self.template, "actor_trunk", "policy_head")
+        self.critic_plan = forward_plan(self.template, critic_trunk, "value_head")
 
     @staticmethod
     def run(
@@ -261,39 +237,12 @@ class StackedActorCritic:
         return logits
 
     def torch_block_actor(self, rows: list[int]) -> BlockActor:
-        """The greedy actions of the actors of ``rows`` as one :data:`BlockActor` (block b: row
-        ``rows[b]``'s episodes), through torch: for convolutional actors."""
-        chosen = torch.tensor(rows, dtype=torch.int64, device=self.flat.device)
-        frozen = {name: p.detach()[chosen] for name, p in self.params.items()}
-        shape = self.template.obs_shape
+        """The greedy actions of the actors of ``rows`` as one :data:`BlockActor`, through torch: for
+        convolutional actors."""
+        return self.block_actor(rows, self.template.obs_shape, lambda p, x: self.run(self.actor_plan, p, x))
 
-        @torch.no_grad()
-        def act(observations: np.ndarray, blocks: np.ndarray) -> np.ndarray:
-            index = torch.as_tensor(np.asarray(blocks, dtype=np.int64), device=self.flat.device)
-            params = frozen if len(blocks) == len(rows) else {k: v[index] for k, v in frozen.items()}
-            x = torch.as_tensor(np.asarray(observations)).to(self.flat.device)
-            x = x.reshape(len(blocks), -1, *shape)
-            return self.run(self.actor_plan, params, x).argmax(dim=-1).reshape(-1).cpu().numpy()
-
-        return act
-
-    def unstack(self, index: int) -> ActorCritic:
-        """Seed ``index``'s network as an ordinary :class:`ActorCritic` (the template, overwritten)."""
-        with torch.no_grad():
-            for name, p in self.template.named_parameters():
-                start, end = self.offsets[name]
-                p.copy_(self.flat[index, start:end].view_as(p))
-        return self.template
-
-    def load_row(self, index: int, model: ActorCritic) -> None:
-        """Put ``model``'s parameters into seed ``index``'s row."""
-        with torch.no_grad():
-            self.flat[index] = torch.cat([p.reshape(-1) for p in model.parameters()]).to(self.flat.device)
-
-    def keep(self, rows: torch.Tensor) -> None:
-        """Keep only the seeds at ``rows``."""
-        self.flat = self.flat[rows.to(self.flat.device)]
-        self.bind()
+    def unstack(self, row: int, flat: torch.Tensor | None = None) -> ActorCritic:
+        return super().unstack(row, flat)  # type: ignore[return-value]  # the template is one
 
 
 def sample_actions(logits: np.ndarray, uniforms: np.ndarray) -> np.ndarray:
@@ -422,12 +371,7 @@ class PopulationActorCritic(SeedRows):
         self.model = StackedActorCritic(models, self.device)
         self.optimizer = make_optimizer(len(self.seeds), self.model.size, self.device)
         self.generators = [torch.Generator().manual_seed(derived_seed(s, "actions")) for s in self.seeds]
-        self.envs = make_seed_envs(env, config.simulator, self.seeds, config.num_envs)
-        n = len(self.seeds) * config.num_envs
-        self.observations = self.envs.observations()
-        self.autoreset = np.zeros(n, dtype=bool)
-        self.episode_returns = np.zeros(n, dtype=np.float64)
-        self.episode_lengths = np.zeros(n, dtype=np.int64)
+        self.episodes = SeedEpisodes(env, config.simulator, self.seeds, config.num_envs)
         self.env_steps = np.zeros(len(self.seeds), dtype=np.int64)
         self.updates = np.zeros(len(self.seeds), dtype=np.int64)
 
@@ -439,12 +383,8 @@ class PopulationActorCritic(SeedRows):
         rows = torch.from_numpy(rows_np).to(self.device)
         self.model.keep(rows)
         self.optimizer.keep(rows)
-        self.envs.keep(rows_np)
+        self.episodes.keep(rows_np, envs)
         self.generators = [self.generators[i] for i in rows_np]
-        self.observations = self.observations[envs]
-        self.autoreset = self.autoreset[envs]
-        self.episode_returns = self.episode_returns[envs]
-        self.episode_lengths = self.episode_lengths[envs]
         self.env_steps, self.updates = self.env_steps[rows_np], self.updates[rows_np]
 
     # -- one learning step: the shared parts --------------------------------------------------------
@@ -461,9 +401,7 @@ class PopulationActorCritic(SeedRows):
             for s in self.env_steps
         ]
 
-    def count_steps(
-        self, counts: list[int], finished: list[tuple[list[float], list[int]]]
-    ) -> dict[int, LearnResult]:
+    def count_steps(self, counts: list[int], finished: Finished) -> dict[int, LearnResult]:
         """Add each seed's new transitions (``counts``) to its env steps; its result (steps and
         finished episodes)."""
         results = {}
@@ -499,7 +437,7 @@ class PopulationActorCritic(SeedRows):
         residual = masked_variance(rollout.returns - rollout.values, valid, rollout.counts)
         return torch.where(variance > 0, 1.0 - residual / variance, torch.full_like(variance, math.nan))
 
-    def collect(self, log_probs: bool = True) -> tuple[Rollout, list[tuple[list[float], list[int]]]]:
+    def collect(self, log_probs: bool = True) -> tuple[Rollout, Finished]:
         """``n_steps`` batched steps of all S x N envs; the rollout with GAE advantages (and, with
         ``log_probs``, the actions' log-probabilities), and each seed's finished episodes."""
         transitions, finished = self.play(self.config.n_steps, log_probs=log_probs)  # type: ignore[union-attr]
@@ -508,7 +446,7 @@ class PopulationActorCritic(SeedRows):
     @torch.no_grad()
     def play(
         self, steps: int, whole_episodes: bool = False, log_probs: bool = True
-    ) -> tuple[Transitions, list[tuple[list[float], list[int]]]]:
+    ) -> tuple[Transitions, Finished]:
         """Up to ``steps`` batched steps of all S x N envs; what they did, and each seed's finished
         episodes (returns, lengths). With ``whole_episodes`` (REINFORCE) each env plays one
         episode: its rows after it ended are invalid, and play stops once every env has ended one.
@@ -519,7 +457,8 @@ class PopulationActorCritic(SeedRows):
         seeds, envs = len(self.seeds), config.num_envs
         obs_shape = self.env_info.obs_shape
         actor = self.model.rollout_actor()
-        observations = np.zeros((steps + 1, seeds * envs, *obs_shape), dtype=self.observations.dtype)
+        episodes = self.episodes
+        observations = np.zeros((steps + 1, seeds * envs, *obs_shape), dtype=episodes.observations.dtype)
         actions = np.zeros((steps, seeds * envs), dtype=np.int64)
         rewards = np.zeros((steps, seeds * envs), dtype=np.float32)
         terminated = np.zeros((steps, seeds * envs), dtype=np.float32)
@@ -530,36 +469,25 @@ class PopulationActorCritic(SeedRows):
         uniforms = np.stack(
             [torch.rand(steps, envs, generator=g, device="cpu").numpy() for g in self.generators], axis=1
         )
-        finished: list[tuple[list[float], list[int]]] = [([], []) for _ in range(seeds)]
+        finished: Finished = [([], []) for _ in range(seeds)]
         used = steps
         for t in range(steps):
-            observations[t] = self.observations
-            logits = actor(self.observations.reshape(seeds, envs, *obs_shape))
+            observations[t] = episodes.observations
+            logits = actor(episodes.observations.reshape(seeds, envs, *obs_shape))
             actions[t] = sample_actions(logits, uniforms[t]).reshape(-1)
-            next_obs, step_rewards, step_terminated, step_truncated = self.envs.step(actions[t])
-            step_valid = ~(self.autoreset | ended_once)
-            ended = (step_terminated | step_truncated) & step_valid
+            step = episodes.step(actions[t], finished, ended_once if whole_episodes else None)
             rewards[t], terminated[t], truncated[t], valid[t] = (
-                step_rewards,
-                step_terminated,
-                step_truncated,
-                step_valid,
+                step.rewards,
+                step.terminated,
+                step.truncated,
+                step.valid,
             )
-            self.episode_returns += np.where(step_valid, step_rewards, 0.0)
-            self.episode_lengths += step_valid
-            for i in np.flatnonzero(ended):
-                finished[i // envs][0].append(float(self.episode_returns[i]))
-                finished[i // envs][1].append(int(self.episode_lengths[i]))
-            self.episode_returns[ended] = 0.0
-            self.episode_lengths[ended] = 0
-            self.autoreset = step_terminated | step_truncated
-            self.observations = next_obs
             if whole_episodes:
-                ended_once |= ended
+                ended_once |= step.ended
                 if ended_once.all():
                     used = t + 1
                     break
-        observations[used] = self.observations
+        observations[used] = episodes.observations
 
         def tensor(x: np.ndarray) -> torch.Tensor:
             return torch.from_numpy(x).to(self.device)
@@ -677,21 +605,13 @@ class PopulationActorCritic(SeedRows):
         }
         if not resume:
             return tensors, data
-        envs = slice(row * self.config.num_envs, (row + 1) * self.config.num_envs)
         optim_tensors, optim_data = self.optimizer.row_state(row)
-        tensors |= optim_tensors | {
-            "rng.torch": self.generators[row].get_state(),
-            "collector.observations": torch.from_numpy(self.observations[envs].copy()),
-        }
+        env_tensors, env_data = self.episodes.seed_state(row)
+        tensors |= optim_tensors | env_tensors | {"rng.torch": self.generators[row].get_state()}
         data |= {
             "population": True,
             **optim_data,
-            "collector": {
-                "autoreset": self.autoreset[envs].tolist(),
-                "episode_returns": self.episode_returns[envs].tolist(),
-                "episode_lengths": self.episode_lengths[envs].tolist(),
-                "env_state": self.envs.seed_state(row),
-            },
+            **env_data,
             "env_steps": int(self.env_steps[row]),
             "updates": int(self.updates[row]),
         }
@@ -699,27 +619,16 @@ class PopulationActorCritic(SeedRows):
 
     def load_seed_state_dict(self, seed: int, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None:
         """Restore what ``seed_state_dict(seed, resume=True)`` gave."""
-        if not data.get("population"):
-            raise ConfigError(
-                "holds no training state to continue from (a policy-only checkpoint, or a run an "
-                "earlier version trained with a seed's own learner); to train it again from step 0, add "
-                "--from-scratch"
-            )
+        require_training_state(data)
         row = self.row(seed)
         model = self.model.template
         model.load_state_dict(
             {k.removeprefix("model."): v for k, v in tensors.items() if k.startswith("model.")}
         )
-        self.model.load_row(row, model)
+        self.model.load_row(row, dict(model.named_parameters()))
         self.optimizer.load_row_state(row, tensors, data)
         self.generators[row].set_state(tensors["rng.torch"])
-        envs = slice(row * self.config.num_envs, (row + 1) * self.config.num_envs)
-        collector = data["collector"]
-        self.observations[envs] = tensors["collector.observations"].numpy()
-        self.autoreset[envs] = collector["autoreset"]
-        self.episode_returns[envs] = collector["episode_returns"]
-        self.episode_lengths[envs] = collector["episode_lengths"]
-        self.envs.load_seed_state(row, collector["env_state"])
+        self.episodes.load_seed_state(row, tensors, data)
         self.env_steps[row], self.updates[row] = int(data["env_steps"]), int(data["updates"])
 
 
@@ -934,12 +843,7 @@ class PopulationReinforce(PopulationActorCritic):
 
     def restart(self) -> None:
         """Fresh episodes in every env, from each seed's own episode generator."""
-        for row, rng in enumerate(self.episode_rngs):
-            self.envs.restart(row, int(rng.integers(2**32)))
-        self.observations = self.envs.observations()
-        self.autoreset[:] = False
-        self.episode_returns[:] = 0.0
-        self.episode_lengths[:] = 0
+        self.episodes.restart([int(rng.integers(2**32)) for rng in self.episode_rngs])
 
     def seed_state_dict(self, seed: int, resume: bool) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
         tensors, data = super().seed_state_dict(seed, resume)
@@ -1078,60 +982,50 @@ def reinforce_bytes_per_seed(config: ReinforceConfig, env: EnvInfo) -> int:
     return actor_critic_bytes_per_seed(config, env, longest, longest * config.num_envs)
 
 
-def ppo_population(config: PPOConfig, env: EnvInfo, seeds: list[int], device: str) -> PopulationPPO:
-    return PopulationPPO(config, env, seeds, device)
-
-
-def a2c_population(config: A2CConfig, env: EnvInfo, seeds: list[int], device: str) -> PopulationA2C:
-    return PopulationA2C(config, env, seeds, device)
-
-
-def reinforce_population(
-    config: ReinforceConfig, env: EnvInfo, seeds: list[int], device: str
-) -> PopulationReinforce:
-    return PopulationReinforce(config, env, seeds, device)
+def actor_critic_spec(
+    name: str,
+    summary: str,
+    config_cls: type[PPOConfig | A2CConfig | ReinforceConfig],
+    bytes_per_seed: Callable[[Any, EnvInfo], int],
+    make_population: Callable[[Any, EnvInfo, list[int], str], PopulationActorCritic],
+) -> AgentSpec:
+    """An actor-critic agent: its checkpoints hold an :class:`ActorCritic`, its scores are action
+    probabilities, and it learns from pixels too."""
+    return AgentSpec(
+        name=name,
+        summary=summary,
+        config_cls=config_cls,
+        policy_from_checkpoint=policy_loader(name, config_cls),
+        bytes_per_seed=bytes_per_seed,
+        make_population=make_population,
+        iteration="update",
+        score_label="action probabilities",
+        stacked_actor=stacked_greedy_actor,
+        image_observations=True,
+    )
 
 
 AGENTS = [
-    AgentSpec(
-        name="ppo",
-        summary=(
-            "Proximal Policy Optimization (PyTorch): clipped surrogate, GAE, minibatch epochs, vector envs"
-        ),
-        config_cls=PPOConfig,
-        policy_from_checkpoint=policy_loader("ppo", PPOConfig),
-        bytes_per_seed=ppo_bytes_per_seed,
-        make_population=ppo_population,
-        iteration="update",
-        score_label="action probabilities",
-        stacked_actor=stacked_greedy_actor,
-        image_observations=True,
+    actor_critic_spec(
+        "ppo",
+        "Proximal Policy Optimization (PyTorch): clipped surrogate, GAE, minibatch epochs, vector envs",
+        PPOConfig,
+        ppo_bytes_per_seed,
+        PopulationPPO,
     ),
-    AgentSpec(
-        name="a2c",
-        summary="Advantage Actor-Critic (PyTorch): n-step rollouts from vector envs, GAE, RMSprop or Adam",
-        config_cls=A2CConfig,
-        policy_from_checkpoint=policy_loader("a2c", A2CConfig),
-        bytes_per_seed=a2c_bytes_per_seed,
-        make_population=a2c_population,
-        iteration="update",
-        score_label="action probabilities",
-        stacked_actor=stacked_greedy_actor,
-        image_observations=True,
+    actor_critic_spec(
+        "a2c",
+        "Advantage Actor-Critic (PyTorch): n-step rollouts from vector envs, GAE, RMSprop or Adam",
+        A2CConfig,
+        a2c_bytes_per_seed,
+        PopulationA2C,
     ),
-    AgentSpec(
-        name="reinforce",
-        summary=(
-            "REINFORCE (PyTorch): Monte-Carlo policy gradient on whole episodes, optional learned baseline"
-        ),
-        config_cls=ReinforceConfig,
-        policy_from_checkpoint=policy_loader("reinforce", ReinforceConfig),
-        bytes_per_seed=reinforce_bytes_per_seed,
-        make_population=reinforce_population,
-        iteration="update",
-        score_label="action probabilities",
-        stacked_actor=stacked_greedy_actor,
-        image_observations=True,
+    actor_critic_spec(
+        "reinforce",
+        "REINFORCE (PyTorch): Monte-Carlo policy gradient on whole episodes, optional learned baseline",
+        ReinforceConfig,
+        reinforce_bytes_per_seed,
+        PopulationReinforce,
     ),
 ]
 """The actor-critic agents: their settings (ppo.py, a2c.py, reinforce.py) and their learners, batched

@@ -85,16 +85,16 @@ from cartpole.agents.nn.conv import (
     scale_pixels,
 )
 from cartpole.agents.nn.fast_tanh import tanh
+from cartpole.agents.nn.flat_parameters import FlatParameters
 from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step, run_steps
 from cartpole.agents.nn.population_optimizers import PopulationAdam, PopulationOptimizer, PopulationRMSprop
 from cartpole.agents.nn.stacked_conv import channels_last, stacked_conv2d
 from cartpole.agents.nn.stacked_linear import input_gradient, stacked_linear, weight_gradient
-from cartpole.agents.population import SeedRows
+from cartpole.agents.population import Finished, SeedEpisodes, SeedRows, require_training_state
 from cartpole.agents.registry import AgentSpec
 from cartpole.core.errors import ConfigError
 from cartpole.core.seeding import derived_seed
 from cartpole.envs import EnvInfo
-from cartpole.envs.seed_envs import make_seed_envs
 from cartpole.evaluation import BlockActor
 
 ALIGN = 32
@@ -137,30 +137,20 @@ def seeded_q_network(config: DQNConfig, env: EnvInfo, seed: int) -> QNetwork:
 # ----------------------------------------------------------------------------------------------
 
 
-class StackedQNetwork:
-    """The online and target Q-networks of S seeds: parameters in flat ``[S, P]`` tensors (``flat``,
-    ``target``; P padded to a multiple of :data:`ALIGN`), each parameter a ``[S, *shape]`` view,
-    gradients in ``grad`` (autograd accumulates into the views in place)."""
+class StackedQNetwork(FlatParameters):
+    """The online and target Q-networks of S seeds: the online parameters as
+    :class:`~cartpole.agents.nn.flat_parameters.FlatParameters` (rows padded to a multiple of
+    :data:`ALIGN`), the targets in ``target``, laid out alike."""
+
+    template: QNetwork
 
     def __init__(self, models: list[QNetwork], target_network: bool, device: torch.device):
-        template = models[0]
-        self.template = template
-        """A CPU QNetwork that :meth:`unstack` overwrites with one seed's weights."""
-        self.shapes = {name: tuple(p.shape) for name, p in template.named_parameters()}
-        self.offsets: dict[str, tuple[int, int]] = {}
-        offset = 0
-        for name, shape in self.shapes.items():
-            self.offsets[name] = (offset, offset + math.prod(shape))
-            offset += math.prod(shape)
-        self.size = offset
-        """Parameters of one network (the row's padding excluded)."""
-        row_size = padded(offset)
-        with torch.no_grad():
-            rows = [torch.cat([p.reshape(-1) for p in m.parameters()]) for m in models]
-            flat = torch.zeros(len(models), row_size, device="cpu")
-            flat[:, :offset] = torch.stack(rows)
-        self.flat = flat.to(device)
-        self.target = self.flat.clone() if target_network else None
+        self.target: torch.Tensor | None = None  # bound by bind(), which the base's __init__ calls
+        super().__init__(list(models), device, align=ALIGN)
+        template = self.template
+        if target_network:
+            self.target = self.flat.clone()
+            self.bind()
         self.hidden: list[tuple[str, str]] = []
         """(weight, bias) of each hidden layer, in order; an activation (and dropout) follows each."""
         for index, layer in enumerate(template.body):
@@ -181,24 +171,10 @@ class StackedQNetwork:
         self.plain_relu = activations == {torch.nn.ReLU} and not self.dueling and not self.convs
         """Whether this is a plain ReLU MLP (no dropout, no dueling head, no convolutions), whose
         gradients :meth:`backward_by_hand` computes."""
-        self.bind()
 
     def bind(self) -> None:
-        """Make the parameter leaves (views of ``flat``), their gradients (views of ``grad``) and the
-        target's views."""
-        self.grad = torch.zeros_like(self.flat)
-        self.params = self.views(self.flat)
-        for name, leaf in self.params.items():
-            leaf.requires_grad_(True)
-            start, end = self.offsets[name]
-            leaf.grad = self.grad[:, start:end].view(-1, *self.shapes[name])
+        super().bind()
         self.target_params = self.views(self.target) if self.target is not None else self.params
-
-    def views(self, flat: torch.Tensor) -> dict[str, torch.Tensor]:
-        return {
-            name: flat[:, start:end].view(-1, *self.shapes[name])
-            for name, (start, end) in self.offsets.items()
-        }
 
     def forward(
         self,
@@ -261,26 +237,12 @@ class StackedQNetwork:
                 grad = torch.where(x > 0.0, input_gradient(grad, weight.detach()), 0.0)
 
     def unstack(self, row: int, flat: torch.Tensor | None = None) -> QNetwork:
-        """Row ``row`` of ``flat`` (the online networks by default) as the template QNetwork."""
-        source = self.flat if flat is None else flat
-        with torch.no_grad():
-            for name, p in self.template.named_parameters():
-                start, end = self.offsets[name]
-                p.copy_(source[row, start:end].view_as(p))
-        return self.template
-
-    def load_row(self, row: int, flat: torch.Tensor, tensors: dict[str, torch.Tensor]) -> None:
-        """Put the parameters ``tensors`` (by QNetwork name) into row ``row`` of ``flat``."""
-        with torch.no_grad():
-            for name, (start, end) in self.offsets.items():
-                flat[row, start:end] = tensors[name].reshape(-1).to(flat.device)
+        return super().unstack(row, flat)  # type: ignore[return-value]  # the template is one
 
     def keep(self, rows: torch.Tensor) -> None:
-        """Keep only the seeds at ``rows``."""
-        self.flat = self.flat[rows]
         if self.target is not None:
             self.target = self.target[rows]
-        self.bind()
+        super().keep(rows)
 
     @torch.no_grad()
     def update_target(self, rows: np.ndarray, tau: float) -> None:
@@ -501,13 +463,7 @@ class PopulationDQN(SeedRows):
         self.explore_rngs = [np.random.default_rng(derived_seed(s, "explore")) for s in self.seeds]
         self.replay_generators = [self.cpu_generator(derived_seed(s, "replay")) for s in self.seeds]
         self.dropout_generators = [self.cpu_generator(derived_seed(s, "dropout")) for s in self.seeds]
-        self.envs = make_seed_envs(env, config.simulator, self.seeds, config.num_envs)
-        n = len(self.seeds) * config.num_envs
-        self.observations = self.envs.observations()
-        self.autoreset = np.zeros(n, dtype=bool)
-        """Envs whose last step ended an episode: their next step is a reset, not a transition."""
-        self.episode_returns = np.zeros(n, dtype=np.float64)
-        self.episode_lengths = np.zeros(n, dtype=np.int64)
+        self.episodes = SeedEpisodes(env, config.simulator, self.seeds, config.num_envs)
         rows = len(self.seeds)
         self.env_steps = np.zeros(rows, dtype=np.int64)
         self.calls = np.zeros(rows, dtype=np.int64)
@@ -536,14 +492,10 @@ class PopulationDQN(SeedRows):
         self.net.keep(rows)
         self.optimizer.keep(rows)
         self.replay.keep(rows_np)
-        self.envs.keep(rows_np)
+        self.episodes.keep(rows_np, envs)
         self.explore_rngs = [self.explore_rngs[i] for i in rows_np]
         self.replay_generators = [self.replay_generators[i] for i in rows_np]
         self.dropout_generators = [self.dropout_generators[i] for i in rows_np]
-        self.observations = self.observations[envs]
-        self.autoreset = self.autoreset[envs]
-        self.episode_returns = self.episode_returns[envs]
-        self.episode_lengths = self.episode_lengths[envs]
         for name in (
             "env_steps",
             "calls",
@@ -567,24 +519,16 @@ class PopulationDQN(SeedRows):
             epsilon_at(config, int(steps), float(multiplied))
             for steps, multiplied in zip(self.env_steps, self.epsilon_multiplied, strict=True)
         ]
-        observations = self.observations
         actions = self.select_actions(epsilons)
-        next_observations, rewards, terminated, truncated = self.envs.step(actions)
-
-        # Gymnasium's next-step autoreset: an env that ended an episode at the last call has just been
-        # reset (its action was ignored). That row is not a transition; drop it.
-        valid = ~self.autoreset
-        self.episode_returns += np.where(valid, rewards, 0.0)
-        self.episode_lengths += valid
-        done = (terminated | truncated) & valid
-        stored_rewards = self.shape_rewards(rewards, terminated & valid, done)
-        fields = [observations, actions, stored_rewards, next_observations, terminated.astype(np.float32)]
+        finished: Finished = [([], []) for _ in self.seeds]
+        step = self.episodes.step(actions, finished)  # an autoreset step is no transition: dropped
+        valid, terminated = step.valid, step.terminated
+        stored_rewards = shaped_rewards(config, step.rewards, terminated & valid, step.ended, step.lengths)
+        terminal = terminated.astype(np.float32)
+        fields = [step.observations, actions, stored_rewards, step.next_observations, terminal]
         self.replay.add(valid.reshape(seeds, n), fields)
         collected = valid.reshape(seeds, n).sum(axis=1)
         self.env_steps += collected
-        finished = self.finish_episodes(done)
-        self.autoreset = done
-        self.observations = next_observations
 
         self.calls += 1
         training = (self.calls % config.train_freq == 0) & (self.env_steps >= config.learning_starts)
@@ -612,7 +556,7 @@ class PopulationDQN(SeedRows):
         seeds, n, obs_shape = len(self.seeds), self.config.num_envs, self.env_info.obs_shape
         dtype = torch.uint8 if self.env_info.is_image else torch.float32  # pixels stay uint8
         x = torch.zeros(seeds, self.acting_rows, *obs_shape, dtype=dtype, device="cpu")
-        x[:, :n] = torch.from_numpy(self.observations).view(seeds, n, *obs_shape)
+        x[:, :n] = torch.from_numpy(self.episodes.observations).view(seeds, n, *obs_shape)
         q = self.net.forward(self.net.params, to_device(x, self.device), self.activation)
         return q[:, :n].argmax(dim=2)
 
@@ -622,7 +566,7 @@ class PopulationDQN(SeedRows):
         image network through torch."""
         if self.device.type == "cpu" and not self.env_info.is_image:
             n, obs_dim = self.config.num_envs, self.env_info.obs_dim
-            return self.numpy_q_values(self.observations.reshape(-1, n, obs_dim)).argmax(axis=2)
+            return self.numpy_q_values(self.episodes.observations.reshape(-1, n, obs_dim)).argmax(axis=2)
         return self.greedy_q_argmax().cpu().numpy()
 
     def numpy_q_values(self, x: np.ndarray) -> np.ndarray:
@@ -656,20 +600,6 @@ class PopulationDQN(SeedRows):
             body += [linear(weight.removesuffix(".weight")), activation]
         value: list[Step] | None = [linear("value")] if self.net.dueling else None
         return body, [linear("head")], value
-
-    def shape_rewards(self, rewards: np.ndarray, terminated: np.ndarray, done: np.ndarray) -> np.ndarray:
-        return shaped_rewards(self.config, rewards, terminated, done, self.episode_lengths)
-
-    def finish_episodes(self, done: np.ndarray) -> list[tuple[list[float], list[int]]]:
-        """Each seed's episodes that ended (raw env returns and lengths); their counters restart."""
-        n = self.config.num_envs
-        finished: list[tuple[list[float], list[int]]] = [([], []) for _ in self.seeds]
-        for i in np.flatnonzero(done):
-            finished[i // n][0].append(float(self.episode_returns[i]))
-            finished[i // n][1].append(int(self.episode_lengths[i]))
-        self.episode_returns[done] = 0.0
-        self.episode_lengths[done] = 0
-        return finished
 
     def read_back(self, metrics: torch.Tensor | None, training: np.ndarray) -> None:
         """This call's metrics ([S, 2]: loss, Q mean) and, off the CPU, the next call's greedy
@@ -898,21 +828,11 @@ class PopulationDQN(SeedRows):
         return block_greedy_q_actor(body, head, value, self.env_info.obs_dim)
 
     def torch_block_actor(self, rows: list[int]) -> BlockActor:
-        """The greedy actions of the online networks of ``rows`` as one :data:`BlockActor` (block b:
-        row ``rows[b]``'s episodes), through torch on a frozen copy of their weights: for image
-        networks (no NumPy twin)."""
-        device, shape = self.device, self.env_info.obs_shape
-        chosen = torch.tensor(rows, dtype=torch.int64, device=device)
-        frozen = {name: p.detach()[chosen] for name, p in self.net.params.items()}
-
-        @torch.no_grad()
-        def act(observations: np.ndarray, blocks: np.ndarray) -> np.ndarray:
-            index = torch.as_tensor(np.asarray(blocks, dtype=np.int64), device=device)
-            params = frozen if len(blocks) == len(rows) else {k: v[index] for k, v in frozen.items()}
-            x = torch.as_tensor(np.asarray(observations)).to(device).reshape(len(blocks), -1, *shape)
-            return self.net.forward(params, x, self.activation).argmax(dim=-1).reshape(-1).cpu().numpy()
-
-        return act
+        """The greedy actions of the online networks of ``rows`` as one :data:`BlockActor`, through
+        torch: for image networks (no NumPy twin)."""
+        return self.net.block_actor(
+            rows, self.env_info.obs_shape, lambda params, x: self.net.forward(params, x, self.activation)
+        )
 
     def seed_state_dict(self, seed: int, resume: bool) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
         """Seed ``seed``'s checkpoint: ``q_net.*`` (what
@@ -934,9 +854,9 @@ class PopulationDQN(SeedRows):
         tensors |= {f"replay.{k}": v for k, v in replay_tensors.items()}
         tensors["rng.dropout"] = self.dropout_generators[row].get_state()
         tensors["rng.replay"] = self.replay_generators[row].get_state()
-        envs = slice(row * self.config.num_envs, (row + 1) * self.config.num_envs)
-        tensors["envs.observations"] = torch.from_numpy(self.observations[envs].copy())
-        data |= {
+        env_tensors, env_data = self.episodes.seed_state(row)
+        tensors |= env_tensors
+        data |= env_data | {
             "population": True,
             **optim_data,
             "replay": replay_data,
@@ -947,10 +867,6 @@ class PopulationDQN(SeedRows):
             "epsilon_multiplied": float(self.epsilon_multiplied[row]),
             "last_loss": none_if_nan(float(self.last_loss[row])),
             "last_q_mean": none_if_nan(float(self.last_q_mean[row])),
-            "autoreset": self.autoreset[envs].tolist(),
-            "episode_returns": self.episode_returns[envs].tolist(),
-            "episode_lengths": self.episode_lengths[envs].tolist(),
-            "env_state": self.envs.seed_state(row),
         }
         return tensors, data
 
@@ -961,20 +877,15 @@ class PopulationDQN(SeedRows):
 
     def load_seed_state_dict(self, seed: int, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None:
         """Restore what ``seed_state_dict(seed, resume=True)`` gave."""
-        if not data.get("population"):
-            raise ConfigError(
-                "holds no training state to continue from (a policy-only checkpoint, or a run an "
-                "earlier version trained with a seed's own learner); to train it again from step 0, add "
-                "--from-scratch"
-            )
+        require_training_state(data)
         row = self.row(seed)
 
         def unprefixed(prefix: str) -> dict[str, torch.Tensor]:
             return {k.removeprefix(prefix): v for k, v in tensors.items() if k.startswith(prefix)}
 
-        self.net.load_row(row, self.net.flat, unprefixed("q_net."))
+        self.net.load_row(row, unprefixed("q_net."))
         if self.net.target is not None:
-            self.net.load_row(row, self.net.target, unprefixed("target_net."))
+            self.net.load_row(row, unprefixed("target_net."), self.net.target)
         width = self.net.flat.shape[1]
         optim = {k: torch.cat([v, v.new_zeros(width - len(v))]) for k, v in unprefixed("optim.").items()}
         self.optimizer.load_row_state(row, {f"optim.{k}": v for k, v in optim.items()}, data)
@@ -987,12 +898,7 @@ class PopulationDQN(SeedRows):
         self.epsilon_multiplied[row] = float(data["epsilon_multiplied"])
         self.last_loss[row] = nan_if_none(data.get("last_loss"))
         self.last_q_mean[row] = nan_if_none(data.get("last_q_mean"))
-        envs = slice(row * self.config.num_envs, (row + 1) * self.config.num_envs)
-        self.observations[envs] = tensors["envs.observations"].numpy()
-        self.autoreset[envs] = data["autoreset"]
-        self.episode_returns[envs] = data["episode_returns"]
-        self.episode_lengths[envs] = data["episode_lengths"]
-        self.envs.load_seed_state(row, data["env_state"])
+        self.episodes.load_seed_state(row, tensors, data)
         self.greedy = None  # the row's weights and observations changed
 
 

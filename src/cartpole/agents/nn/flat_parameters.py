@@ -1,0 +1,108 @@
+"""The networks of S seeds in one flat ``[S, P]`` tensor: what every population's stacked networks share.
+
+Each parameter is a ``[S, *shape]`` view of the flat rows, and so is its gradient (of a second flat
+tensor, into which autograd accumulates in place), so clipping and the optimizer step are a handful
+of operations over ``[S, P]`` for the whole population. One seed's row comes out as an ordinary
+module (``unstack``: a template overwritten) and goes back in (``load_row``); seeds that stop leave
+(``keep``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+import torch
+from torch import nn
+
+from cartpole.evaluation import BlockActor
+
+Params = dict[str, torch.Tensor]
+"""Parameters by their module name, each ``[S, *shape]``."""
+
+
+class FlatParameters:
+    """The parameters of ``models`` (one per seed, all shaped like the first) in ``flat`` ``[S, P]``,
+    each row padded with zeros to a multiple of ``align`` floats; ``params`` and their gradients are
+    views of ``flat`` and ``grad``. ``size`` is one network's parameter count, padding excluded."""
+
+    def __init__(self, models: list[nn.Module], device: torch.device, align: int = 1):
+        self.template = models[0]
+        """A CPU module that :meth:`unstack` overwrites with one seed's weights."""
+        self.shapes = {name: tuple(p.shape) for name, p in self.template.named_parameters()}
+        self.offsets: dict[str, tuple[int, int]] = {}
+        offset = 0
+        for name, shape in self.shapes.items():
+            self.offsets[name] = (offset, offset + math.prod(shape))
+            offset += math.prod(shape)
+        self.size = offset
+        with torch.no_grad():
+            flat = torch.zeros(len(models), -(-offset // align) * align, device="cpu")
+            rows = [torch.cat([p.reshape(-1) for p in m.parameters()]) for m in models]
+            flat[:, :offset] = torch.stack(rows)
+        self.flat = flat.to(device)
+        self.bind()
+
+    def bind(self) -> None:
+        """Make the parameter leaves (views of ``flat``) and their gradients (views of ``grad``)."""
+        self.grad = torch.zeros_like(self.flat)
+        self.params = self.views(self.flat)
+        grads = self.views(self.grad)
+        for name, leaf in self.params.items():
+            leaf.requires_grad_(True)
+            leaf.grad = grads[name]
+
+    def views(self, flat: torch.Tensor) -> Params:
+        """Each parameter of the rows of ``flat`` (any ``[S, P]`` tensor laid out as ``self.flat``)."""
+        return {
+            name: flat[:, start:end].view(-1, *self.shapes[name])
+            for name, (start, end) in self.offsets.items()
+        }
+
+    def unstack(self, row: int, flat: torch.Tensor | None = None) -> nn.Module:
+        """Row ``row`` of ``flat`` (default: ``self.flat``) as the template module."""
+        source = self.flat if flat is None else flat
+        with torch.no_grad():
+            for name, p in self.template.named_parameters():
+                start, end = self.offsets[name]
+                p.copy_(source[row, start:end].view_as(p))
+        return self.template
+
+    def load_row(self, row: int, tensors: dict[str, torch.Tensor], flat: torch.Tensor | None = None) -> None:
+        """Put the parameters ``tensors`` (by module name) into row ``row`` of ``flat`` (default:
+        ``self.flat``)."""
+        target = self.flat if flat is None else flat
+        with torch.no_grad():
+            for name, (start, end) in self.offsets.items():
+                target[row, start:end] = tensors[name].reshape(-1).to(target.device)
+
+    def keep(self, rows: torch.Tensor) -> None:
+        """Keep only the seeds at ``rows``."""
+        self.flat = self.flat[rows.to(self.flat.device)]
+        self.bind()
+
+    def block_actor(
+        self,
+        rows: list[int],
+        obs_shape: tuple[int, ...],
+        scores: Callable[[Params, torch.Tensor], torch.Tensor],
+    ) -> BlockActor:
+        """The greedy actions of the networks of ``rows`` as one :data:`BlockActor` (block b: row
+        ``rows[b]``'s episodes), through torch on a frozen copy of their weights; ``scores`` gives the
+        per-action scores ``[S, B, n_actions]`` of stacked parameters and observations."""
+        device = self.flat.device
+        chosen = torch.tensor(rows, dtype=torch.int64, device=device)
+        frozen = {name: p.detach()[chosen] for name, p in self.params.items()}
+
+        @torch.no_grad()
+        def act(observations: np.ndarray, blocks: np.ndarray) -> np.ndarray:
+            index = torch.as_tensor(np.asarray(blocks, dtype=np.int64), device=device)
+            params = frozen if len(blocks) == len(rows) else {k: v[index] for k, v in frozen.items()}
+            x = torch.as_tensor(np.asarray(observations)).to(device).reshape(len(blocks), -1, *obs_shape)
+            return scores(params, x).argmax(dim=-1).reshape(-1).cpu().numpy()
+
+        return act
+
+
+__all__ = ["FlatParameters", "Params"]
