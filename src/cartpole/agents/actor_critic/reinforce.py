@@ -21,7 +21,8 @@ from cartpole.agents.actor_critic.policy_gradient import PolicyGradientConfig
 
 @dataclass
 class ReinforceConfig(PolicyGradientConfig):
-    """Hyperparameters of REINFORCE. Defaults are the ``default`` preset's values for CartPole-v1."""
+    """Hyperparameters of REINFORCE. `cartpole train reinforce` uses the ``default`` preset
+    (presets/reinforce.toml), not these field defaults."""
 
     baseline: bool = True
     """Subtract a learned state value from the return (the critic is trained with vf_coef)."""
