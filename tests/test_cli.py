@@ -111,6 +111,18 @@ def test_help_prints_its_text_as_written(command, capsys):
     assert f"usage: cartpole {command}" in out and "%%" not in out
 
 
+def test_the_parser_imports_no_database_or_web_library():
+    """Every command builds the whole parser first: SQLAlchemy (0.2 s), Optuna and FastAPI wait for the
+    commands that use them."""
+    code = (
+        "import sys\nfrom cartpole.cli.main import build_parser\nbuild_parser()\n"
+        "print(sorted(m for m in ('sqlalchemy', 'optuna', 'fastapi', 'matplotlib') if m in sys.modules))"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]"
+
+
 @pytest.mark.parametrize(("env_id", "threads"), [("CartPole-v1", 1), ("cartpole/CartPolePixels-v1", 3)])
 def test_train_takes_one_torch_thread_on_states_and_leaves_the_count_on_images(env_id, threads, capsys):
     """Without --torch-threads, `cartpole train` sets torch to one thread for the small networks on

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from cartpole.experiments.shared import DEFAULT_CLAIM_TIMEOUT
+from cartpole.experiments.storage import DEFAULT_CLAIM_TIMEOUT
 
 
 def add_parser(sub: Any) -> None:

@@ -28,10 +28,14 @@ from enum import StrEnum
 from typing import Any
 
 from cartpole.experiments.entries import Entry, ExperimentError
-from cartpole.experiments.storage import driver_url, engine_options, missing_driver, unreachable
+from cartpole.experiments.storage import (
+    DEFAULT_CLAIM_TIMEOUT,
+    driver_url,
+    engine_options,
+    missing_driver,
+    unreachable,
+)
 
-DEFAULT_CLAIM_TIMEOUT = 120.0
-"""Seconds without a heartbeat after which another worker takes a claim over."""
 MIN_CLAIM_TIMEOUT = 2.0
 CREATE_ATTEMPTS = 5
 

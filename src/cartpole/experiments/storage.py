@@ -9,6 +9,9 @@ from cartpole.experiments.entries import ExperimentError
 
 SUPPORTED = ("postgresql", "sqlite", "mysql")
 CONNECT_TIMEOUT_SECONDS = 10
+DEFAULT_CLAIM_TIMEOUT = 120.0
+"""Seconds without a heartbeat after which another worker takes a shared comparison's claim over (here,
+not in :mod:`cartpole.experiments.shared`, so that the CLI's parser has it without SQLAlchemy)."""
 
 
 def describe_url(url: str) -> tuple[str, str]:

@@ -135,14 +135,12 @@ SHAPE_STEPS: dict[type[nn.Module], Callable[[torch.Tensor], torch.Tensor]] = {
 :meth:`StackedActorCritic.run`)."""
 
 
-class StackedActorCritic(FlatParameters):
+class StackedActorCritic(FlatParameters[ActorCritic]):
     """The actor-critics of S seeds (:class:`~cartpole.agents.nn.flat_parameters.FlatParameters`),
     each linear layer one ``torch.baddbmm`` for all seeds."""
 
-    template: ActorCritic
-
     def __init__(self, models: list[ActorCritic], device: torch.device):
-        super().__init__(list(models), device)
+        super().__init__(models, device)
         self.scaled: tuple[torch.Tensor, torch.Tensor] | None = None
         """The last pixels :meth:`scale_once` scaled, and their scaled values."""
         critic_trunk = "actor_trunk" if self.template.shared_trunk else "critic_trunk"
@@ -240,9 +238,6 @@ class StackedActorCritic(FlatParameters):
         """The greedy actions of the actors of ``rows`` as one :data:`BlockActor`, through torch: for
         convolutional actors."""
         return self.block_actor(rows, self.template.obs_shape, lambda p, x: self.run(self.actor_plan, p, x))
-
-    def unstack(self, row: int, flat: torch.Tensor | None = None) -> ActorCritic:
-        return super().unstack(row, flat)  # type: ignore[return-value]  # the template is one
 
 
 def sample_actions(logits: np.ndarray, uniforms: np.ndarray) -> np.ndarray:

@@ -137,16 +137,14 @@ def seeded_q_network(config: DQNConfig, env: EnvInfo, seed: int) -> QNetwork:
 # ----------------------------------------------------------------------------------------------
 
 
-class StackedQNetwork(FlatParameters):
+class StackedQNetwork(FlatParameters[QNetwork]):
     """The online and target Q-networks of S seeds: the online parameters as
     :class:`~cartpole.agents.nn.flat_parameters.FlatParameters` (rows padded to a multiple of
     :data:`ALIGN`), the targets in ``target``, laid out alike."""
 
-    template: QNetwork
-
     def __init__(self, models: list[QNetwork], target_network: bool, device: torch.device):
         self.target: torch.Tensor | None = None  # bound by bind(), which the base's __init__ calls
-        super().__init__(list(models), device, align=ALIGN)
+        super().__init__(models, device, align=ALIGN)
         template = self.template
         if target_network:
             self.target = self.flat.clone()
@@ -235,9 +233,6 @@ class StackedQNetwork(FlatParameters):
             bias.grad.copy_(grad.sum(dim=1))  # type: ignore[union-attr]
             if index:  # through the layer, then the ReLU before it (whose output is x)
                 grad = torch.where(x > 0.0, input_gradient(grad, weight.detach()), 0.0)
-
-    def unstack(self, row: int, flat: torch.Tensor | None = None) -> QNetwork:
-        return super().unstack(row, flat)  # type: ignore[return-value]  # the template is one
 
     def keep(self, rows: torch.Tensor) -> None:
         if self.target is not None:

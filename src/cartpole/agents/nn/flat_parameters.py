@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import Generic, TypeVar
 
 import numpy as np
 import torch
@@ -21,13 +22,15 @@ from cartpole.evaluation import BlockActor
 Params = dict[str, torch.Tensor]
 """Parameters by their module name, each ``[S, *shape]``."""
 
+Module = TypeVar("Module", bound=nn.Module)
 
-class FlatParameters:
+
+class FlatParameters(Generic[Module]):
     """The parameters of ``models`` (one per seed, all shaped like the first) in ``flat`` ``[S, P]``,
     each row padded with zeros to a multiple of ``align`` floats; ``params`` and their gradients are
     views of ``flat`` and ``grad``. ``size`` is one network's parameter count, padding excluded."""
 
-    def __init__(self, models: list[nn.Module], device: torch.device, align: int = 1):
+    def __init__(self, models: list[Module], device: torch.device, align: int = 1):
         self.template = models[0]
         """A CPU module that :meth:`unstack` overwrites with one seed's weights."""
         self.shapes = {name: tuple(p.shape) for name, p in self.template.named_parameters()}
@@ -60,7 +63,7 @@ class FlatParameters:
             for name, (start, end) in self.offsets.items()
         }
 
-    def unstack(self, row: int, flat: torch.Tensor | None = None) -> nn.Module:
+    def unstack(self, row: int, flat: torch.Tensor | None = None) -> Module:
         """Row ``row`` of ``flat`` (default: ``self.flat``) as the template module."""
         source = self.flat if flat is None else flat
         with torch.no_grad():
