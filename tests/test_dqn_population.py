@@ -383,8 +383,9 @@ def test_seeds_start_from_their_own_network_and_envs():
     for name, value in seeded_q_network(config, CARTPOLE, 9).state_dict().items():
         assert torch.equal(tensors[f"q_net.{name}"], value), name
     alone = PopulationDQN(config, CARTPOLE, [9])
-    assert np.array_equal(population.episodes.observations[config.num_envs :], alone.episodes.observations)
-    assert not np.array_equal(population.episodes.observations[: config.num_envs], alone.episodes.observations)
+    together, apart = population.episodes.observations, alone.episodes.observations
+    assert np.array_equal(together[config.num_envs :], apart)
+    assert not np.array_equal(together[: config.num_envs], apart)
 
 
 def test_bytes_per_seed_counts_the_replay_and_the_networks():

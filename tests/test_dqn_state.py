@@ -122,7 +122,8 @@ def test_resume_mid_episode_continues_the_episodes_in_progress(
     first = one_seed(DQN, config, env, 2, "cpu")
     before, before_steps = episodes_of(first, stop_at)
     tensors, data = first.state_dict(resume=True)
-    assert any(length > 0 for length in data["collector"]["episode_lengths"]), "the stop must fall mid-episode"
+    lengths = data["collector"]["episode_lengths"]
+    assert any(length > 0 for length in lengths), "the stop must fall mid-episode"
     path = tmp_path / "latest.pt"
     save_checkpoint(path, Checkpoint(tensors=tensors, meta={"learner": data}))
     saved = load_checkpoint(path)
@@ -134,6 +135,23 @@ def test_resume_mid_episode_continues_the_episodes_in_progress(
     assert any(length > stop_at for _, length in after) or env_id == "CartPole-v1"
     assert before + after == whole
     assert before_steps + after_steps == whole_steps
+
+
+def test_a_checkpoint_of_the_earlier_layout_resumes_the_same_episodes() -> None:
+    """Until 2026-11-27 a DQN checkpoint kept its envs' state at the top level of its metadata and
+    its observations as ``envs.observations``; such a checkpoint resumes as one of today's does."""
+    config, env = small_config(num_envs=2, learning_starts=50), env_info("CartPole-v1")
+    first = one_seed(DQN, config, env, 2, "cpu")
+    episodes_of(first, 75)
+    tensors, data = first.state_dict(resume=True)
+    earlier = {k: v for k, v in data.items() if k != "collector"} | data["collector"]
+    earlier_tensors = {k: v for k, v in tensors.items() if k != "collector.observations"}
+    earlier_tensors["envs.observations"] = tensors["collector.observations"]
+    resumed = {}
+    for name, (t, d) in {"today": (tensors, data), "earlier": (earlier_tensors, earlier)}.items():
+        resumed[name] = one_seed(DQN, config, env, 2, "cpu")
+        resumed[name].load_state_dict(t, d)
+    assert episodes_of(resumed["earlier"], 125) == episodes_of(resumed["today"], 125)
 
 
 def test_the_cli_decides_the_thread_count_and_the_global_seeds_once() -> None:

@@ -179,9 +179,13 @@ class SeedEpisodes:
         return {"collector.observations": observations}, {"collector": collector}
 
     def load_seed_state(self, row: int, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None:
-        """Restore what :meth:`seed_state` gave."""
-        envs, collector = env_rows(row, self.num_envs), data["collector"]
-        self.observations[envs] = tensors["collector.observations"].numpy()
+        """Restore what :meth:`seed_state` gave (or a DQN checkpoint from before it, which kept the
+        same at the top level and its observations as ``envs.observations``)."""
+        envs, collector = env_rows(row, self.num_envs), data.get("collector", data)
+        observations = tensors.get("collector.observations", tensors.get("envs.observations"))
+        if observations is None:
+            raise KeyError("collector.observations")
+        self.observations[envs] = observations.numpy()
         self.autoreset[envs] = collector["autoreset"]
         self.returns[envs] = collector["episode_returns"]
         self.lengths[envs] = collector["episode_lengths"]
