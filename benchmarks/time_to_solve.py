@@ -593,7 +593,7 @@ def print_table(groups: dict[tuple[str, str], list[dict[str, Any]]], file: Any =
             agent, preset, f"{s['final_solved']}/{s['seeds']}", f"{s['train_solved']}/{s['seeds']}",
             num(s["median_cpu"], ".1f"), num(s["worst_cpu"], ".1f"), num(s["median_wall"], ".1f"),
             num(s["median_steps"], ",.0f"), num(s["worst_steps"], ",.0f"),
-            f"{s['final_min']:.1f} / {s['final_median']:.1f}", f"{s['sps']:,.0f}", _fmt(s["gps"], ",.0f"),
+            f"{s['final_min']:.2f} / {s['final_median']:.2f}", f"{s['sps']:,.0f}", _fmt(s["gps"], ",.0f"),
         ]  # fmt: skip
         print("| " + " | ".join(cells) + " |", file=file)
 
@@ -607,7 +607,8 @@ def print_run(result: dict[str, Any]) -> None:
     print(
         f"  {result['agent']:>14} {result['preset']:<17} seed {result['seed']:>2}: "
         f"solve at {_fmt(result['solve_steps'], ',')} steps, {_fmt(result['solve_cpu'], '.1f')} s CPU; "
-        f"final {result['final_mean']:.1f} ({result['stop_reason']})",
+        f"final {result['final_mean']:.2f} ({'verified' if result['final_solved'] else 'NOT solved'}; "
+        f"training stopped: {result['stop_reason']})",
         file=sys.stderr, flush=True,
     )  # fmt: skip
 

@@ -266,11 +266,17 @@ def small_disk(tmp_path: Path):
 
 
 @pytest.mark.parametrize(
-    "argv",
-    [["dqn", "--seed", "0"], ["ppo", "--seeds", "0-3"], ["dqn", "--seeds", "0-1"]],
+    ("argv", "seeds"),
+    [
+        (["dqn", "--seed", "0"], 1),
+        # 64-wide layers (the preset's are 16): checkpoints large enough that a checkpoint, not a
+        # metric row, is what meets the full disk
+        (["ppo", "--seeds", "0-3", "--set", "hidden_sizes=[64,64]"], 4),
+        (["dqn", "--seeds", "0-1"], 2),
+    ],
     ids=["single-dqn", "ppo-population", "dqn-population"],
 )
-def test_a_full_disk_is_one_line_and_every_status_says_so(argv, small_disk):
+def test_a_full_disk_is_one_line_and_every_status_says_so(argv, seeds, small_disk):
     """torch.save reports a full disk as a RuntimeError; we still give one line naming the file, exit
     2, and a status.json per seed that says "failed: disk full" (rewritten in place: no room for a
     temp file), while what was saved before stays loadable."""
@@ -285,7 +291,7 @@ def test_a_full_disk_is_one_line_and_every_status_says_so(argv, small_disk):
     assert done.stderr.count("\n") == 1 and "Traceback" not in done.stderr
     assert "No space left on device" in done.stderr and ".pt" in done.stderr
     runs = sorted((small_disk / "runs").iterdir())
-    assert len(runs) == {"0": 1, "0-3": 4, "0-1": 2}[argv[-1]]
+    assert len(runs) == seeds
     for run in runs:
         status = json.loads((run / "status.json").read_text())
         assert status["state"] == "failed" and status["stop_detail"].startswith("failed: disk full")
