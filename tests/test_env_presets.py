@@ -73,4 +73,3 @@ def test_acrobot_presets_solve_most_seeds(tmp_path, agent):
     assert len(means) == 5
     assert float(np.median(list(means.values()))) >= -110, means
     assert sum(report.solved for report in outcome.reports.values()) >= 3, means
-

@@ -177,6 +177,25 @@ def test_every_tensor_lives_on_the_population_device(agent):
     assert actions.shape == (6,) and all(t.device.type == "cpu" for t in tensors.values())
 
 
+@pytest.mark.parametrize("agent", ["ppo", "dqn"])
+def test_building_a_population_imports_no_symbolic_shapes(agent):
+    """On torch's default (CPU) device the seeds' networks are built without a ``torch.device``
+    context, whose torch-function mode imports sympy on first use (a quarter second of every start)."""
+    code = (
+        "import sys\n"
+        "from cartpole.agents.registry import build_population, get_agent\n"
+        "from cartpole.envs import env_info\n"
+        "from cartpole.training.config import resolve_config\n"
+        f"spec = get_agent({agent!r})\n"
+        "config, _ = resolve_config(spec.name, spec.config_cls, 'default')\n"
+        "build_population(spec, config, env_info('CartPole-v1'), [0, 1], 'cpu')\n"
+        "print('sympy' in sys.modules)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "False"
+
+
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
 @pytest.mark.parametrize("agent", ACTOR_CRITICS)
 def test_a_population_trains_on_cuda_and_its_checkpoints_load_on_the_cpu(agent, tmp_path):

@@ -66,7 +66,7 @@ from cartpole.agents.actor_critic.ppo import PPOConfig
 from cartpole.agents.actor_critic.reinforce import ReinforceConfig
 from cartpole.agents.learner import LearnResult
 from cartpole.agents.nn.fast_tanh import tanh
-from cartpole.agents.nn.flat_parameters import FlatParameters
+from cartpole.agents.nn.flat_parameters import FlatParameters, on_the_cpu
 from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step
 from cartpole.agents.nn.population_optimizers import PopulationAdam, PopulationOptimizer, PopulationRMSprop
 from cartpole.agents.nn.stacked_conv import channels_last, stacked_conv2d
@@ -361,7 +361,7 @@ class PopulationActorCritic(SeedRows):
         seeds' random numbers come from their CPU generators, so a seed's draws are the same on any
         device; only the floats of the network arithmetic differ between devices."""
         self.seeds = list(seeds)
-        with torch.device("cpu"):  # initialized as the single run initializes them, then moved
+        with on_the_cpu():  # initialized as the single run initializes them, then moved
             models = [seeded_actor_critic(config, env, seed) for seed in self.seeds]
         self.model = StackedActorCritic(models, self.device)
         self.optimizer = make_optimizer(len(self.seeds), self.model.size, self.device)

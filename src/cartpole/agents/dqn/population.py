@@ -85,7 +85,7 @@ from cartpole.agents.nn.conv import (
     scale_pixels,
 )
 from cartpole.agents.nn.fast_tanh import tanh
-from cartpole.agents.nn.flat_parameters import FlatParameters
+from cartpole.agents.nn.flat_parameters import FlatParameters, on_the_cpu
 from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step, run_steps
 from cartpole.agents.nn.population_optimizers import PopulationAdam, PopulationOptimizer, PopulationRMSprop
 from cartpole.agents.nn.stacked_conv import channels_last, stacked_conv2d
@@ -127,7 +127,7 @@ def to_device(tensor: torch.Tensor, device: torch.device) -> torch.Tensor:
 
 def seeded_q_network(config: DQNConfig, env: EnvInfo, seed: int) -> QNetwork:
     """Seed ``seed``'s initial Q-network on the CPU, from its own ``init`` generator."""
-    with torch.device("cpu"):
+    with on_the_cpu():
         generator = torch.Generator(device="cpu").manual_seed(derived_seed(seed, "init"))
         return QNetwork(env.obs_shape, env.n_actions, config, generator).eval()
 

@@ -75,7 +75,8 @@ class GeneratorDropout(nn.Module):
 def seeded_linear(in_features: int, out_features: int, generator: torch.Generator) -> nn.Linear:
     """``nn.Linear`` with its default initialization (Kaiming-uniform weights, uniform bias in
     ``+-1/sqrt(in_features)``) drawn from ``generator`` instead of torch's global generator."""
-    layer = nn.utils.skip_init(nn.Linear, in_features, out_features)  # no draw from the global generator
+    with torch.random.fork_rng(devices=[]):  # its own draws from the global generator are undone
+        layer = nn.Linear(in_features, out_features)
     nn.init.kaiming_uniform_(layer.weight, a=math.sqrt(5), generator=generator)
     bound = 1.0 / math.sqrt(in_features)
     nn.init.uniform_(layer.bias, -bound, bound, generator=generator)
@@ -87,7 +88,8 @@ def seeded_conv2d(
 ) -> nn.Conv2d:
     """``nn.Conv2d`` (no padding) with its default initialization drawn from ``generator``, as
     :func:`seeded_linear` (fan-in: ``in_channels x kernel x kernel``)."""
-    layer = nn.utils.skip_init(nn.Conv2d, in_channels, out_channels, kernel, stride)
+    with torch.random.fork_rng(devices=[]):
+        layer = nn.Conv2d(in_channels, out_channels, kernel, stride)
     nn.init.kaiming_uniform_(layer.weight, a=math.sqrt(5), generator=generator)
     bound = 1.0 / math.sqrt(in_channels * kernel * kernel)
     assert layer.bias is not None

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from contextlib import AbstractContextManager, nullcontext
 from typing import Generic, TypeVar
 
 import numpy as np
@@ -23,6 +24,14 @@ Params = dict[str, torch.Tensor]
 """Parameters by their module name, each ``[S, *shape]``."""
 
 Module = TypeVar("Module", bound=nn.Module)
+
+
+def on_the_cpu() -> AbstractContextManager[object]:
+    """Where the seeds' networks are built: on the CPU (each from its seed's CPU generator, as a single
+    run builds it), whatever default device the user set; only then moved to the population's device.
+    Entered only when the default is another device: ``torch.device`` as a context routes every
+    factory call through a torch-function mode, whose first use imports sympy (a quarter second)."""
+    return nullcontext() if torch.get_default_device().type == "cpu" else torch.device("cpu")
 
 
 class FlatParameters(Generic[Module]):
