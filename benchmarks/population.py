@@ -12,14 +12,14 @@ Printed:
 
 - population: verified solves (each seed's kept best on 100 fresh episodes of Gymnasium's env), wall
   time from start to the last verdict, CPU seconds (user + system, the whole child: imports, training,
-  verdicts) per seed, peak RSS, env steps/s, seeds/min;
+  verdicts) per seed, peak RSS, env steps/s, seeds/min (all, and verified);
 - single runs: the same verdicts, and the training CPU seconds per run (``cartpole.training.train``,
   one after the other in one process, so imports are paid once and left out);
 - single runs as a person runs them without ``--seeds``: one ``cartpole train AGENT --seed S`` process
   per seed, CPU seconds of the whole process (imports, training, verdict, files), as the population's;
 - both CPU ratios, and the solve-step distributions (first verified solve in training, env steps) of
-  the population and the in-process single runs: medians and a two-sample Mann-Whitney U test's
-  p-value (scipy).
+  the population and the in-process single runs: medians (and the population's mean) and a two-sample
+  Mann-Whitney U test's p-value (scipy).
 """
 
 from __future__ import annotations
@@ -134,6 +134,10 @@ def median(values: list[int]) -> float:
     return float(np.median(values)) if values else float("nan")
 
 
+def mean(values: list[int]) -> float:
+    return sum(values) / len(values) if values else float("nan")
+
+
 def report(
     population: dict[str, object],
     singles: dict[str, object] | None,
@@ -174,7 +178,9 @@ def report(
         ("peak RSS, population process", f"{population['rss_mb']:.0f} MB"),
         ("env steps/s (all seeds)", f"{float(population['steps']) / wall:,.0f}"),  # type: ignore[arg-type]
         ("seeds/min", f"{seeds / wall * 60:.1f}"),
+        ("verified seeds/min", f"{float(population['verified']) / wall * 60:.1f}"),  # type: ignore[arg-type]
         ("median solve step, population", f"{median(pop_steps):,.0f} ({len(pop_steps)} solved in training)"),
+        ("mean solve step, population", f"{mean(pop_steps):,.0f} (the seeds solved in training)"),
     ]
     if singles is not None:
         p_value = mannwhitneyu(pop_steps, single_steps).pvalue if pop_steps and single_steps else float("nan")
