@@ -15,7 +15,9 @@ GFLOP/s of ``torch.bmm``; then the weight gradient of a 2-output head (``[seeds,
 rows, width]``, the one ``agents/nn/stacked_linear.py`` takes), and one Adam step of ``[seeds, 9218]``
 parameters (a 64x64 actor-critic) in torch's elementwise form and in the numba pass of
 ``agents/nn/population_optimizers.py``. Which kernels NumPy and torch pick depends on the CPU (AVX-512
-or not), so the CPU is printed first.
+or not), so the CPU is printed first. Last, one ``learn()`` (rollout and update) of PPO's, A2C's and
+REINFORCE's default presets for one seed and for ``--seeds``, with the networks' gradients by autograd
+and by hand (``agents/nn/stacked_linear.py``'s ``mlp_gradients``, what the populations use for MLPs).
 
 ``--pixels``: instead, one seed's conv trunk (a 512-row batch of 4x30x100 frame stacks through
 ``agents/actor_critic/network.py``'s ``CONV_LAYERS``, forward and backward) with the images laid
@@ -94,6 +96,36 @@ def pixel_ppo_learn() -> tuple[Callable[[], object], int]:
     return population.learn, config.num_envs * config.n_steps
 
 
+def actor_critic_learn(agent: str, seeds: int, by_hand: bool) -> Callable[[], object]:
+    """One ``learn()`` (a rollout and its update) of ``agent``'s default preset for ``seeds`` seeds,
+    its gradients by hand (what the populations do for MLPs) or by autograd."""
+    from cartpole.agents.registry import build_population, get_agent
+    from cartpole.envs import env_info
+    from cartpole.training.config import resolve_config
+
+    spec = get_agent(agent)
+    config, _ = resolve_config(agent, spec.config_cls, "default")
+    population = build_population(spec, config, env_info("CartPole-v1"), list(range(seeds)), "cpu")
+    population.model.by_hand = by_hand
+    for _ in range(20):  # past the first, short episodes
+        population.learn()
+    return population.learn
+
+
+def updates_by_hand(seeds: int, repeats: int) -> None:
+    for agent in ("ppo", "a2c", "reinforce"):
+        for count in (1, seeds):
+            times = {
+                by_hand: seconds_per_call(actor_critic_learn(agent, count, by_hand), repeats)
+                for by_hand in (False, True)
+            }
+            autograd, by_hand = times[False] * 1e3, times[True] * 1e3
+            print(
+                f"{agent} default preset, one learn() of {count} seed(s): autograd {autograd:6.2f} ms,"
+                f" by hand {by_hand:6.2f} ms ({by_hand / autograd:.2f}x)"
+            )
+
+
 def pixels() -> None:
     for channels_last in (False, True):
         seconds = seconds_per_call(conv_trunk(channels_last), 3)
@@ -153,6 +185,7 @@ def main() -> None:
         seconds = seconds_per_call(adam_step(args.seeds, 9218, fused), args.repeats)
         name = "torch elementwise" if fused is False else "numba, one pass"
         print(f"Adam step [{args.seeds}, 9218], {name:<18} {seconds * 1e3:6.3f} ms")
+    updates_by_hand(args.seeds, max(1, args.repeats // 5))
 
 
 if __name__ == "__main__":

@@ -268,6 +268,36 @@ def test_settings_reach_the_batched_update(agent, change):
     assert not torch.equal(trained(**change), trained())
 
 
+BY_HAND_CASES = [
+    ("ppo", {}),
+    ("ppo", {"activation": "relu", "ent_coef": 0.01, "clip_range_vf": 0.2, "shared_trunk": True}),
+    ("ppo", {"minibatch_size": 64, "normalize_advantages": True}),
+    ("a2c", {"normalize_advantages": True, "ent_coef": 0.01}),
+    ("a2c", {"shared_trunk": True, "activation": "relu"}),
+    ("reinforce", {}),
+    ("reinforce", {"baseline": False, "ent_coef": 0.01}),
+]
+
+
+@pytest.mark.parametrize(("agent", "change"), BY_HAND_CASES)
+def test_gradients_by_hand_train_as_autograd_does(agent, change):
+    """An MLP's update differentiates by hand: the weights come out as autograd's, bit for bit, for
+    each loss, activation, shared trunk and batch shape."""
+    by_hand, autograd = small_population(agent, [2, 7], **change), small_population(agent, [2, 7], **change)
+    assert by_hand.model.by_hand
+    autograd.model.by_hand = False
+    learn(by_hand, 4)
+    learn(autograd, 4)
+    for seed in (2, 7):
+        assert_same(weights(by_hand, seed), weights(autograd, seed))
+    assert not torch.equal(by_hand.model.flat, small_population(agent, [2, 7], **change).model.flat)
+
+
+def test_networks_that_autograd_differentiates():
+    """ELU and convolutional networks take autograd's backward pass (none is written by hand)."""
+    assert not small_population("ppo", [1], activation="elu").model.by_hand
+
+
 def test_reinforce_batches_start_where_the_seed_alone_starts_them():
     config = ReinforceConfig(**REINFORCE_SMALL)  # type: ignore[arg-type]
     population, alone = small_population("reinforce", [2, 5]), small_population("reinforce", [5])

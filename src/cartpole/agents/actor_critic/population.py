@@ -13,7 +13,11 @@ shared is only the arithmetic:
   ``baddbmm`` is one kernel per layer; and it gives every seed the same bits whatever the batch
   holds (tested; for layer widths that are multiples of 4, as every preset's are), so a seed's run
   does not depend on which seeds share the process. The convolutional layers of an image trunk
-  run per seed (:func:`~cartpole.agents.nn.stacked_conv.stacked_conv2d`), for the same reason.
+  run per seed (:func:`~cartpole.agents.nn.stacked_conv.stacked_conv2d`), for the same reason. An
+  update of MLPs differentiates by hand: autograd takes the loss only as far as the logits and
+  values, and :func:`~cartpole.agents.nn.stacked_linear.mlp_gradients` makes autograd's own
+  products from there, bit for bit, without its graph's per-node bookkeeping (PPO's default update
+  a fifth cheaper; tested against autograd for every loss, activation and a shared trunk).
 - The envs (:mod:`cartpole.envs.seed_envs`): on CartPole's fast simulator S x N envs stepped by one
   kernel call, each seed's start states drawn from its own generator in Gymnasium's order (those of
   the single run's vector env), drawn as frame stacks for the pixel envs; on any other env each
@@ -35,6 +39,7 @@ shared is only the arithmetic:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 from collections.abc import Callable
@@ -65,12 +70,12 @@ from cartpole.agents.actor_critic.policy_gradient import (
 from cartpole.agents.actor_critic.ppo import PPOConfig
 from cartpole.agents.actor_critic.reinforce import ReinforceConfig
 from cartpole.agents.learner import LearnResult
-from cartpole.agents.nn.fast_tanh import tanh
+from cartpole.agents.nn.fast_tanh import tanh, tanh_gradient
 from cartpole.agents.nn.flat_parameters import FlatParameters, on_the_cpu
 from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step
 from cartpole.agents.nn.population_optimizers import PopulationAdam, PopulationOptimizer, PopulationRMSprop
 from cartpole.agents.nn.stacked_conv import channels_last, stacked_conv2d
-from cartpole.agents.nn.stacked_linear import stacked_linear
+from cartpole.agents.nn.stacked_linear import ActivationGradient, mlp_gradients, relu_gradient, stacked_linear
 from cartpole.agents.nn.standardize import StandardizeObservations
 from cartpole.agents.population import Finished, SeedEpisodes, SeedRows, require_training_state
 from cartpole.agents.registry import AgentSpec
@@ -128,6 +133,48 @@ def scale_stacked_pixels(x: torch.Tensor) -> torch.Tensor:
     return scale_pixels(channels_last(x))
 
 
+ACTIVATION_GRADIENTS: dict[type[nn.Module], ActivationGradient] = {
+    nn.Tanh: tanh_gradient,
+    nn.ReLU: relu_gradient,
+}
+"""The activations of the networks whose gradients an update computes by hand."""
+
+
+@dataclass(frozen=True)
+class HandBackward:
+    """How one head's gradients are computed by hand: its linear layers' (weight, bias) names, in
+    order, and the gradient of the activation between them."""
+
+    layers: list[tuple[str, str]]
+    activation: ActivationGradient
+
+    @classmethod
+    def of(cls, plan: list[Layer]) -> HandBackward | None:
+        """For an MLP ``plan`` (linear layers and activations of :data:`ACTIVATION_GRADIENTS`, the
+        observations' standardization first, if any); None for any other network."""
+        steps = plan[1:] if plan and isinstance(plan[0], StandardizeObservations) else plan
+        others = [step for step in steps if not isinstance(step, tuple)]
+        if not all(isinstance(step, type) and step in ACTIVATION_GRADIENTS for step in others):
+            return None
+        gradients = {ACTIVATION_GRADIENTS[step] for step in others if isinstance(step, type)}
+        if len(gradients) > 1:
+            return None
+        layers = [step for step in steps if isinstance(step, tuple)]
+        return cls(layers, gradients.pop() if gradients else relu_gradient)
+
+
+@dataclass
+class UpdatePass:
+    """What :meth:`StackedActorCritic.forward_for_update` keeps for the backward pass by hand: the
+    logits and values (leaves, so autograd stops there), each head's linear layers' inputs, the
+    parameters used and ``rows``, the seeds they are of (None: every seed)."""
+
+    heads: tuple[torch.Tensor, torch.Tensor]
+    inputs: tuple[list[torch.Tensor], list[torch.Tensor]]
+    params: dict[str, torch.Tensor]
+    rows: torch.Tensor | None
+
+
 SHAPE_STEPS: dict[type[nn.Module], Callable[[torch.Tensor], torch.Tensor]] = {
     nn.Flatten: flatten_images,
 }
@@ -146,6 +193,10 @@ class StackedActorCritic(FlatParameters[ActorCritic]):
         critic_trunk = "actor_trunk" if self.template.shared_trunk else "critic_trunk"
         self.actor_plan = forward_plan(self.template, "actor_trunk", "policy_head")
         self.critic_plan = forward_plan(self.template, critic_trunk, "value_head")
+        self.hand = (HandBackward.of(self.actor_plan), HandBackward.of(self.critic_plan))
+        self.by_hand = None not in self.hand
+        """Whether an update's gradients are computed by hand (MLPs; autograd's otherwise)."""
+        self.update_pass: UpdatePass | None = None
 
     @staticmethod
     def run(
@@ -153,12 +204,16 @@ class StackedActorCritic(FlatParameters[ActorCritic]):
         params: dict[str, torch.Tensor],
         x: torch.Tensor,
         scale: Callable[[torch.Tensor], torch.Tensor] = scale_stacked_pixels,
+        inputs: list[torch.Tensor] | None = None,
     ) -> torch.Tensor:
         """``x`` [S, B, *obs_shape] through ``plan``: one baddbmm per linear layer for all seeds, one
-        conv2d per seed and convolutional layer; pixels scaled by ``scale``."""
+        conv2d per seed and convolutional layer; pixels scaled by ``scale``. ``inputs``, when given,
+        receives each linear layer's input, in order."""
         for step in plan:
             if isinstance(step, tuple):
                 weight, bias = params[step[0]], params[step[1]]
+                if inputs is not None:
+                    inputs.append(x)
                 x = stacked_linear(x, weight, bias)
             elif isinstance(step, ConvStep):
                 x = stacked_conv2d(x, params[step.weight], params[step.bias], step.stride)
@@ -192,8 +247,56 @@ class StackedActorCritic(FlatParameters[ActorCritic]):
         """State values [S, B]."""
         return self.run(self.critic_plan, self.params, observations, self.scale_once).squeeze(-1)
 
-    def logits_and_values(self, observations: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        return self.logits(observations), self.values(observations)
+    def forward_for_update(
+        self, observations: torch.Tensor, rows: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Logits [S, B, n_actions] and values [S, B] of observations [S, B, *obs_shape] under the
+        networks of the seeds at ``rows`` (None: all), for a loss that :meth:`backward` differentiates.
+        An MLP runs without autograd, keeping what the backward pass by hand needs."""
+        params = self.params if rows is None else {name: p[rows] for name, p in self.params.items()}
+        self.update_pass = None
+        if not self.by_hand:
+            scale = self.scale_once
+            logits = self.run(self.actor_plan, params, observations, scale)
+            return logits, self.run(self.critic_plan, params, observations, scale).squeeze(-1)
+        with torch.no_grad():
+            inputs: tuple[list[torch.Tensor], list[torch.Tensor]] = ([], [])
+            logits = self.run(self.actor_plan, params, observations, inputs=inputs[0]).requires_grad_()
+            values = self.run(self.critic_plan, params, observations, inputs=inputs[1]).requires_grad_()
+        self.update_pass = UpdatePass((logits, values), inputs, params, rows)
+        return logits, values.squeeze(-1)
+
+    def backward(self, loss: torch.Tensor) -> None:
+        """Add to ``grad`` the gradient of ``loss`` (a scalar) with respect to the parameters, through
+        the last :meth:`forward_for_update`. For MLPs, autograd differentiates the loss only as far as
+        the logits and values; the networks' gradients are then computed by hand
+        (:func:`~cartpole.agents.nn.stacked_linear.mlp_gradients`: autograd's products, without its
+        graph's bookkeeping, which costs more than small layers' arithmetic)."""
+        update, self.update_pass = self.update_pass, None
+        if update is None:
+            with warnings.catch_warnings():
+                # The gradients are views of one [S, P] tensor on purpose (see FlatParameters).
+                warnings.filterwarnings("ignore", "grad and param do not obey the gradient layout")
+                loss.backward()
+            return
+        head_grads = torch.autograd.grad(loss, update.heads, allow_unused=True)
+        for hand, inputs, grad in zip(self.hand, update.inputs, head_grads, strict=True):
+            if hand is None or grad is None:  # None: the loss has no value term (REINFORCE alone)
+                continue
+            layers = [(update.params[weight], update.params[bias]) for weight, bias in hand.layers]
+            gradients = mlp_gradients(layers, inputs, grad, hand.activation)
+            for names, pair in zip(hand.layers, gradients, strict=True):
+                for name, gradient in zip(names, pair, strict=True):
+                    self.add_gradient(name, gradient, update.rows)
+
+    def add_gradient(self, name: str, gradient: torch.Tensor, rows: torch.Tensor | None) -> None:
+        """Add ``gradient`` to parameter ``name``'s gradient, of every seed or of the seeds at ``rows``."""
+        target = self.params[name].grad
+        assert target is not None
+        if rows is None:
+            target.add_(gradient)
+        else:
+            target.index_add_(0, rows, gradient)
 
     def numpy_actor(self, rows: list[int] | None = None) -> StackedNumpyMLP:
         """A frozen NumPy copy of the actors of ``rows`` (default: all), logits ``[S, B, n_actions]``.
@@ -251,6 +354,16 @@ def sample_actions(logits: np.ndarray, uniforms: np.ndarray) -> np.ndarray:
 def masked_mean(x: torch.Tensor, mask: torch.Tensor, count: torch.Tensor) -> torch.Tensor:
     """Per-seed mean of ``x`` [S, B] over the rows where ``mask`` (float) is 1; [S]."""
     return (x * mask).sum(dim=1) / count.clamp(min=1.0)
+
+
+def mean_entropy(
+    log_probs: torch.Tensor, mask: torch.Tensor, count: torch.Tensor, differentiable: bool
+) -> torch.Tensor:
+    """Per-seed mean entropy [S] of the policies whose log-probabilities are ``log_probs`` [S, B,
+    n_actions], over the masked rows; without a gradient unless ``differentiable`` (a loss that weighs
+    it 0 needs none, and its backward pass would only add zeros)."""
+    with torch.set_grad_enabled(differentiable and torch.is_grad_enabled()):
+        return masked_mean(-(log_probs.exp() * log_probs).sum(dim=-1), mask, count)
 
 
 def masked_normalize(x: torch.Tensor, mask: torch.Tensor, count: torch.Tensor) -> torch.Tensor:
@@ -419,10 +532,7 @@ class PopulationActorCritic(SeedRows):
     def backward_and_step(self, losses: torch.Tensor, lr: torch.Tensor, active: torch.Tensor) -> None:
         """Gradients of every active seed's loss (``losses`` [S]), clipped per seed, one optimizer step."""
         self.model.grad.zero_()
-        with warnings.catch_warnings():
-            # The gradients are views of one [S, P] tensor on purpose (see StackedActorCritic).
-            warnings.filterwarnings("ignore", "grad and param do not obey the gradient layout")
-            (losses * active.float()).sum().backward()
+        self.model.backward((losses * active.float()).sum())
         self.step(lr, active)
 
     def explained_variances(self, rollout: Rollout) -> torch.Tensor:
@@ -676,17 +786,21 @@ class PopulationPPO(PopulationActorCritic):
         done_steps = torch.zeros(seeds, device=self.device)
         batches = math.ceil(int(rollout.counts.max()) / size) if bool(has_rows.any()) else 0
         positions = torch.arange(size, device=self.device)
+        mask, count = rollout.valid.float(), rollout.counts
+        normalize = config.normalize_advantages
+        if whole and normalize:  # the same rows in every epoch: their advantages normalized once
+            normalized = masked_normalize(rollout.advantages, mask, count)
+            rollout = dataclasses.replace(rollout, advantages=normalized)
+            normalize = False
         for epoch in range(config.n_epochs):
             for start in range(0, batches * size, size):
                 index: torch.Tensor | None = None
-                if whole:
-                    mask, count = rollout.valid.float(), rollout.counts
-                else:
+                if not whole:
                     index = orders[:, epoch, start : start + size]
                     mask = (positions[: index.shape[1]] + start < rollout.counts.unsqueeze(1)).float()
                     count = mask.sum(dim=1)
                 active = (count > 0) & ~stopped
-                losses, row_metrics, kl = self.minibatch_loss(rollout, index, mask, count, clip)
+                losses, row_metrics, kl = self.minibatch_loss(rollout, index, mask, count, clip, normalize)
                 if config.target_kl is not None:
                     over = active & (kl > config.target_kl)
                     stopped |= over
@@ -719,9 +833,11 @@ class PopulationPPO(PopulationActorCritic):
         mask: torch.Tensor,
         count: torch.Tensor,
         clip: torch.Tensor,
+        normalize: bool,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Per-seed PPO loss [S], metrics [S, 5] (detached) and approximate KL [S] of one minibatch:
-        each seed's rows ``index`` [S, B] (None: every row)."""
+        each seed's rows ``index`` [S, B] (None: every row), their advantages normalized first with
+        ``normalize``."""
         config = self.config
 
         def take(x: torch.Tensor) -> torch.Tensor:
@@ -735,11 +851,11 @@ class PopulationPPO(PopulationActorCritic):
         observations, actions = take(rollout.observations), take(rollout.actions)
         old_log_probs, old_values = take(rollout.log_probs), take(rollout.values)
         advantages, returns = take(rollout.advantages), take(rollout.returns)
-        logits, values = self.model.logits_and_values(observations)
+        logits, values = self.model.forward_for_update(observations)
         log_probs_all = torch.log_softmax(logits, dim=-1)
         log_probs = log_probs_all.gather(-1, actions.unsqueeze(-1)).squeeze(-1)
-        entropy = masked_mean(-(log_probs_all.exp() * log_probs_all).sum(dim=-1), mask, count)
-        if config.normalize_advantages:
+        entropy = mean_entropy(log_probs_all, mask, count, config.ent_coef != 0.0)
+        if normalize:
             advantages = masked_normalize(advantages, mask, count)
         log_ratio = log_probs - old_log_probs
         ratio = log_ratio.exp()
@@ -773,10 +889,10 @@ class PopulationA2C(PopulationActorCritic):
         rollout, finished = self.collect(log_probs=False)  # the loss's own forward pass gives them
         results = self.count_steps(rollout.counts.to(torch.int64).tolist(), finished)
         valid, count = rollout.valid.float(), rollout.counts
-        logits, values = self.model.logits_and_values(rollout.observations)
+        logits, values = self.model.forward_for_update(rollout.observations)
         log_probs_all = torch.log_softmax(logits, dim=-1)
         log_probs = log_probs_all.gather(-1, rollout.actions.unsqueeze(-1)).squeeze(-1)
-        entropy = masked_mean(-(log_probs_all.exp() * log_probs_all).sum(dim=-1), valid, count)
+        entropy = mean_entropy(log_probs_all, valid, count, config.ent_coef != 0.0)
         advantages = rollout.advantages
         if config.normalize_advantages:
             advantages = masked_normalize(advantages, valid, count)
@@ -889,19 +1005,15 @@ class PopulationReinforce(PopulationActorCritic):
         config, envs = self.config, self.config.num_envs
         index = torch.tensor(rows, dtype=torch.int64, device=self.device)
         columns = (index.unsqueeze(1) * envs + torch.arange(envs, device=self.device)).reshape(-1)
-        params = {name: p[index] for name, p in self.model.params.items()}
-        detached = {name: p.detach() for name, p in params.items()}
+        detached = {name: p.detach()[index] for name, p in self.model.params.items()}
         rollout = self.advantages(
             transitions.columns(columns, length), detached, len(rows), 1.0, config.baseline
         )
         valid, count = rollout.valid.float(), rollout.counts
-        scale = self.model.scale_once
-        logits = StackedActorCritic.run(self.model.actor_plan, params, rollout.observations, scale)
-        values = StackedActorCritic.run(self.model.critic_plan, params, rollout.observations, scale)
-        values = values.squeeze(-1)
+        logits, values = self.model.forward_for_update(rollout.observations, index)
         log_probs_all = torch.log_softmax(logits, dim=-1)
         log_probs = log_probs_all.gather(-1, rollout.actions.unsqueeze(-1)).squeeze(-1)
-        entropy = masked_mean(-(log_probs_all.exp() * log_probs_all).sum(dim=-1), valid, count)
+        entropy = mean_entropy(log_probs_all, valid, count, config.ent_coef != 0.0)
         weights = (
             masked_normalize(rollout.advantages, valid, count)
             if config.normalize_returns
@@ -912,10 +1024,7 @@ class PopulationReinforce(PopulationActorCritic):
         loss = policy_loss - config.ent_coef * entropy
         if config.baseline:
             loss = loss + config.vf_coef * value_loss
-        with warnings.catch_warnings():
-            # The gradients are views of one [S, P] tensor on purpose (see StackedActorCritic).
-            warnings.filterwarnings("ignore", "grad and param do not obey the gradient layout")
-            loss.sum().backward()
+        self.model.backward(loss.sum())
         self.model.forget_scaled()
         explained = self.explained_variances(rollout).tolist()
         values_of = torch.stack([policy_loss, value_loss, entropy], dim=1).tolist()

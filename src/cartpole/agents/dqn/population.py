@@ -89,7 +89,7 @@ from cartpole.agents.nn.flat_parameters import FlatParameters, on_the_cpu
 from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step, run_steps
 from cartpole.agents.nn.population_optimizers import PopulationAdam, PopulationOptimizer, PopulationRMSprop
 from cartpole.agents.nn.stacked_conv import channels_last, stacked_conv2d
-from cartpole.agents.nn.stacked_linear import input_gradient, stacked_linear, weight_gradient
+from cartpole.agents.nn.stacked_linear import mlp_gradients, relu_gradient, stacked_linear
 from cartpole.agents.population import Finished, SeedEpisodes, SeedRows, require_training_state
 from cartpole.agents.registry import AgentSpec
 from cartpole.core.errors import ConfigError
@@ -220,19 +220,13 @@ class StackedQNetwork(FlatParameters[QNetwork]):
     def backward_by_hand(self, inputs: list[torch.Tensor], grad: torch.Tensor) -> None:
         """Write into ``grad`` (the online networks' gradients) the gradient of a loss whose gradient
         with respect to the Q-values is ``grad`` [S, B, n_actions], for a plain ReLU MLP whose layers
-        had the ``inputs`` of :meth:`forward`.
-
-        The products are the ones autograd's backward of :func:`stacked_linear` makes, one per seed's
-        slice; done by hand, a gradient step skips the autograd graph's bookkeeping, which costs more
-        than a small network's arithmetic (``benchmarks/kernels.py``)."""
-        layers = [*self.hidden, ("head.weight", "head.bias")]
-        for index in reversed(range(len(layers))):
-            weight, bias = (self.params[name] for name in layers[index])
-            x = inputs[index]
-            weight.grad.copy_(weight_gradient(grad, x))  # type: ignore[union-attr]
-            bias.grad.copy_(grad.sum(dim=1))  # type: ignore[union-attr]
-            if index:  # through the layer, then the ReLU before it (whose output is x)
-                grad = torch.where(x > 0.0, input_gradient(grad, weight.detach()), 0.0)
+        had the ``inputs`` of :meth:`forward` (:func:`~cartpole.agents.nn.stacked_linear.mlp_gradients`)."""
+        layers = [(self.params[w], self.params[b]) for w, b in [*self.hidden, ("head.weight", "head.bias")]]
+        for (weight, bias), (weight_grad, bias_grad) in zip(
+            layers, mlp_gradients(layers, inputs, grad, relu_gradient), strict=True
+        ):
+            weight.grad.copy_(weight_grad)  # type: ignore[union-attr]
+            bias.grad.copy_(bias_grad)  # type: ignore[union-attr]
 
     def keep(self, rows: torch.Tensor) -> None:
         if self.target is not None:

@@ -13,6 +13,7 @@ slice on its own, so a seed's gradient does not depend on the seeds beside it.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import torch
@@ -61,6 +62,41 @@ class _StackedLinear(torch.autograd.Function):
         )
 
 
+ActivationGradient = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+"""The gradient through an activation, from the gradient of its output and the output itself."""
+
+
+def relu_gradient(grad: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    """The gradient through ``y = relu(x)``: ``grad`` where ``y > 0``, else 0."""
+    return torch.where(y > 0.0, grad, 0.0)
+
+
+@torch.no_grad()
+def mlp_gradients(
+    layers: list[tuple[torch.Tensor, torch.Tensor]],
+    inputs: list[torch.Tensor],
+    grad: torch.Tensor,
+    activation_gradient: ActivationGradient,
+) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    """The weight and bias gradients ``[S, out, in]``, ``[S, out]`` of each of an MLP's ``layers``
+    (weights ``[S, out, in]`` and biases, in order, an activation between two layers) from ``grad``
+    [S, B, out], the gradient of its output; ``inputs[i]`` was the input of layer ``i`` (so, for ``i >
+    0``, the output of the activation before it).
+
+    The products are the ones autograd's backward of :func:`stacked_linear` makes, one per seed's
+    slice, so the gradients are autograd's bit for bit; done by hand, a small network's gradient step
+    skips the autograd graph's bookkeeping, which costs more than its arithmetic
+    (``benchmarks/kernels.py``)."""
+    gradients = []
+    for index in reversed(range(len(layers))):
+        weight, _ = layers[index]
+        x = inputs[index]
+        gradients.append((weight_gradient(grad, x), grad.sum(dim=1)))
+        if index:  # through the layer, then the activation whose output is x
+            grad = activation_gradient(input_gradient(grad, weight.detach()), x)
+    return gradients[::-1]
+
+
 def stacked_linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
     """``x @ weight^T + bias`` per seed: ``x`` [S, B, in], ``weight`` [S, out, in], ``bias`` [S, out]."""
     if torch.is_grad_enabled() and (x.requires_grad or weight.requires_grad or bias.requires_grad):
@@ -68,4 +104,11 @@ def stacked_linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) ->
     return linear_forward(x, weight, bias)
 
 
-__all__ = ["input_gradient", "stacked_linear", "weight_gradient"]
+__all__ = [
+    "ActivationGradient",
+    "input_gradient",
+    "mlp_gradients",
+    "relu_gradient",
+    "stacked_linear",
+    "weight_gradient",
+]
