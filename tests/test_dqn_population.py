@@ -87,6 +87,7 @@ INDEPENDENCE = [
     {"target_network": False, "epsilon_schedule": "multiplicative"},
     {"activation": "tanh", "tau": 1.0, "target_update_interval": 3},
     {"activation": "gelu", "train_freq": 2, "gradient_steps": 3},
+    {"n_step": 3},
     # batch and env counts that are no multiple of anything: every per-seed block is padded (see the
     # module docstring); widths that are multiples of 4 (other widths: see the module docstring)
     {"activation": "elu", "batch_size": 20, "num_envs": 3, "hidden_sizes": (12, 20), "buffer_size": 50},
@@ -158,6 +159,8 @@ SETTING_CHANGES: list[tuple[dict[str, Any], dict[str, Any]]] = [
     ({}, {"num_envs": 2}),
     ({}, {"train_freq": 3}),
     ({}, {"gradient_steps": 3}),
+    ({}, {"n_step": 3}),
+    ({"n_step": 3}, {"gamma": 0.9}),
     ({"epsilon_decay_steps": 100}, {"epsilon_schedule": "exponential"}),
     ({}, {"epsilon_schedule": "multiplicative"}),
     ({}, {"epsilon_start": 0.5}),
@@ -289,8 +292,9 @@ def test_the_replay_writes_the_same_rows_without_its_host_view():
     [
         {},
         {"dropout": 0.2, "epsilon_schedule": "multiplicative", "train_freq": 3, "target_update_interval": 2},
+        {"n_step": 4},
     ],
-    ids=["default", "dropout,multiplicative,train_freq"],
+    ids=["default", "dropout,multiplicative,train_freq", "n_step"],
 )
 def test_resume_continues_exactly(changes, tmp_path):
     """K calls, a checkpoint (written to disk and read back), K more calls in a fresh population ==

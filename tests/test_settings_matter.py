@@ -82,6 +82,7 @@ DQN_CHANGES: dict[str, Change] = {
     "num_envs": ({}, 3),
     "train_freq": ({}, 2),
     "gradient_steps": ({}, 3),
+    "n_step": ({}, 3),
     "epsilon_schedule": ({}, "exponential"),
     "epsilon_start": ({}, 0.5),
     "epsilon_end": ({}, 0.3),

@@ -4,7 +4,8 @@ What it does, in order:
 
 1. ``DQNConfig``: every knob, with a one-line docstring each (presets in ``presets/dqn.toml``).
 2. ``td_targets``: the one place the Bellman target is computed (double DQN, and no bootstrap at
-   termination; truncation by the time limit does bootstrap).
+   termination; truncation by the time limit does bootstrap). With ``n_step`` > 1 a replay row holds
+   n steps' discounted rewards and bootstraps with ``gamma^n`` (:mod:`cartpole.agents.dqn.n_step`).
 3. ``epsilon_at`` and ``shaped_rewards``: exploration and the tutorials' reward shaping.
 4. The greedy policy rebuilt from a checkpoint.
 
@@ -98,6 +99,9 @@ class DQNConfig:
     """learn() calls (batched env steps) between training rounds."""
     gradient_steps: int = 4
     """Gradient steps per training round."""
+    n_step: int = 1
+    """Steps of reward a replay row sums before its target bootstraps (with gamma^n_step): n-step
+    returns, as Rainbow's and SB3's n-step replay; 1 is one-step DQN."""
     # exploration
     epsilon_schedule: str = "linear"
     """linear (over epsilon_decay_steps), exponential (time constant epsilon_decay_steps, per env
@@ -145,6 +149,7 @@ class DQNConfig:
         require(self.num_envs >= 1, f"num_envs must be >= 1, got {self.num_envs}")
         require(self.train_freq >= 1, f"train_freq must be >= 1, got {self.train_freq}")
         require(self.gradient_steps >= 0, f"gradient_steps must be >= 0, got {self.gradient_steps}")
+        require(1 <= self.n_step <= 100, f"n_step must be between 1 and 100, got {self.n_step}")
         require(self.epsilon_schedule in SCHEDULES, f"epsilon_schedule must be one of {', '.join(SCHEDULES)}")
         require(
             0.0 <= self.epsilon_end <= self.epsilon_start <= 1.0,

@@ -74,6 +74,7 @@ from cartpole.agents.dqn.algorithm import (
     shaped_rewards,
     td_targets,
 )
+from cartpole.agents.dqn.n_step import NStepWindows
 from cartpole.agents.dqn.q_network import ACTIVATIONS, QNetwork, QNetworkPolicy, network_input_shape
 from cartpole.agents.learner import LearnResult
 from cartpole.agents.nn.conv import (
@@ -453,6 +454,13 @@ class PopulationDQN(SeedRows):
         self.replay_generators = [self.cpu_generator(derived_seed(s, "replay")) for s in self.seeds]
         self.dropout_generators = [self.cpu_generator(derived_seed(s, "dropout")) for s in self.seeds]
         self.episodes = SeedEpisodes(env, config.simulator, self.seeds, config.num_envs)
+        self.windows: NStepWindows | None = None
+        """Each env's transitions not yet stored, with n-step returns (None: one-step rows)."""
+        if config.n_step > 1:
+            envs, dtype = len(self.seeds) * config.num_envs, self.episodes.observations.dtype
+            self.windows = NStepWindows(
+                envs, config.num_envs, config.n_step, config.gamma, env.obs_shape, dtype
+            )
         rows = len(self.seeds)
         self.env_steps = np.zeros(rows, dtype=np.int64)
         self.calls = np.zeros(rows, dtype=np.int64)
@@ -482,6 +490,8 @@ class PopulationDQN(SeedRows):
         self.optimizer.keep(rows)
         self.replay.keep(rows_np)
         self.episodes.keep(rows_np, envs)
+        if self.windows is not None:
+            self.windows.keep(envs)
         self.explore_rngs = [self.explore_rngs[i] for i in rows_np]
         self.replay_generators = [self.replay_generators[i] for i in rows_np]
         self.dropout_generators = [self.dropout_generators[i] for i in rows_np]
@@ -515,7 +525,20 @@ class PopulationDQN(SeedRows):
         stored_rewards = shaped_rewards(config, step.rewards, terminated & valid, step.ended, step.lengths)
         terminal = terminated.astype(np.float32)
         fields = [step.observations, actions, stored_rewards, step.next_observations, terminal]
-        self.replay.add(valid.reshape(seeds, n), fields)
+        if self.windows is None:
+            self.replay.add(valid.reshape(seeds, n), fields)
+        else:
+            rows = self.windows.step(
+                valid,
+                step.observations,
+                actions,
+                stored_rewards,
+                step.next_observations,
+                terminated,
+                step.truncated,
+            )
+            for emitted, row_fields in rows:
+                self.replay.add(emitted.reshape(seeds, n), row_fields)
         collected = valid.reshape(seeds, n).sum(axis=1)
         self.env_steps += collected
 
@@ -643,7 +666,9 @@ class PopulationDQN(SeedRows):
             batch = self.replay.gather(slots[:, step])
             images = self.replay.gather_images(slots[:, step]) if self.replay.images is not None else None
             keeps = self.dropout_keeps(training, counts) if self.net.dropout > 0 else None
-            metrics = self.gradient_step(batch, keeps, mask, count, active, lr, images)
+            last = step == config.gradient_steps - 1
+            measured = self.gradient_step(batch, keeps, mask, count, active, lr, images, metrics=last)
+            metrics = metrics if measured is None else measured
             self.after_step(training)
         return metrics
 
@@ -699,11 +724,13 @@ class PopulationDQN(SeedRows):
         active: torch.Tensor,
         lr: torch.Tensor,
         images: tuple[torch.Tensor, torch.Tensor] | None = None,
-    ) -> torch.Tensor:
+        metrics: bool = True,
+    ) -> torch.Tensor | None:
         """One update of the online networks of the ``active`` seeds on ``batch`` [S, B, row width]
         (rows where ``mask`` is 0 are padding), the observations and next observations of image
-        networks being ``images`` (uint8 [S, B, C, H, W] each); each seed's loss and Q mean [S, 2]
-        (detached)."""
+        networks being ``images`` (uint8 [S, B, C, H, W] each); with ``metrics``, each seed's loss
+        and Q mean [S, 2] (detached; a round reports its last step's, and a gradient by hand needs
+        no loss)."""
         config, net, d = self.config, self.net, self.replay.obs_dim
         if images is not None:
             observations, next_observations = images
@@ -718,14 +745,11 @@ class PopulationDQN(SeedRows):
             q_all = net.forward(net.params, observations, self.activation, keeps, inputs if by_hand else None)
             targets = self.targets(next_observations, rewards, terminated)
             q = q_all.gather(2, actions).squeeze(2)
-            if config.loss == "huber":
-                elementwise = F.smooth_l1_loss(q, targets, reduction="none")
-            else:
-                elementwise = F.mse_loss(q, targets, reduction="none")
-            losses = (elementwise * mask).sum(dim=1) / count  # each seed's mean over its own rows
+            losses = self.losses(q, targets, mask, count) if metrics or not by_hand else None
         if by_hand:
             net.backward_by_hand(inputs, self.q_gradient(q, targets, actions, mask, count, active, q_all))
         else:
+            assert losses is not None
             net.grad.zero_()
             with warnings.catch_warnings():
                 # The gradients are views of one [S, P] tensor on purpose (see StackedQNetwork).
@@ -737,9 +761,22 @@ class PopulationDQN(SeedRows):
             norms = torch.linalg.vector_norm(net.grad, dim=1, keepdim=True)
             net.grad.mul_((config.max_grad_norm / (norms + 1e-6)).clamp(max=1.0))
         self.optimizer.step(net.flat, net.grad, lr, active)
+        if not metrics or losses is None:
+            return None
         with torch.no_grad():
             q_means = (q.detach() * mask).sum(dim=1) / count
             return torch.stack([losses.detach(), q_means], dim=1)
+
+    def losses(
+        self, q: torch.Tensor, targets: torch.Tensor, mask: torch.Tensor, count: torch.Tensor
+    ) -> torch.Tensor:
+        """Each seed's mean TD loss [S] over its own rows (where ``mask`` is 1) of ``q`` against
+        ``targets`` [S, B]."""
+        if self.config.loss == "huber":
+            elementwise = F.smooth_l1_loss(q, targets, reduction="none")
+        else:
+            elementwise = F.mse_loss(q, targets, reduction="none")
+        return (elementwise * mask).sum(dim=1) / count
 
     def q_gradient(
         self,
@@ -782,7 +819,7 @@ class PopulationDQN(SeedRows):
             terminated.reshape(-1),
             next_q_target.reshape(-1, n_actions),
             None if next_q_online is None else next_q_online.reshape(-1, n_actions),
-            config.gamma,
+            config.gamma**config.n_step,
         )
         return targets.view(seeds, rows)
 
@@ -845,6 +882,10 @@ class PopulationDQN(SeedRows):
         tensors["rng.replay"] = self.replay_generators[row].get_state()
         env_tensors, env_data = self.episodes.seed_state(row)
         tensors |= env_tensors
+        if self.windows is not None:
+            window_tensors, window_data = self.windows.seed_state(row)
+            tensors |= window_tensors
+            data |= window_data
         data |= env_data | {
             "population": True,
             **optim_data,
@@ -888,6 +929,8 @@ class PopulationDQN(SeedRows):
         self.last_loss[row] = nan_if_none(data.get("last_loss"))
         self.last_q_mean[row] = nan_if_none(data.get("last_q_mean"))
         self.episodes.load_seed_state(row, tensors, data)
+        if self.windows is not None:
+            self.windows.load_seed_state(row, tensors, data)
         self.greedy = None  # the row's weights and observations changed
 
 
