@@ -26,6 +26,7 @@ from cartpole.envs import env_info
 from cartpole.evaluation import evaluate, play_greedy_blocks
 from cartpole.runs import Checkpoint
 from cartpole.runs.checkpoint import load_checkpoint, save_checkpoint
+from cartpole.training.config import resolve_config
 
 CARTPOLE = env_info("CartPole-v1")
 SMALL: dict[str, Any] = {
@@ -224,6 +225,14 @@ def test_no_gradient_step_before_learning_starts_counted_in_the_seeds_own_env_st
         assert ("train/loss" in result.scalars) == (steps > 0)
         assert ("train/q_mean" in result.scalars) == (steps > 0)
     assert steps > 0
+
+
+def test_with_n_step_rows_a_seed_trains_once_its_replay_holds_rows():
+    """3-step rows reach the replay from the third step on: no gradient step before, even from step 0."""
+    population = small_population([1], n_step=3, learning_starts=0)
+    steps = [r[1].scalars["train/gradient_steps"] for r in learn(population, 4)]
+    assert steps == [0.0, 0.0, 4.0, 8.0]
+    assert population.replay.size[0] == 2 * 4
 
 
 def test_a_seed_behind_the_others_sits_the_gradient_steps_out():
@@ -493,7 +502,8 @@ def test_the_default_preset_solves_cartpole_for_most_seeds():
     three float modes). Seeds 0-3 reach it 3 of 4 with AVX2 kernels but 2 of 4 under
     ``ATEN_CPU_CAPABILITY=default``; seeds 4-7 pass with AVX2, ``ATEN_CPU_CAPABILITY=default`` and
     ``MKL_CBWR=COMPATIBLE``."""
-    best = train_until_solved(DQNConfig(), [4, 5, 6, 7], budget=30_000, check_every=1000)
+    config, _ = resolve_config("dqn", DQNConfig, "default")
+    best = train_until_solved(config, [4, 5, 6, 7], budget=30_000, check_every=1000)
     assert sum(mean >= 400 for mean in best.values()) >= 3, best
 
 

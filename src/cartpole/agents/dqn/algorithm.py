@@ -46,7 +46,9 @@ OPTIMIZERS = ("adam", "rmsprop")
 
 @dataclass
 class DQNConfig:
-    """Hyperparameters of DQN. Defaults are the ``default`` preset's values for CartPole-v1."""
+    """Hyperparameters of DQN. Defaults are the ``default`` preset's values for CartPole-v1 but
+    ``n_step``, 1 here (one-step DQN, which the other presets and preset files that do not name it
+    keep) and 3 in the preset."""
 
     # network
     hidden_sizes: tuple[int, ...] = (64, 64)
@@ -110,7 +112,7 @@ class DQNConfig:
     """Initial probability of a random action."""
     epsilon_end: float = 0.01
     """Final (minimum) probability of a random action."""
-    epsilon_decay_steps: int = 3000
+    epsilon_decay_steps: int = 5000
     """Env steps of the linear decay, or the time constant of the exponential one."""
     epsilon_decay_rate: float = 0.999
     """Factor applied per gradient step by the multiplicative schedule."""

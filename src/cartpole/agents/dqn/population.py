@@ -544,7 +544,7 @@ class PopulationDQN(SeedRows):
 
         self.calls += 1
         training = (self.calls % config.train_freq == 0) & (self.env_steps >= config.learning_starts)
-        training &= config.gradient_steps > 0
+        training &= (config.gradient_steps > 0) & (self.replay.size > 0)  # n-step rows come n steps late
         metrics = self.train(training) if training.any() else None
         self.read_back(metrics, training)
         return self.results(collected, finished, epsilons)
