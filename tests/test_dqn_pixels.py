@@ -49,6 +49,7 @@ VARIANTS = [
     {},
     {"frame_difference": True, "optimizer": "rmsprop", "max_grad_value": 1.0, "double_dqn": False},
     {"dueling": True, "hidden_sizes": ()},
+    {"n_step": 3},
 ]
 
 
@@ -100,7 +101,7 @@ def through_a_checkpoint_file(tensors: dict[str, torch.Tensor], data: dict) -> t
     return torch.load(buffer, weights_only=True), json.loads(json.dumps(data))
 
 
-@pytest.mark.parametrize("changes", VARIANTS[:2])
+@pytest.mark.parametrize("changes", [VARIANTS[0], VARIANTS[1], VARIANTS[3]])
 def test_a_pixel_run_stopped_and_resumed_is_the_run_never_stopped(changes):
     whole, first = population([3], **changes), population([3], **changes)
     steps = [whole.learn()[3].scalars for _ in range(24)]
@@ -146,6 +147,12 @@ def test_the_replay_keeps_pixels_as_uint8_and_the_memory_estimate_counts_them():
     estimated = dqn_bytes_per_seed(configs[1], env) - dqn_bytes_per_seed(configs[0], env)
     measured = pops[1].replay.nbytes - pops[0].replay.nbytes
     assert measured <= estimated <= 1.01 * measured
+    # n-step windows hold each env's last frame stacks, as uint8 too.
+    windows = population([0, 1], n_step=3).windows
+    assert windows is not None and windows.observations.dtype == np.uint8
+    held = sum(a.nbytes for a in (windows.observations, windows.actions, windows.rewards, windows.count))
+    n_step = dataclasses.replace(TINY, n_step=3)
+    assert dqn_bytes_per_seed(n_step, env) - dqn_bytes_per_seed(TINY, env) == held // 2
     big, replay = pops[1], pops[1].replay
     # It holds the frame stacks the envs showed, unchanged: obs, and next obs.
     shown = big.episodes.envs.observations().copy()

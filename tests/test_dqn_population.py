@@ -412,6 +412,14 @@ def test_bytes_per_seed_counts_the_replay_and_the_networks():
     )
 
 
+def test_bytes_per_seed_counts_the_n_step_windows():
+    one_step, three_step = DQNConfig(n_step=1), DQNConfig(n_step=3)
+    windows = PopulationDQN(three_step, CARTPOLE, [0, 1]).windows
+    assert windows is not None and PopulationDQN(one_step, CARTPOLE, [0]).windows is None
+    held = sum(a.nbytes for a in (windows.observations, windows.actions, windows.rewards, windows.count))
+    assert dqn_bytes_per_seed(three_step, CARTPOLE) - dqn_bytes_per_seed(one_step, CARTPOLE) == held // 2
+
+
 # -- devices and refusals -------------------------------------------------------------------------
 
 

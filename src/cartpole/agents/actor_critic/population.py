@@ -253,18 +253,23 @@ class StackedActorCritic(FlatParameters[ActorCritic]):
         """Logits [S, B, n_actions] and values [S, B] of observations [S, B, *obs_shape] under the
         networks of the seeds at ``rows`` (None: all), for a loss that :meth:`backward` differentiates.
         An MLP runs without autograd, keeping what the backward pass by hand needs."""
-        params = self.params if rows is None else {name: p[rows] for name, p in self.params.items()}
         self.update_pass = None
         if not self.by_hand:
+            params = self.rows_of_params(rows)
             scale = self.scale_once
             logits = self.run(self.actor_plan, params, observations, scale)
             return logits, self.run(self.critic_plan, params, observations, scale).squeeze(-1)
-        with torch.no_grad():
+        with torch.no_grad():  # the rows' parameters too: the gradients by hand need no graph
+            params = self.rows_of_params(rows)
             inputs: tuple[list[torch.Tensor], list[torch.Tensor]] = ([], [])
             logits = self.run(self.actor_plan, params, observations, inputs=inputs[0]).requires_grad_()
             values = self.run(self.critic_plan, params, observations, inputs=inputs[1]).requires_grad_()
         self.update_pass = UpdatePass((logits, values), inputs, params, rows)
         return logits, values.squeeze(-1)
+
+    def rows_of_params(self, rows: torch.Tensor | None) -> dict[str, torch.Tensor]:
+        """The parameters of the seeds at ``rows`` (None: all)."""
+        return self.params if rows is None else {name: p[rows] for name, p in self.params.items()}
 
     def backward(self, loss: torch.Tensor) -> None:
         """Add to ``grad`` the gradient of ``loss`` (a scalar) with respect to the parameters, through

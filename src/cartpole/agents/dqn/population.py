@@ -997,12 +997,22 @@ def replay_bytes(config: DQNConfig, env: EnvInfo) -> int:
     return config.buffer_size * (2 * env.obs_dim + 3) * 4
 
 
+def n_step_window_bytes(config: DQNConfig, env: EnvInfo) -> int:
+    """The bytes of one seed's n-step windows (none for one-step rows): each env's last ``n_step``
+    observations (uint8 pixels or float32 states), int64 actions and float32 rewards, and how many
+    it holds (int64)."""
+    if config.n_step == 1:
+        return 0
+    observation = env.obs_dim * (1 if env.is_image else 4)
+    return config.num_envs * (config.n_step * (observation + 8 + 4) + 8)
+
+
 def dqn_bytes_per_seed(config: DQNConfig, env: EnvInfo) -> int:
-    """What one seed of a DQN population holds, roughly: its replay rows, its parameters five times
-    (online, target, gradient, Adam's two moments), a minibatch's activations (the online pass with
-    its gradients, the target and online passes over the next states, dropout masks) and the
-    per-seed bookkeeping (run folder, callbacks). Image networks' activations include the scaled
-    pixels and every convolutional layer's output."""
+    """What one seed of a DQN population holds, roughly: its replay rows and n-step windows, its
+    parameters five times (online, target, gradient, Adam's two moments), a minibatch's activations
+    (the online pass with its gradients, the target and online passes over the next states, dropout
+    masks) and the per-seed bookkeeping (run folder, callbacks). Image networks' activations include
+    the scaled pixels and every convolutional layer's output."""
     config.check_env(env)  # settings that cannot fit the env's images: one line, not an estimate
     parameters = padded(q_network_parameters(config, env)) * 4 * 5
     rows = padded(config.batch_size)
@@ -1012,7 +1022,8 @@ def dqn_bytes_per_seed(config: DQNConfig, env: EnvInfo) -> int:
         inputs = env.obs_dim + math.prod(shown) + conv_activations(shown, config.conv_layers)
     activations = rows * (sum(config.hidden_sizes) + env.n_actions + inputs + 8) * 4 * 8
     bookkeeping = 2 * 1024**2
-    return replay_bytes(config, env) + parameters + activations + bookkeeping
+    held = replay_bytes(config, env) + n_step_window_bytes(config, env)
+    return held + parameters + activations + bookkeeping
 
 
 AGENT = AgentSpec(
@@ -1036,6 +1047,7 @@ __all__ = [
     "StackedReplay",
     "block_greedy_q_actor",
     "dqn_bytes_per_seed",
+    "n_step_window_bytes",
     "q_network_parameters",
     "replay_bytes",
 ]
