@@ -211,6 +211,31 @@ def test_eval_screen_below_threshold_skips_the_full_evaluation(monkeypatch):
     assert final.solved and calls[1:] == [(7, "fast"), (100, "gymnasium")]
 
 
+def test_confirm_solves_plays_a_passing_evaluation_again_and_reports_the_lower(monkeypatch):
+    calls: list[tuple[int, int, str]] = []
+    full_means: list[float] = []
+
+    def fake_evaluate(policy, env_id, episodes, seed=None, *, simulator="gymnasium"):
+        calls.append((episodes, seed, simulator))
+        return report(500.0 if simulator == "fast" else full_means.pop(0), episodes)
+
+    monkeypatch.setattr("cartpole.training.callbacks.evaluate", fake_evaluate)
+    settings = TrainSettings(eval_screen_episodes=7, confirm_solves=True)
+    callback = EvalCallback(env_info("CartPole-v1"), 0, settings)
+    loop = TrainingLoop(FakeLearner(), [callback])
+    full_means[:] = [480.0, 470.0]  # passed once by luck: not solved
+    first = callback.evaluate(loop)
+    assert first.mean == 470.0 and not first.solved
+    (_, _, fast), (_, full, where), (episodes, again, there) = calls
+    assert (fast, where, there, episodes) == ("fast", "gymnasium", "gymnasium", 100)
+    assert again == full + 100  # the next 100 episode seeds of the full evaluation's stream
+    full_means[:] = [470.0]  # a full evaluation that fails is not played again
+    assert callback.evaluate(loop).mean == 470.0 and len(calls) == 5
+    full_means[:] = [480.0, 490.0]  # both pass: solved, with the lower mean
+    solved = callback.evaluate(loop)
+    assert solved.solved and solved.mean == 480.0 and len(calls) == 8
+
+
 def test_stop_when_solved():
     loop = TrainingLoop(FakeLearner(), [StopWhenSolved()])
     assert loop.record_eval(report(300.0)) is True

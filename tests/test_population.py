@@ -3,6 +3,7 @@ batched verdicts that match single evaluations, resume, and bad input refused be
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import signal
@@ -421,8 +422,13 @@ def test_evaluations_played_together_are_each_seeds_own():
     each seed the report its own screened evaluation gives."""
     population = PopulationPPO(small_config(), CARTPOLE, [3, 5, 8])
     learn(population, 3)
-    settings = TrainSettings(eval_screen_episodes=4, eval_episodes=6)
-    for env in (CARTPOLE, replace(CARTPOLE, reward_threshold=5.0)):  # the second passes every screen
+    for settings, env in itertools.product(
+        (
+            TrainSettings(eval_screen_episodes=4, eval_episodes=6),
+            TrainSettings(eval_screen_episodes=4, eval_episodes=6, confirm_solves=True),
+        ),
+        (CARTPOLE, replace(CARTPOLE, reward_threshold=5.0)),  # the second passes every screen
+    ):
         reports = PopulationEvaluations(population, env, settings).screened([(3, 0), (8, 4)])
         assert sorted(reports) == [3, 8]
         for seed, index in ((3, 0), (8, 4)):

@@ -14,7 +14,7 @@ from cartpole.agents.learner import LearnResult
 from cartpole.agents.registry import AgentSpec
 from cartpole.core.names import CheckpointName, RunState, StopReason
 from cartpole.core.seeding import eval_seed
-from cartpole.envs import EnvInfo, check_simulator
+from cartpole.envs import EnvInfo, Simulator, check_simulator
 from cartpole.evaluation import MIN_EPISODES_FOR_SOLVED, EvalReport, Policy, evaluate
 from cartpole.runs import Checkpoint, LiveStatus, RunDir, save_checkpoint
 from cartpole.training.budget import Budget
@@ -107,25 +107,69 @@ class EvalCallback(Callback):
         )
 
 
+PlayEpisodes = Callable[[list[int], list[int], int, Simulator], list[EvalReport]]
+"""Plays greedy episodes of several runs' policies: (run seeds, each run's first episode seed,
+episodes, simulator) -> a report per run, each from episode seeds ``first, first + 1, ...``."""
+
+
+def screened_reports(
+    due: list[tuple[int, int]], play: PlayEpisodes, env: EnvInfo, settings: TrainSettings
+) -> dict[int, EvalReport]:
+    """Reports of the ``(run seed, evaluation index)`` pairs in ``due``: for evaluation ``index`` of
+    run ``seed``, a screen of ``eval_screen_episodes`` on the fast simulator; when its mean reaches
+    the threshold, the full ``eval_episodes`` on ``eval_simulator``; and when that passes too and
+    ``confirm_solves`` is set, the next ``eval_episodes`` episode seeds of the same stream, the run's
+    report being the lower of the two full ones (a solve counts when both pass)."""
+    full_simulator = check_simulator(settings.eval_simulator)
+
+    def played(
+        pairs: list[tuple[int, int]], first: Callable[[int, int], int], episodes: int, simulator: Simulator
+    ) -> dict[int, EvalReport]:
+        reports = play([seed for seed, _ in pairs], [first(*pair) for pair in pairs], episodes, simulator)
+        return dict(zip([seed for seed, _ in pairs], reports, strict=True))
+
+    def passing() -> list[tuple[int, int]]:
+        threshold = env.reward_threshold
+        return [
+            (seed, index) for seed, index in due if threshold is not None and reports[seed].mean >= threshold
+        ]
+
+    reports = played(due, screen_seed, settings.eval_screen_episodes, "fast")
+    if passed := passing():
+        reports.update(played(passed, full_seed, settings.eval_episodes, full_simulator))
+    if settings.confirm_solves and (passed := passing()):
+        confirmations = played(passed, confirmation_seed(settings), settings.eval_episodes, full_simulator)
+        reports.update(
+            {seed: min(reports[seed], again, key=lambda r: r.mean) for seed, again in confirmations.items()}
+        )
+    return reports
+
+
+def screen_seed(seed: int, index: int) -> int:
+    """First episode seed of the screen of evaluation ``index`` of run ``seed``."""
+    return eval_seed(seed, 2 * index)
+
+
+def full_seed(seed: int, index: int) -> int:
+    """First episode seed of the full evaluation of evaluation ``index`` of run ``seed``."""
+    return eval_seed(seed, 2 * index + 1)
+
+
+def confirmation_seed(settings: TrainSettings) -> Callable[[int, int], int]:
+    """First episode seed of a full evaluation's confirmation: the episode after its last."""
+    return lambda seed, index: full_seed(seed, index) + settings.eval_episodes
+
+
 def screened_evaluation(
     policy: Policy, env: EnvInfo, seed: int, index: int, settings: TrainSettings
 ) -> EvalReport:
-    """The ``index``-th evaluation of run ``seed``: a screen of ``eval_screen_episodes`` on the fast
-    simulator, then, when its mean reaches the threshold, the full ``eval_episodes`` on
-    ``eval_simulator``. (Also how the benchmarks judge other libraries' agents.)"""
-    screen = evaluate(
-        policy, env.env_id, settings.eval_screen_episodes, seed=eval_seed(seed, 2 * index), simulator="fast"
-    )
-    threshold = env.reward_threshold
-    if threshold is None or screen.mean < threshold:
-        return screen
-    return evaluate(
-        policy,
-        env.env_id,
-        settings.eval_episodes,
-        seed=eval_seed(seed, 2 * index + 1),
-        simulator=check_simulator(settings.eval_simulator),
-    )
+    """The ``index``-th evaluation of run ``seed`` (:func:`screened_reports`). (Also how the
+    benchmarks judge other libraries' agents.)"""
+
+    def play(seeds: list[int], first: list[int], episodes: int, simulator: Simulator) -> list[EvalReport]:
+        return [evaluate(policy, env.env_id, episodes, seed=first[0], simulator=simulator)]
+
+    return screened_reports([(seed, index)], play, env, settings)[seed]
 
 
 class StopWhenSolved(Callback):

@@ -32,6 +32,11 @@ class TrainSettings:
     eval_simulator: str = "gymnasium"
     """Simulator of the full evaluations during training (the ones that stop a run at a solve):
     "gymnasium" (the reference) or "fast"."""
+    confirm_solves: bool = False
+    """Play a full evaluation that passes again, on the next ``eval_episodes`` episode seeds of its
+    stream: the evaluation reports the lower of the two, so a solve counts (and ends training) only
+    when both pass. A policy that passed once by luck is then rarely called solved, and the final
+    verdict, a third evaluation, agrees more often."""
     verdict_simulator: str | None = None
     """Simulator of the final verdict: "gymnasium" or "fast"; none: the ``eval_simulator``. (The
     pixel presets evaluate on our renderer during training and judge on Gymnasium's pictures.)"""

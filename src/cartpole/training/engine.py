@@ -25,12 +25,12 @@ import numpy as np
 from cartpole.agents.learner import LearnResult
 from cartpole.agents.population import Population
 from cartpole.core.names import CheckpointName, RunState, StopReason
-from cartpole.core.seeding import eval_seed, final_eval_seed
+from cartpole.core.seeding import final_eval_seed
 from cartpole.envs import EnvInfo, Simulator, check_simulator
 from cartpole.evaluation import MIN_EPISODES_FOR_SOLVED, EvalReport, Policy, play_greedy_blocks
 from cartpole.runs import LiveStatus, RunDir, load_checkpoint
 from cartpole.training.budget import Budget
-from cartpole.training.callbacks import MetricsCallback, status_fields
+from cartpole.training.callbacks import MetricsCallback, screened_reports, status_fields
 from cartpole.training.config import TrainSettings
 from cartpole.training.loop import Callback, LoopState, TrainingLoop, failure_detail
 from cartpole.training.setup import RunSetup, make_callbacks
@@ -132,28 +132,9 @@ class PopulationEvaluations:
         self.waiting = {}
 
     def screened(self, due: list[tuple[int, int]]) -> dict[int, EvalReport]:
-        """Reports of the ``(seed, evaluation index)`` pairs in ``due``: screens on the fast
-        simulator, then the full evaluation for the seeds whose screen reached the threshold."""
-        settings, threshold = self.settings, self.env.reward_threshold
-        screens = self.play(
-            [seed for seed, _ in due],
-            [eval_seed(seed, 2 * index) for seed, index in due],
-            settings.eval_screen_episodes,
-            "fast",
-        )
-        reports = {seed: report for (seed, _), report in zip(due, screens, strict=True)}
-        passed = [
-            (seed, index) for seed, index in due if threshold is not None and reports[seed].mean >= threshold
-        ]
-        if passed:
-            full = self.play(
-                [seed for seed, _ in passed],
-                [eval_seed(seed, 2 * index + 1) for seed, index in passed],
-                settings.eval_episodes,
-                check_simulator(settings.eval_simulator),
-            )
-            reports.update(zip([seed for seed, _ in passed], full, strict=True))
-        return reports
+        """Reports of the ``(seed, evaluation index)`` pairs in ``due``
+        (:func:`~cartpole.training.callbacks.screened_reports`)."""
+        return screened_reports(due, self.play, self.env, self.settings)
 
     def play(
         self, seeds: list[int], first_seeds: list[int], episodes: int, simulator: Simulator
