@@ -12,8 +12,9 @@ for ``torch.tanh``, ``np.tanh`` and ``cartpole.agents.nn.fast_tanh`` (the one th
 numpy greedy policies use), the largest relative difference of the last from float64 ``tanh``, and
 GFLOP/s of ``torch.bmm``; then the weight gradient of a 2-output head (``[seeds, width, rows] x
 [seeds, rows, 2]``, autograd's orientation for ``baddbmm``, against ``[seeds, 2, rows] x [seeds,
-rows, width]``, the one ``agents/nn/stacked_linear.py`` takes), and one Adam step of ``[seeds, 9218]``
-parameters (a 64x64 actor-critic) in torch's elementwise form and in the numba pass of
+rows, width]``, the one ``agents/nn/stacked_linear.py`` takes), one seed's ReLU gradient by
+``torch.where`` and by autograd's ``threshold_backward`` (``relu_gradient``), and one Adam step
+of ``[seeds, 9218]`` parameters (a 64x64 actor-critic) in torch's elementwise form and in the numba pass of
 ``agents/nn/population_optimizers.py``. Which kernels NumPy and torch pick depends on the CPU (AVX-512
 or not), so the CPU is printed first. Last, one ``learn()`` (rollout and update) of PPO's, A2C's and
 REINFORCE's default presets for one seed and for ``--seeds``, with the networks' gradients by autograd
@@ -37,6 +38,7 @@ from cpu import describe_cpu
 
 from cartpole.agents.nn.fast_tanh import tanh_array
 from cartpole.agents.nn.population_optimizers import PopulationAdam
+from cartpole.agents.nn.stacked_linear import relu_gradient, relu_gradient_by_where
 
 
 def seconds_per_call(call: Callable[[], object], repeats: int) -> float:
@@ -181,6 +183,13 @@ def main() -> None:
         ("grad^T @ x (stacked_linear)", lambda: torch.bmm(heads.transpose(1, 2), x)),
     ]:
         print(f"head weight gradient, {name:<28} {seconds_per_call(call, args.repeats) * 1e3:6.3f} ms")
+    y, grad = torch.relu(x[:1]), x[:1].flip(1)  # one seed's [rows, width]: DQN's single run
+    for name, call in [
+        ("torch.where (public fallback)", lambda: relu_gradient_by_where(grad, y)),
+        ("threshold_backward (autograd's)", lambda: relu_gradient(grad, y)),
+    ]:
+        seconds = seconds_per_call(call, args.repeats * 20)
+        print(f"ReLU gradient, one seed {list(y.shape)}, {name:<32} {seconds * 1e6:6.2f} us")
     for fused in (False, None):
         seconds = seconds_per_call(adam_step(args.seeds, 9218, fused), args.repeats)
         name = "torch elementwise" if fused is False else "numba, one pass"

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from cartpole.agents.nn.stacked_linear import stacked_linear
+from cartpole.agents.nn.stacked_linear import relu_gradient, relu_gradient_by_where, stacked_linear
 
 
 def reference(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
@@ -56,3 +56,17 @@ def test_inputs_that_need_no_gradient_get_none() -> None:
     assert x.grad is None and weight.grad is not None and bias.grad is not None
     with torch.no_grad():
         assert not stacked_linear(x, weight, bias).requires_grad
+
+
+def test_the_relu_gradient_is_autograds_bit_for_bit_by_either_kernel() -> None:
+    generator = torch.Generator().manual_seed(5)
+    x = torch.randn(3, 40, 16, generator=generator)
+    x[0, :5] = 0.0  # relu(0) = 0: no gradient passes there, as in autograd
+    upstream = torch.randn(3, 40, 16, generator=generator)
+    leaf = x.clone().requires_grad_(True)
+    (torch.relu(leaf) * upstream).sum().backward()
+    assert leaf.grad is not None
+    y = torch.relu(x)
+    for gradient in (relu_gradient(upstream, y), relu_gradient_by_where(upstream, y)):
+        # Bits, not values: -0.0 and 0.0 compare equal.
+        assert torch.equal(gradient.view(torch.int32), leaf.grad.view(torch.int32))
