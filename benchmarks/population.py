@@ -65,6 +65,7 @@ def run_population_part(
         "steps": sum(s.env_steps for s in states),
         "solved_at": [s.solved_at_step for s in states],
         "verified": sum(r.solved for r in outcome.reports.values()),
+        "verdict_means": {seed: report.mean for seed, report in outcome.reports.items()},
         "threads": torch.get_num_threads(),
         "machine": describe_cpu(),
         "device": torch.cuda.get_device_name(0) if device.startswith("cuda") else "cpu",
