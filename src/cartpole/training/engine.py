@@ -105,7 +105,8 @@ class PopulationEvaluations:
     """The periodic evaluations of all seeds due at one step, played together.
 
     As :func:`~cartpole.training.callbacks.screened_evaluation` plays them for one seed (the same
-    episode seeds, the same screen, the same full evaluation when the screen passes), but every due
+    episode seeds; the same screen, full evaluation and confirmation, decided by the same
+    :func:`~cartpole.training.callbacks.screened_reports`), but every due
     seed's episodes run in one vector env, with one batched forward pass of all their networks per
     env step. ``prepare`` runs before the seeds' loops see the step; each seed's evaluation
     callback then takes its report (``evaluator``) instead of evaluating alone.

@@ -46,9 +46,10 @@ OPTIMIZERS = ("adam", "rmsprop")
 
 @dataclass
 class DQNConfig:
-    """Hyperparameters of DQN. Defaults are the ``default`` preset's values for CartPole-v1 but
-    ``n_step``, 1 here (one-step DQN, which the other presets and preset files that do not name it
-    keep) and 3 in the preset."""
+    """Hyperparameters of DQN. Defaults are the ``default`` preset's values for CartPole-v1 but three
+    that the preset changed later and the other presets, and preset files, that do not name them keep:
+    ``n_step`` (1 here: one-step DQN; 3 in the preset), ``gamma`` (0.99; 0.985) and ``epsilon_end``
+    (0.01; 0.05)."""
 
     # network
     hidden_sizes: tuple[int, ...] = (64, 64)
