@@ -553,10 +553,8 @@ def test_a_plain_relu_networks_gradients_by_hand_are_autograds(changes):
         )
     actions = batch[..., 2 * d].long().unsqueeze(2)
     q = q_all.gather(2, actions).squeeze(2)
-    rows = torch.ones(2, 32)
-    grad = population.q_gradient(
-        q, targets, actions, rows, rows.sum(dim=1), torch.ones(2, dtype=torch.bool), q_all
-    )
+    row_weights = torch.full((2, 32), 1 / 32)  # every row counts, each seed's mean over its 32
+    grad = population.q_gradient(q, targets, actions, row_weights, q_all)
     net.backward_by_hand(inputs, grad)
     by_hand = torch.cat([net.params[name].grad.reshape(2, -1) for name in net.params], dim=1)
     assert torch.allclose(by_hand, expected, rtol=1e-5, atol=1e-7)

@@ -13,9 +13,10 @@ arithmetic, along a leading seed axis:
   target networks in a third: a Polyak update is one ``lerp`` over the flat tensors.
 - ``StackedReplay``: the replay memories as one ``[S, capacity, 2 * obs_dim + 3]`` table (the row
   layout: obs | next_obs | action | reward | terminated) with a write position and a fill count per
-  seed; a minibatch of every seed is one ``index_select``. Image observations are kept apart, as
-  uint8 pixels in one ``[2, S, capacity, C, H, W]`` store (obs and next obs; a float32 row would
-  take four times the memory), beside a ``[S, capacity, 3]`` table of action | reward | terminated.
+  seed; the minibatches of a training round's gradient steps, every seed's, are one
+  ``index_select``. Image observations are kept apart, as uint8 pixels in one ``[2, S, capacity, C,
+  H, W]`` store (obs and next obs; a float32 row would take four times the memory), beside a ``[S,
+  capacity, 3]`` table of action | reward | terminated.
 - :func:`~cartpole.envs.seed_envs.make_seed_envs` gives each seed its own ``num_envs`` envs (on
   CartPole's fast simulator all S x ``num_envs`` step in one call), and
   :class:`~cartpole.agents.nn.population_optimizers.PopulationAdam` steps every seed's Adam in one pass.
@@ -61,7 +62,7 @@ import itertools
 import math
 import warnings
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
@@ -113,6 +114,30 @@ TORCH_ACTIVATIONS: dict[str, Callable[[torch.Tensor], torch.Tensor]] = {
     "elu": F.elu,
     "gelu": F.gelu,
 }
+
+
+class Round(NamedTuple):
+    """What every gradient step of one training round shares, on the device: the minibatch row mask
+    [S, B], each seed's row count [S], who trains [S], the learning rates [S], and each row's weight
+    in its seed's mean loss [S, B] (``active / count`` on its rows, 0 on padding)."""
+
+    mask: torch.Tensor
+    row_counts: torch.Tensor
+    active: torch.Tensor
+    lr: torch.Tensor
+    row_weights: torch.Tensor
+
+
+class Minibatch(NamedTuple):
+    """One gradient step's transitions of every seed: observations and next observations [S, B,
+    obs_dim] (image networks: uint8 [S, B, C, H, W]), actions [S, B, 1] (int64), rewards and
+    terminated flags [S, B]."""
+
+    observations: torch.Tensor
+    next_observations: torch.Tensor
+    actions: torch.Tensor
+    rewards: torch.Tensor
+    terminated: torch.Tensor
 
 
 def padded(n: int, multiple: int = ALIGN) -> int:
@@ -172,6 +197,13 @@ class StackedQNetwork(FlatParameters[QNetwork]):
         gradients :meth:`backward_by_hand` computes."""
 
     def bind(self) -> None:
+        if self.target is not None:
+            seeds = self.flat.shape[0]
+            self.pair = torch.cat([self.target, self.flat])
+            """The targets, then the online networks: rows of one [2S, P] tensor, so that double DQN
+            values next states with both in one pass."""
+            self.target, self.flat = self.pair[:seeds], self.pair[seeds:]
+            self.pair_params = self.views(self.pair)
         super().bind()
         self.target_params = self.views(self.target) if self.target is not None else self.params
 
@@ -473,8 +505,11 @@ class PopulationDQN(SeedRows):
         at the end of the last ``learn()`` (read back with its metrics: one device sync a call)."""
         self.batch_rows = padded(config.batch_size)
         self.acting_rows = padded(config.num_envs)
-        self.rounds: dict[bytes, tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]] = {}
+        self.rounds: dict[bytes, Round] = {}
         """The last training round's tensors (see :meth:`round_tensors`), by who trained and their rows."""
+        self.acting_plans: tuple[list[Step], list[Step], list[Step] | None] | None = None
+        """:meth:`numpy_q_values`'s NumPy views of the online weights (which the updates change in
+        place), made on first use and again after seeds leave."""
 
     @staticmethod
     def cpu_generator(seed: int) -> torch.Generator:
@@ -487,6 +522,7 @@ class PopulationDQN(SeedRows):
         rows_np, envs = self.leave(seeds, self.config.num_envs)
         rows = torch.from_numpy(rows_np).to(self.device)
         self.net.keep(rows)
+        self.acting_plans = None
         self.optimizer.keep(rows)
         self.replay.keep(rows_np)
         self.episodes.keep(rows_np, envs)
@@ -585,7 +621,9 @@ class PopulationDQN(SeedRows):
         """Q-values ``[S, B, n_actions]`` of ``x`` [S, B, obs_dim] as :meth:`StackedQNetwork.forward`
         computes them, in NumPy on views of the online weights (CPU only; no copies). ``np.matmul``
         multiplies each seed's slice on its own, so a seed's actions do not depend on its neighbours."""
-        body, head, value = self.numpy_plans(None, copy=False)
+        if self.acting_plans is None:
+            self.acting_plans = self.numpy_plans(None, copy=False)
+        body, head, value = self.acting_plans
         features = run_steps(body, x)
         q = run_steps(head, features)
         if value is not None:  # dueling, as QNetworkPolicy.scores
@@ -659,37 +697,52 @@ class PopulationDQN(SeedRows):
         part (the others sit out); the last step's loss and Q mean per seed [S, 2] (on the device)."""
         config, device = self.config, self.device
         counts = np.where(training, np.minimum(config.batch_size, self.replay.size), 0)
-        slots = self.sample_slots(training, counts)
-        mask, count, active, lr = self.round_tensors(training, counts)
+        shared = self.round_tensors(training, counts)
         metrics = torch.zeros(len(self.seeds), 2, device=device)
-        for step in range(config.gradient_steps):
-            batch = self.replay.gather(slots[:, step])
-            images = self.replay.gather_images(slots[:, step]) if self.replay.images is not None else None
+        for step, minibatch in enumerate(self.minibatches(self.sample_slots(training, counts))):
             keeps = self.dropout_keeps(training, counts) if self.net.dropout > 0 else None
             last = step == config.gradient_steps - 1
-            measured = self.gradient_step(batch, keeps, mask, count, active, lr, images, metrics=last)
+            measured = self.gradient_step(minibatch, keeps, shared, metrics=last)
             metrics = metrics if measured is None else measured
             self.after_step(training)
         return metrics
 
-    def round_tensors(
-        self, training: np.ndarray, counts: np.ndarray
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-        """A training round's row mask [S, B], rows per seed [S], who trains [S] and learning rates
-        [S], on the device; made again only when who trains or how many rows they have changes."""
+    def round_tensors(self, training: np.ndarray, counts: np.ndarray) -> Round:
+        """A training round's shared tensors (:class:`Round`); made again only when who trains or how
+        many rows they have changes."""
         key = training.tobytes() + counts.tobytes()
         if key not in self.rounds:
             device = self.device
-            mask = (np.arange(self.batch_rows) < counts[:, None]).astype(np.float32)
-            self.rounds = {
-                key: (
-                    to_device(torch.from_numpy(mask), device),
-                    to_device(torch.from_numpy(np.maximum(counts, 1).astype(np.float32)), device),
-                    to_device(torch.from_numpy(training.copy()), device),
-                    torch.full((len(self.seeds),), self.config.lr, dtype=torch.float64, device=device),
-                )
-            }
+            rows = (np.arange(self.batch_rows) < counts[:, None]).astype(np.float32)
+            mask = to_device(torch.from_numpy(rows), device)
+            count = to_device(torch.from_numpy(np.maximum(counts, 1).astype(np.float32)), device)
+            active = to_device(torch.from_numpy(training.copy()), device)
+            lr = torch.full((len(self.seeds),), self.config.lr, dtype=torch.float64, device=device)
+            row_weights = (active.to(mask.dtype) / count).unsqueeze(1) * mask
+            self.rounds = {key: Round(mask, count, active, lr, row_weights)}
         return self.rounds[key]
+
+    def minibatches(self, slots: torch.Tensor) -> list[Minibatch]:
+        """Every gradient step's :class:`Minibatch` of a round, from its rows ``slots`` [S, steps, B].
+        The buffers do not change within a round, so the rows of all its steps come in one
+        ``index_select`` and each field is laid out [steps, S, B, ...] in one copy; image networks'
+        pixels are gathered a step at a time."""
+        seeds, steps, rows = slots.shape
+        d = self.replay.obs_dim
+        table = self.replay.gather(slots.view(seeds, steps * rows))
+        table = table.view(seeds, steps, rows, -1).transpose(0, 1)  # [steps, S, B, row width]
+        actions = table[..., 2 * d].long().unsqueeze(3)
+        rewards, terminated = table[..., 2 * d + 1].contiguous(), table[..., 2 * d + 2].contiguous()
+        if self.replay.images is None:
+            observations = table[..., :d].contiguous()
+            next_observations = table[..., d : 2 * d].contiguous()
+            pixels = list(zip(observations, next_observations, strict=True))
+        else:
+            pixels = [self.replay.gather_images(slots[:, step]) for step in range(steps)]
+        return [
+            Minibatch(obs, next_obs, actions[step], rewards[step], terminated[step])
+            for step, (obs, next_obs) in enumerate(pixels)
+        ]
 
     def sample_slots(self, training: np.ndarray, counts: np.ndarray) -> torch.Tensor:
         """Each training seed's minibatch rows for every gradient step of this round, drawn uniformly
@@ -717,37 +770,28 @@ class PopulationDQN(SeedRows):
 
     def gradient_step(
         self,
-        batch: torch.Tensor,
+        minibatch: Minibatch,
         keeps: list[torch.Tensor] | None,
-        mask: torch.Tensor,
-        count: torch.Tensor,
-        active: torch.Tensor,
-        lr: torch.Tensor,
-        images: tuple[torch.Tensor, torch.Tensor] | None = None,
+        shared: Round,
         metrics: bool = True,
     ) -> torch.Tensor | None:
-        """One update of the online networks of the ``active`` seeds on ``batch`` [S, B, row width]
-        (rows where ``mask`` is 0 are padding), the observations and next observations of image
-        networks being ``images`` (uint8 [S, B, C, H, W] each); with ``metrics``, each seed's loss
-        and Q mean [S, 2] (detached; a round reports its last step's, and a gradient by hand needs
-        no loss)."""
-        config, net, d = self.config, self.net, self.replay.obs_dim
-        if images is not None:
-            observations, next_observations = images
-        else:
-            observations = batch[..., :d].contiguous()
-            next_observations = batch[..., d : 2 * d].contiguous()
-        actions = batch[..., 2 * d].long().unsqueeze(2)
-        rewards, terminated = batch[..., 2 * d + 1], batch[..., 2 * d + 2]
+        """One update of the online networks of the active seeds on ``minibatch`` (its rows where the
+        round's mask is 0 are padding); with ``metrics``, each seed's loss and Q mean [S, 2]
+        (detached; a round reports its last step's, and a gradient by hand needs no loss)."""
+        config, net = self.config, self.net
+        mask, count, active = shared.mask, shared.row_counts, shared.active
         by_hand = net.plain_relu and keeps is None
         inputs: list[torch.Tensor] = []
         with torch.set_grad_enabled(not by_hand):
-            q_all = net.forward(net.params, observations, self.activation, keeps, inputs if by_hand else None)
-            targets = self.targets(next_observations, rewards, terminated)
-            q = q_all.gather(2, actions).squeeze(2)
+            q_all = net.forward(
+                net.params, minibatch.observations, self.activation, keeps, inputs if by_hand else None
+            )
+            targets = self.targets(minibatch.next_observations, minibatch.rewards, minibatch.terminated)
+            q = q_all.gather(2, minibatch.actions).squeeze(2)
             losses = self.losses(q, targets, mask, count) if metrics or not by_hand else None
         if by_hand:
-            net.backward_by_hand(inputs, self.q_gradient(q, targets, actions, mask, count, active, q_all))
+            grad = self.q_gradient(q, targets, minibatch.actions, shared.row_weights, q_all)
+            net.backward_by_hand(inputs, grad)
         else:
             assert losses is not None
             net.grad.zero_()
@@ -760,7 +804,7 @@ class PopulationDQN(SeedRows):
         if config.max_grad_norm is not None:  # each seed's global norm, as clip_grad_norm_ computes it
             norms = torch.linalg.vector_norm(net.grad, dim=1, keepdim=True)
             net.grad.mul_((config.max_grad_norm / (norms + 1e-6)).clamp(max=1.0))
-        self.optimizer.step(net.flat, net.grad, lr, active)
+        self.optimizer.step(net.flat, net.grad, shared.lr, active)
         if not metrics or losses is None:
             return None
         with torch.no_grad():
@@ -783,18 +827,16 @@ class PopulationDQN(SeedRows):
         q: torch.Tensor,
         targets: torch.Tensor,
         actions: torch.Tensor,
-        mask: torch.Tensor,
-        count: torch.Tensor,
-        active: torch.Tensor,
+        row_weights: torch.Tensor,
         q_all: torch.Tensor,
     ) -> torch.Tensor:
         """The gradient of the summed loss of :meth:`gradient_step` with respect to every Q-value
-        ``[S, B, n_actions]``: each active seed's mean loss over its own rows, through the taken
-        actions' Q-values ``q`` [S, B] (Huber's derivative is the error clipped to [-1, 1])."""
-        per_row = (active.to(q.dtype) / count).unsqueeze(1) * mask
+        ``[S, B, n_actions]``: each active seed's mean loss over its own rows (``row_weights``, see
+        :class:`Round`), through the taken actions' Q-values ``q`` [S, B] (Huber's derivative is the
+        error clipped to [-1, 1])."""
         error = q - targets
         slope = error.clamp(-1.0, 1.0) if self.config.loss == "huber" else 2.0 * error
-        return torch.zeros_like(q_all).scatter_(2, actions, (slope * per_row).unsqueeze(2))
+        return torch.zeros_like(q_all).scatter_(2, actions, (slope * row_weights).unsqueeze(2))
 
     @torch.no_grad()
     def targets(
@@ -805,9 +847,8 @@ class PopulationDQN(SeedRows):
         config, net = self.config, self.net
         next_q_online = None
         if config.double_dqn and net.target is not None:  # both networks in one pass
-            both = torch.cat([net.target, net.flat])  # [2S, P]: the targets, then the online nets
-            repeats = (2,) + (1,) * (next_observations.dim() - 1)
-            q = net.forward(net.views(both), next_observations.repeat(*repeats), self.activation)
+            twice = torch.cat([next_observations, next_observations])  # a fifth of repeat()'s time
+            q = net.forward(net.pair_params, twice, self.activation)
             next_q_target, next_q_online = q.chunk(2)
         else:
             next_q_target = net.forward(net.target_params, next_observations, self.activation)
