@@ -561,6 +561,30 @@ def test_a_plain_relu_networks_gradients_by_hand_are_autograds(changes):
     assert by_hand.abs().sum() > 0
 
 
+def test_kept_activation_buffers_give_the_same_values_and_outlive_another_pass():
+    """A plain ReLU MLP's passes without autograd write their hidden activations into kept tensors
+    (one set per name): the same Q-values and layer inputs as fresh tensors, and a pass under
+    another name (the next states') leaves the first pass's inputs, which the backward needs, intact."""
+    population = small_population([3, 5])
+    learn(population, 40)
+    net, d = population.net, CARTPOLE.obs_dim
+    batch = population.replay.gather(
+        torch.randint(0, 100, (2, 32), generator=torch.Generator().manual_seed(0))
+    )
+    observations, next_observations = batch[..., :d].contiguous(), batch[..., d : 2 * d].contiguous()
+    fresh_inputs: list[torch.Tensor] = []
+    kept_inputs: list[torch.Tensor] = []
+    with torch.no_grad():
+        fresh = net.forward(net.params, observations, population.activation, inputs=fresh_inputs)
+        kept = net.forward(net.params, observations, population.activation, inputs=kept_inputs, buffers="a")
+        snapshot = [x.clone() for x in kept_inputs]
+        other = net.forward(net.params, next_observations, population.activation, buffers="b")
+    assert torch.equal(fresh, kept)
+    assert all(torch.equal(f, k) for f, k in zip(fresh_inputs, kept_inputs, strict=True))
+    assert all(torch.equal(s, k) for s, k in zip(snapshot, kept_inputs, strict=True))
+    assert not torch.equal(other, kept)
+
+
 @pytest.mark.parametrize("changes", [{"dropout": 0.2}, {"dueling": True}, {"activation": "tanh"}])
 def test_other_networks_take_autograds_backward(changes):
     assert not small_population([3], **changes).net.plain_relu

@@ -91,7 +91,7 @@ from cartpole.agents.nn.flat_parameters import FlatParameters, on_the_cpu
 from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step, run_steps
 from cartpole.agents.nn.population_optimizers import PopulationAdam, PopulationOptimizer, PopulationRMSprop
 from cartpole.agents.nn.stacked_conv import channels_last, stacked_conv2d
-from cartpole.agents.nn.stacked_linear import mlp_gradients, relu_gradient, stacked_linear
+from cartpole.agents.nn.stacked_linear import linear_forward, mlp_gradients, relu_gradient, stacked_linear
 from cartpole.agents.population import Finished, SeedEpisodes, SeedRows, require_training_state
 from cartpole.agents.registry import AgentSpec
 from cartpole.core.errors import ConfigError
@@ -175,6 +175,8 @@ class StackedQNetwork(FlatParameters[QNetwork]):
         if target_network:
             self.target = self.flat.clone()
             self.bind()
+        self.buffers: dict[str, torch.Tensor] = {}
+        """:meth:`buffer`'s tensors, by name."""
         self.hidden: list[tuple[str, str]] = []
         """(weight, bias) of each hidden layer, in order; an activation (and dropout) follows each."""
         for index, layer in enumerate(template.body):
@@ -214,17 +216,25 @@ class StackedQNetwork(FlatParameters[QNetwork]):
         activation: Callable[[torch.Tensor], torch.Tensor],
         keeps: list[torch.Tensor] | None = None,
         inputs: list[torch.Tensor] | None = None,
+        buffers: str | None = None,
     ) -> torch.Tensor:
         """Q-values ``[S, B, n_actions]`` of observations ``x`` [S, B, obs_dim] (images: [S, B, C, H,
         W] pixels), as ``QNetwork.forward``; ``keeps`` (one bool mask ``[S, B, width]`` per hidden
         layer) applies dropout as :class:`~cartpole.agents.dqn.q_network.GeneratorDropout` does.
         ``inputs``, when given, receives each linear layer's input, in order (for
-        :meth:`backward_by_hand`)."""
+        :meth:`backward_by_hand`). ``buffers`` names the hidden layers' outputs of a plain ReLU MLP
+        without autograd: they are written into tensors kept under that name (:meth:`buffer`),
+        valid until the next pass under the same name."""
         if self.convs:
             x = self.conv_features(params, x)
+        reuse = buffers is not None and self.plain_relu and not torch.is_grad_enabled()
         for index, (weight, bias) in enumerate(self.hidden):
             if inputs is not None:
                 inputs.append(x)
+            if reuse:
+                out = self.buffer(f"{buffers}.{index}", (*x.shape[:2], params[bias].shape[1]))
+                x = linear_forward(x, params[weight], params[bias], out).relu_()
+                continue
             x = activation(stacked_linear(x, params[weight], params[bias]))
             if keeps is not None:
                 x = x * keeps[index] / (1.0 - self.dropout)
@@ -238,6 +248,15 @@ class StackedQNetwork(FlatParameters[QNetwork]):
                 - q.mean(dim=2, keepdim=True)
             )
         return q
+
+    def buffer(self, name: str, shape: tuple[int, ...]) -> torch.Tensor:
+        """The float tensor kept under ``name``, (re)made when ``shape`` differs from its own: a
+        gradient step's large activations reuse the same memory instead of new allocations each
+        step, which glibc's heap does not give back between steps."""
+        kept = self.buffers.get(name)
+        if kept is None or tuple(kept.shape) != shape:
+            kept = self.buffers[name] = torch.empty(shape, device=self.flat.device)
+        return kept
 
     def conv_features(self, params: dict[str, torch.Tensor], pixels: torch.Tensor) -> torch.Tensor:
         """The convolutional trunk's flattened features [S, B, F] of pixels [S, B, C, H, W], as
@@ -784,7 +803,12 @@ class PopulationDQN(SeedRows):
         inputs: list[torch.Tensor] = []
         with torch.set_grad_enabled(not by_hand):
             q_all = net.forward(
-                net.params, minibatch.observations, self.activation, keeps, inputs if by_hand else None
+                net.params,
+                minibatch.observations,
+                self.activation,
+                keeps,
+                inputs if by_hand else None,
+                buffers="online",
             )
             targets = self.targets(minibatch.next_observations, minibatch.rewards, minibatch.terminated)
             q = q_all.gather(2, minibatch.actions).squeeze(2)
@@ -848,10 +872,10 @@ class PopulationDQN(SeedRows):
         next_q_online = None
         if config.double_dqn and net.target is not None:  # both networks in one pass
             twice = torch.cat([next_observations, next_observations])  # a fifth of repeat()'s time
-            q = net.forward(net.pair_params, twice, self.activation)
+            q = net.forward(net.pair_params, twice, self.activation, buffers="next")
             next_q_target, next_q_online = q.chunk(2)
         else:
-            next_q_target = net.forward(net.target_params, next_observations, self.activation)
+            next_q_target = net.forward(net.target_params, next_observations, self.activation, buffers="next")
             if config.double_dqn:  # no target network: the online nets choose and value
                 next_q_online = next_q_target
         seeds, rows, n_actions = next_q_target.shape

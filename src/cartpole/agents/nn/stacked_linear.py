@@ -35,14 +35,17 @@ def input_gradient(grad: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
     return torch.bmm(grad, weight)
 
 
-def linear_forward(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
-    """``x @ weight^T + bias`` as one batched product. With one output (a value head) it is taken as
-    ``weight @ x^T``, ``[S, 1, B]``: ``x @ weight^T`` with a single column runs, for a lone seed, in
-    another order than for many (a matrix-vector kernel), so its bits would depend on how many seeds
-    share the batch; this orientation's do not (tested), and it is no slower."""
+def linear_forward(
+    x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor, out: torch.Tensor | None = None
+) -> torch.Tensor:
+    """``x @ weight^T + bias`` as one batched product, written into ``out`` ([S, B, out]) when given
+    and the layer has more than one output. With one output (a value head) it is taken as ``weight @
+    x^T``, ``[S, 1, B]``: ``x @ weight^T`` with a single column runs, for a lone seed, in another
+    order than for many (a matrix-vector kernel), so its bits would depend on how many seeds share
+    the batch; this orientation's do not (tested), and it is no slower."""
     if weight.shape[1] == 1:
         return torch.baddbmm(bias.unsqueeze(2), weight, x.transpose(1, 2)).transpose(1, 2)
-    return torch.baddbmm(bias.unsqueeze(1), x, weight.transpose(1, 2))
+    return torch.baddbmm(bias.unsqueeze(1), x, weight.transpose(1, 2), out=out)
 
 
 class _StackedLinear(torch.autograd.Function):
@@ -129,6 +132,7 @@ def stacked_linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) ->
 __all__ = [
     "ActivationGradient",
     "input_gradient",
+    "linear_forward",
     "mlp_gradients",
     "relu_gradient",
     "relu_gradient_by_where",
