@@ -5,7 +5,12 @@ from __future__ import annotations
 import pytest
 import torch
 
-from cartpole.agents.nn.stacked_linear import relu_gradient, relu_gradient_by_where, stacked_linear
+from cartpole.agents.nn.stacked_linear import (
+    relu_gradient,
+    relu_gradient_by_where,
+    relu_gradient_in_place,
+    stacked_linear,
+)
 
 
 def reference(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
@@ -67,6 +72,9 @@ def test_the_relu_gradient_is_autograds_bit_for_bit_by_either_kernel() -> None:
     (torch.relu(leaf) * upstream).sum().backward()
     assert leaf.grad is not None
     y = torch.relu(x)
-    for gradient in (relu_gradient(upstream, y), relu_gradient_by_where(upstream, y)):
+    overwritten = upstream.clone()
+    in_place = relu_gradient_in_place(overwritten, y)
+    assert in_place.data_ptr() == overwritten.data_ptr()  # written over its input: no new tensor
+    for gradient in (relu_gradient(upstream, y), relu_gradient_by_where(upstream, y), in_place):
         # Bits, not values: -0.0 and 0.0 compare equal.
         assert torch.equal(gradient.view(torch.int32), leaf.grad.view(torch.int32))

@@ -9,8 +9,9 @@ arithmetic, along a leading seed axis:
 
 - ``StackedQNetwork``: the online parameters of all S Q-networks in one flat ``[S, P]`` tensor (each
   parameter a ``[S, *shape]`` view of it, each linear layer one ``torch.baddbmm`` for all seeds, see
-  :func:`~cartpole.agents.nn.stacked_linear.stacked_linear`), their gradients in another, and the
-  target networks in a third: a Polyak update is one ``lerp`` over the flat tensors.
+  :func:`~cartpole.agents.nn.stacked_linear.stacked_linear`), their gradients in another; the
+  target networks are the rows above the online ones in one ``[2S, P]`` tensor: a Polyak update is
+  one ``lerp``, and double DQN values the next states with both in one pass.
 - ``StackedReplay``: the replay memories as one ``[S, capacity, 2 * obs_dim + 3]`` table (the row
   layout: obs | next_obs | action | reward | terminated) with a write position and a fill count per
   seed; the minibatches of a training round's gradient steps, every seed's, are one
@@ -91,7 +92,12 @@ from cartpole.agents.nn.flat_parameters import FlatParameters, on_the_cpu
 from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step, run_steps
 from cartpole.agents.nn.population_optimizers import PopulationAdam, PopulationOptimizer, PopulationRMSprop
 from cartpole.agents.nn.stacked_conv import channels_last, stacked_conv2d
-from cartpole.agents.nn.stacked_linear import linear_forward, mlp_gradients, relu_gradient, stacked_linear
+from cartpole.agents.nn.stacked_linear import (
+    linear_forward,
+    mlp_gradients,
+    relu_gradient_in_place,
+    stacked_linear,
+)
 from cartpole.agents.population import Finished, SeedEpisodes, SeedRows, require_training_state
 from cartpole.agents.registry import AgentSpec
 from cartpole.core.errors import ConfigError
@@ -275,7 +281,7 @@ class StackedQNetwork(FlatParameters[QNetwork]):
         had the ``inputs`` of :meth:`forward` (:func:`~cartpole.agents.nn.stacked_linear.mlp_gradients`)."""
         layers = [(self.params[w], self.params[b]) for w, b in [*self.hidden, ("head.weight", "head.bias")]]
         for (weight, bias), (weight_grad, bias_grad) in zip(
-            layers, mlp_gradients(layers, inputs, grad, relu_gradient), strict=True
+            layers, mlp_gradients(layers, inputs, grad, relu_gradient_in_place, self.buffer), strict=True
         ):
             weight.grad.copy_(weight_grad)  # type: ignore[union-attr]
             bias.grad.copy_(bias_grad)  # type: ignore[union-attr]

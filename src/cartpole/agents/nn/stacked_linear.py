@@ -27,12 +27,13 @@ def weight_gradient(grad: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     return torch.bmm(x.transpose(1, 2), grad).transpose(1, 2)
 
 
-def input_gradient(grad: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
-    """``grad @ weight`` ``[S, B, in]``; for one output (a value head) the outer product as a
-    broadcast multiply, which ``bmm`` runs several times slower."""
+def input_gradient(grad: torch.Tensor, weight: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:
+    """``grad @ weight`` ``[S, B, in]``, written into ``out`` when given (more than one output); for
+    one output (a value head) the outer product as a broadcast multiply, which ``bmm`` runs several
+    times slower."""
     if grad.shape[-1] == 1:
         return grad * weight
-    return torch.bmm(grad, weight)
+    return torch.bmm(grad, weight, out=out)
 
 
 def linear_forward(
@@ -84,6 +85,8 @@ def threshold_backward_op() -> Callable[..., torch.Tensor] | None:
 
 
 THRESHOLD_BACKWARD = threshold_backward_op()
+THRESHOLD_BACKWARD_INTO: Callable[..., torch.Tensor] | None = getattr(THRESHOLD_BACKWARD, "grad_input", None)
+"""The same kernel's variant that writes into a given tensor (``grad_input=``), None where missing."""
 
 
 def relu_gradient(grad: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
@@ -96,12 +99,21 @@ def relu_gradient(grad: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
     return THRESHOLD_BACKWARD(grad, y, 0.0)
 
 
+def relu_gradient_in_place(grad: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    """:func:`relu_gradient`, written over ``grad`` (by autograd's kernel; a new tensor where that
+    operator is missing): for a gradient nothing else reads, one allocation fewer."""
+    if THRESHOLD_BACKWARD_INTO is None:
+        return relu_gradient_by_where(grad, y)
+    return THRESHOLD_BACKWARD_INTO(grad, y, 0.0, grad_input=grad)
+
+
 @torch.no_grad()
 def mlp_gradients(
     layers: list[tuple[torch.Tensor, torch.Tensor]],
     inputs: list[torch.Tensor],
     grad: torch.Tensor,
     activation_gradient: ActivationGradient,
+    buffer: Callable[[str, tuple[int, ...]], torch.Tensor] | None = None,
 ) -> list[tuple[torch.Tensor, torch.Tensor]]:
     """The weight and bias gradients ``[S, out, in]``, ``[S, out]`` of each of an MLP's ``layers``
     (weights ``[S, out, in]`` and biases, in order, an activation between two layers) from ``grad``
@@ -111,14 +123,16 @@ def mlp_gradients(
     The products are the ones autograd's backward of :func:`stacked_linear` makes, one per seed's
     slice, so the gradients are autograd's bit for bit; done by hand, a small network's gradient step
     skips the autograd graph's bookkeeping, which costs more than its arithmetic
-    (``benchmarks/kernels.py``)."""
+    (``benchmarks/kernels.py``). ``buffer`` (name, shape), when given, gives the tensors that the
+    gradients with respect to the hidden activations are written into, kept between calls."""
     gradients = []
     for index in reversed(range(len(layers))):
         weight, _ = layers[index]
         x = inputs[index]
         gradients.append((weight_gradient(grad, x), grad.sum(dim=1)))
         if index:  # through the layer, then the activation whose output is x
-            grad = activation_gradient(input_gradient(grad, weight.detach()), x)
+            out = None if buffer is None else buffer(f"gradient.{index}", tuple(x.shape))
+            grad = activation_gradient(input_gradient(grad, weight.detach(), out), x)
     return gradients[::-1]
 
 
@@ -136,6 +150,7 @@ __all__ = [
     "mlp_gradients",
     "relu_gradient",
     "relu_gradient_by_where",
+    "relu_gradient_in_place",
     "stacked_linear",
     "weight_gradient",
 ]
