@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
+from cartpole.agents.nn import stacked_linear as stacked_linear_module
 from cartpole.agents.nn.stacked_linear import (
     relu_gradient,
     relu_gradient_by_where,
@@ -78,3 +79,20 @@ def test_the_relu_gradient_is_autograds_bit_for_bit_by_either_kernel() -> None:
     for gradient in (relu_gradient(upstream, y), relu_gradient_by_where(upstream, y), in_place):
         # Bits, not values: -0.0 and 0.0 compare equal.
         assert torch.equal(gradient.view(torch.int32), leaf.grad.view(torch.int32))
+
+
+@pytest.mark.parametrize(
+    "missing", [("THRESHOLD_BACKWARD_INTO",), ("THRESHOLD_BACKWARD", "THRESHOLD_BACKWARD_INTO")]
+)
+def test_the_relu_gradient_falls_back_to_public_torch_with_the_same_bits(
+    monkeypatch: pytest.MonkeyPatch, missing: tuple[str, ...]
+) -> None:
+    """A torch without autograd's kernel (or without its ``grad_input`` variant) gets the same bits."""
+    generator = torch.Generator().manual_seed(6)
+    y = torch.relu(torch.randn(2, 24, 8, generator=generator))
+    upstream = torch.randn(2, 24, 8, generator=generator)
+    expected = relu_gradient_by_where(upstream, y)
+    for name in missing:
+        monkeypatch.setattr(stacked_linear_module, name, None)
+    for gradient in (relu_gradient(upstream, y), relu_gradient_in_place(upstream.clone(), y)):
+        assert torch.equal(gradient.view(torch.int32), expected.view(torch.int32))

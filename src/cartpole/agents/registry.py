@@ -125,11 +125,6 @@ FALLBACK_ORDER = ("best", "solved", "latest")
 """A run folder's checkpoints in the order ``cartpole eval`` and ``record`` try them."""
 
 
-def resolve_checkpoint_path(path: str | Path) -> Path:
-    """A checkpoint file, or a run folder's best (else solved, else latest) checkpoint."""
-    return _candidates(Path(path))[0]
-
-
 def _candidates(path: Path) -> list[Path]:
     """The checkpoint files to try for ``path``: itself, or a run folder's in FALLBACK_ORDER."""
     if not path.is_dir():

@@ -122,9 +122,8 @@ class QNetwork(nn.Module):
     for image observations, a convolutional trunk (``conv``) first.
 
     ``obs_shape`` is an observation's shape (an int: a flat observation of that size).
-    ``generator`` draws the initial weights (on CPU; the convolutions' first) and, until
-    :meth:`use_dropout_generator` gives another, the dropout masks. Without one, a generator seeded
-    0 is made: still nothing global.
+    ``generator`` draws the initial weights (on CPU; the convolutions' first) and the dropout masks.
+    Without one, a generator seeded 0 is made: still nothing global.
     """
 
     def __init__(
@@ -170,11 +169,6 @@ class QNetwork(nn.Module):
 
     def dropout_layers(self) -> list[GeneratorDropout]:
         return [m for m in self.body if isinstance(m, GeneratorDropout)]
-
-    def use_dropout_generator(self, generator: torch.Generator) -> None:
-        """Draw every dropout mask from ``generator`` from now on (it must live on this net's device)."""
-        for layer in self.dropout_layers():
-            layer.generator = generator
 
     def q_values(self, observations: np.ndarray) -> np.ndarray:
         """Q-values [N, n_actions] of numpy observations, without autograd (dropout as the mode says)."""

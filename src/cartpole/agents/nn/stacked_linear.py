@@ -100,10 +100,11 @@ def relu_gradient(grad: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
 
 
 def relu_gradient_in_place(grad: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
-    """:func:`relu_gradient`, written over ``grad`` (by autograd's kernel; a new tensor where that
-    operator is missing): for a gradient nothing else reads, one allocation fewer."""
+    """:func:`relu_gradient`, written over ``grad`` (by autograd's kernel; a new tensor by
+    :func:`relu_gradient` where that kernel's ``grad_input`` variant is missing): for a gradient
+    nothing else reads, one allocation fewer."""
     if THRESHOLD_BACKWARD_INTO is None:
-        return relu_gradient_by_where(grad, y)
+        return relu_gradient(grad, y)
     return THRESHOLD_BACKWARD_INTO(grad, y, 0.0, grad_input=grad)
 
 
