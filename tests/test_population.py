@@ -6,6 +6,7 @@ from __future__ import annotations
 import itertools
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -604,3 +605,25 @@ def test_resume_of_a_population_with_one_corrupt_checkpoint_names_it_and_loses_n
     assert len(err.splitlines()) == 1 and str(broken) in err
     assert outcome.runs[1].checkpoint_path("latest").read_bytes() == kept
     assert (outcome.runs[1].path / "metrics.jsonl").read_text() == metrics
+
+
+def test_a_population_shows_its_progress_and_its_verdicts_in_lines(tmp_path, monkeypatch):
+    """Not quiet: a line every few seconds (every step here) with seeds solved, seeds training and
+    the slowest seed's steps, and a last line with the verified verdicts."""
+    import io
+
+    from cartpole.training import engine
+
+    monkeypatch.setattr(engine.PopulationProgress, "SECONDS", 0.0)
+    stream = io.StringIO()
+    outcome = train_population(
+        "cem", [1, 2], budget="3gen", runs_dir=tmp_path, quiet=False, stream=stream, stop_when_solved=False
+    )
+    lines = stream.getvalue().splitlines()
+    progress = [line for line in lines if "training," in line and "done:" not in line]
+    assert len(progress) >= 2
+    assert all("seeds, " in line and "slowest seed " in line and "steps/s" in line for line in progress)
+    assert re.search(r"solved [0-2]/2 seeds, 2 training, slowest seed [\d,]+ steps", progress[0])
+    verified = sum(report.solved for report in outcome.reports.values())
+    assert f"done: {verified}/2 seeds verified solved on fresh episodes; " in lines[-1]
+    assert ", 0 training, " in lines[-1]
