@@ -627,3 +627,27 @@ def test_a_population_shows_its_progress_and_its_verdicts_in_lines(tmp_path, mon
     verified = sum(report.solved for report in outcome.reports.values())
     assert f"done: {verified}/2 seeds verified solved on fresh episodes; " in lines[-1]
     assert ", 0 training, " in lines[-1]
+
+
+def test_resume_of_a_population_says_where_its_seeds_go_on_from_and_passes_over_other_folders(tmp_path):
+    import io
+
+    from cartpole.training.session import resume_population
+
+    outcome = train_population("cem", [1, 2], budget="3gen", runs_dir=tmp_path, stop_when_solved=False)
+    for run in outcome.runs.values():  # as if interrupted: both resume
+        status = json.loads((run.path / "status.json").read_text())
+        (run.path / "status.json").write_text(json.dumps(status | {"state": "interrupted"}))
+    (tmp_path / "notes").mkdir()  # not a run folder: passed over when looking for the members
+    (tmp_path / "notes" / "todo.txt").write_text("plot the seeds")
+    steps = {seed: state.env_steps for seed, state in outcome.states.items()}
+    stream = io.StringIO()
+    resumed = resume_population(outcome.runs[1].path, quiet=False, stream=stream)
+    assert sorted(resumed.runs) == [1, 2]
+    low, high = min(steps.values()), max(steps.values())
+    where = f"{low:,}" if low == high else f"{low:,} to {high:,}"
+    first = stream.getvalue().splitlines()[0]
+    assert (
+        first
+        == f"resuming 2 seed(s) of the population from env step {where} (each seed's checkpoints/latest.pt)"
+    )
