@@ -364,10 +364,31 @@ def test_bad_values_are_refused_before_a_run_folder_exists(case, tmp_path, capsy
 
 
 def test_a_memory_estimate_says_how_much(tmp_path, capsys):
-    main(["train", "dqn", "--set", "buffer_size=1e13", "--runs-dir", str(tmp_path / "r"), "--quiet"])
+    """The agent's own estimate of a seed's bytes: 10^13 replay rows of 11 float32s, about 400 TiB."""
+    code = main(["train", "dqn", "--set", "buffer_size=1e13", "--runs-dir", str(tmp_path / "r"), "--quiet"])
     err = capsys.readouterr().err
-    assert "buffer_size=10000000000000 with hidden_sizes=64,64 needs at least 181.9 TiB of memory" in err
-    assert "more than this machine's" in err
+    assert_one_line_exit_2(code, err, "train")
+    assert "this run of dqn would take about 400.2 TiB of memory but " in err
+    assert err.rstrip().endswith("is available; use smaller settings")
+    assert not (tmp_path / "r").exists()
+
+
+def test_a_resume_checks_the_memory_before_it_allocates(tmp_path, capsys, monkeypatch):
+    """A run resumed where less memory is available than its seeds take: one line, nothing lost."""
+    from cartpole.core import memory
+
+    outcome = train("cem", seed=1, budget="2gen", runs_dir=tmp_path, stop_when_solved=False)
+    status = json.loads((outcome.run.path / "status.json").read_text())
+    (outcome.run.path / "status.json").write_text(json.dumps(status | {"state": "interrupted"}))
+    meminfo = tmp_path / "meminfo"
+    meminfo.write_text("MemTotal:  16 kB\nMemAvailable:  1 kB\n")
+    monkeypatch.setattr(memory, "MEMINFO", str(meminfo))
+    before = fingerprint(tmp_path)
+    code = main(["train", "--resume", str(outcome.run.path)])
+    err = capsys.readouterr().err
+    assert_one_line_exit_2(code, err, "train")
+    assert "this run of cem would take about" in err and "but 1.0 KiB is available" in err
+    assert fingerprint(tmp_path) == before
 
 
 def loop_link(tmp_path: Path) -> Path:

@@ -505,6 +505,14 @@ def test_bad_population_input_is_one_line_exit_2_and_no_folder(tmp_path, capsys,
     assert not (tmp_path / "runs").exists()
 
 
+def test_a_population_too_big_for_memory_says_how_many_seeds_fit(tmp_path, capsys):
+    args = ["train", "dqn", "--seeds", "0-3000", "--set", "buffer_size=2000000"]
+    assert main([*args, "--runs-dir", str(tmp_path / "runs")]) == 2
+    err = capsys.readouterr().err
+    assert re.search(r"3001 seeds of dqn would take about [\d,.]+ [GT]iB of memory but", err), err
+    assert re.search(r"use fewer seeds \(about [\d,]+ fit\) or smaller settings$", err.strip()), err
+
+
 def test_bad_population_input_through_the_command(tmp_path):
     done = run_cli("train", "ppo", "--seeds", "9-0", "--runs-dir", str(tmp_path / "runs"))
     assert done.returncode == 2 and "reversed" in done.stderr and "Traceback" not in done.stderr

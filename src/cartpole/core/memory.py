@@ -21,6 +21,15 @@ def available_memory() -> int | None:
     return None
 
 
+def describe_bytes(count: float) -> str:
+    """``1536`` -> ``"1.5 KiB"`` (at most TiB: ``"2,048.0 TiB"``)."""
+    units = ["B", "KiB", "MiB", "GiB", "TiB"]
+    while count >= 1024 and len(units) > 1:
+        count /= 1024
+        units.pop(0)
+    return f"{count:.0f} B" if units[0] == "B" else f"{count:,.1f} {units[0]}"
+
+
 def fits_in_memory(needed: int) -> tuple[bool, int | None]:
     """(whether ``needed`` bytes fit in :data:`SHARE` of the available memory, the bytes available);
     (True, None) where the available memory cannot be read."""

@@ -20,12 +20,12 @@ from typing import Any, TextIO
 import numpy as np
 
 from cartpole.agents.population import Population
-from cartpole.agents.registry import build_population, get_agent
+from cartpole.agents.registry import AgentSpec, build_population, get_agent
 from cartpole.core.errors import ConfigError, InputError
-from cartpole.core.memory import SHARE, fits_in_memory
+from cartpole.core.memory import SHARE, describe_bytes, fits_in_memory
 from cartpole.core.names import CheckpointName, RunState, StopReason
 from cartpole.core.seeding import MAX_TRAIN_SEED
-from cartpole.envs import env_info
+from cartpole.envs import EnvInfo, env_info
 from cartpole.evaluation import EvalReport
 from cartpole.runs import (
     Checkpoint,
@@ -169,7 +169,7 @@ def start(
         budget = parse_budget(budget)
     budget = budget or parse_budget(settings.budget)
     device = resolve_device(device, len(seeds))
-    check_memory(spec.bytes_per_seed(config, env) * len(seeds), len(seeds))
+    check_memory(spec, config, env, len(seeds))
     learner = build_population(spec, config, env, seeds, device)
     population_record = {"population": {"id": uuid.uuid4().hex[:12], "seeds": list(seeds)}}
     with ExitStack() as stack:
@@ -186,14 +186,19 @@ def start(
         return run_members(learner, setups, {}, quiet, stream, callbacks)
 
 
-def check_memory(needed: int, seeds: int) -> None:
-    """InputError, before anything is allocated, when ``needed`` bytes will not fit."""
+def check_memory(spec: AgentSpec, config: Any, env: EnvInfo, seeds: int) -> None:
+    """InputError, before anything is allocated, when ``seeds`` seeds of ``spec`` with ``config`` on
+    ``env`` will not fit in the memory available (the agent's own estimate of a seed's bytes)."""
+    needed = spec.bytes_per_seed(config, env) * seeds
     fits, free = fits_in_memory(needed)
-    if not fits and free is not None:
-        raise InputError(
-            f"{seeds} seed(s) would take about {needed / 2**30:.1f} GiB but {free / 2**30:.1f} GiB is "
-            f"available; use fewer seeds (about {int(seeds * SHARE * free / needed)} fit) or smaller settings"
-        )
+    if fits or free is None:
+        return
+    what = "this run" if seeds == 1 else f"{seeds} seeds"
+    fewer = "" if seeds == 1 else f"fewer seeds (about {int(seeds * SHARE * free / needed)} fit) or "
+    raise InputError(
+        f"{what} of {spec.name} would take about {describe_bytes(needed)} of memory but "
+        f"{describe_bytes(free)} is available; use {fewer}smaller settings"
+    )
 
 
 _RANGE = re.compile(r"^(\d+)-(\d+)$")
@@ -306,6 +311,7 @@ def resume_members(
         first = setups[0]
         device = resolve_device(device, len(setups))
         seeds = [s.seed for s in setups]
+        check_memory(first.spec, first.config, first.env, len(seeds))
         learner = build_population(first.spec, first.config, first.env, seeds, device)
         states, unusable = restore_all(setups, learner, from_scratch)
         if unusable:  # a failed load may have left part of its seed's state: start again from a new one

@@ -27,7 +27,6 @@ import numpy as np
 import torch
 
 from cartpole.agents.dqn.q_network import ACTIVATIONS, QNetwork, QNetworkPolicy, network_input_shape
-from cartpole.agents.memory import dqn_memory_problem
 from cartpole.agents.nn.conv import conv_output_size
 from cartpole.core.config import build_config, require
 from cartpole.core.errors import ConfigError
@@ -162,8 +161,6 @@ class DQNConfig:
         require(0.0 < self.epsilon_decay_rate <= 1.0, "epsilon_decay_rate must be in (0, 1]")
         require(self.short_episode_length >= 0, "short_episode_length must be >= 0")
         check_simulator(self.simulator)
-        problem = dqn_memory_problem(self.buffer_size, self.hidden_sizes, self.batch_size)
-        require(problem is None, problem or "")
 
     def check_env(self, env: EnvInfo) -> None:
         """Reject settings that do not fit ``env``'s observations, one line each (before a run starts)."""
