@@ -18,6 +18,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cartpole.cli.main import main
+from cartpole.core import memory
 from cartpole.core.config import build_config
 from cartpole.core.errors import ConfigError
 from cartpole.runs import RunDir, load_checkpoint
@@ -375,8 +376,6 @@ def test_a_memory_estimate_says_how_much(tmp_path, capsys):
 
 def test_a_resume_checks_the_memory_before_it_allocates(tmp_path, capsys, monkeypatch):
     """A run resumed where less memory is available than its seeds take: one line, nothing lost."""
-    from cartpole.core import memory
-
     outcome = train("cem", seed=1, budget="2gen", runs_dir=tmp_path, stop_when_solved=False)
     status = json.loads((outcome.run.path / "status.json").read_text())
     (outcome.run.path / "status.json").write_text(json.dumps(status | {"state": "interrupted"}))

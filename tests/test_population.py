@@ -3,6 +3,7 @@ batched verdicts that match single evaluations, resume, and bad input refused be
 
 from __future__ import annotations
 
+import io
 import itertools
 import json
 import os
@@ -33,11 +34,11 @@ from cartpole.core.seeding import final_eval_seed
 from cartpole.envs import env_info
 from cartpole.evaluation import evaluate
 from cartpole.runs import RunDir, load_checkpoint, summarize_run
-from cartpole.training import train
+from cartpole.training import engine, train
 from cartpole.training.callbacks import screened_evaluation
 from cartpole.training.config import TrainSettings
 from cartpole.training.engine import PopulationEvaluations
-from cartpole.training.session import parse_seeds, train_population
+from cartpole.training.session import parse_seeds, resume_population, train_population
 
 CARTPOLE = env_info("CartPole-v1")
 SMALL = {"n_steps": 8, "num_envs": 4, "n_epochs": 2, "minibatch_size": 16, "hidden_sizes": (16, 16)}
@@ -618,10 +619,6 @@ def test_resume_of_a_population_with_one_corrupt_checkpoint_names_it_and_loses_n
 def test_a_population_shows_its_progress_and_its_verdicts_in_lines(tmp_path, monkeypatch):
     """Not quiet: a line every few seconds (every step here) with seeds solved, seeds training and
     the slowest seed's steps, and a last line with the verified verdicts."""
-    import io
-
-    from cartpole.training import engine
-
     monkeypatch.setattr(engine.PopulationProgress, "SECONDS", 0.0)
     stream = io.StringIO()
     outcome = train_population(
@@ -638,10 +635,6 @@ def test_a_population_shows_its_progress_and_its_verdicts_in_lines(tmp_path, mon
 
 
 def test_resume_of_a_population_says_where_its_seeds_go_on_from_and_passes_over_other_folders(tmp_path):
-    import io
-
-    from cartpole.training.session import resume_population
-
     outcome = train_population("cem", [1, 2], budget="3gen", runs_dir=tmp_path, stop_when_solved=False)
     for run in outcome.runs.values():  # as if interrupted: both resume
         status = json.loads((run.path / "status.json").read_text())

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from cartpole.core.errors import InputError
-from cartpole.core.memory import SHARE, fits_in_memory
+from cartpole.core.memory import SHARE, describe_bytes, fits_in_memory
 from cartpole.envs import env_info, fast_env_id
 from cartpole.envs.registration import PIXEL_REFERENCE_IDS
 from cartpole.evaluation import Policy
@@ -134,7 +134,7 @@ def check_frames_fit(episodes: int, steps: int | None, env: Any) -> None:
         fit = max(1, int(SHARE * free // (needed // episodes)))
         raise RecordingError(
             f"{episodes:,} episodes of up to {steps:,} steps would hold {frames:,} frames, about "
-            f"{needed / 2**30:.1f} GiB in memory, but {free / 2**30:.1f} GiB is available: record at most "
+            f"{describe_bytes(needed)} in memory, but {describe_bytes(free)} is available: record at most "
             f"{fit:,} episodes, or cut them shorter with --max-steps"
         )
 
