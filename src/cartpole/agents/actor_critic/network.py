@@ -27,7 +27,7 @@ from torch import nn
 
 from cartpole.agents.nn import conv
 from cartpole.agents.nn.conv import PIXEL_SCALE, ScalePixels, scale_pixels
-from cartpole.agents.nn.numpy_mlp import NumpyMLP, StackedNumpyMLP
+from cartpole.agents.nn.numpy_mlp import NumpyMLP, StackedNumpyMLP, stacked_block_actor
 from cartpole.agents.nn.standardize import StandardizeObservations
 from cartpole.evaluation import BlockActor
 
@@ -242,25 +242,9 @@ class TorchActor:
 
 
 def block_greedy_actor(logits: StackedNumpyMLP, obs_dim: int) -> BlockActor:
-    """The greedy actions of S stacked actors (``logits``) as one :data:`BlockActor`: the rows of
-    blocks ``blocks`` ``[k * E, obs_dim]``, actor b's E rows in block b, to actions ``[k * E]``. A
-    subset of the blocks runs through a stack of those actors only, kept until the subset changes."""
-    kept: dict[bytes, StackedNumpyMLP] = {}
-
-    def actors(blocks: np.ndarray) -> StackedNumpyMLP:
-        if len(blocks) == logits.count:
-            return logits
-        key = np.asarray(blocks, dtype=np.int64).tobytes()
-        if key not in kept:
-            kept.clear()
-            kept[key] = logits.subset(blocks)
-        return kept[key]
-
-    def act(observations: np.ndarray, blocks: np.ndarray) -> np.ndarray:
-        x = np.asarray(observations, dtype=np.float32).reshape(len(blocks), -1, obs_dim)
-        return actors(blocks)(x).argmax(axis=-1).reshape(-1)
-
-    return act
+    """The greedy actions of S stacked actors (``logits``) as one :data:`BlockActor`
+    (:func:`~cartpole.agents.nn.numpy_mlp.stacked_block_actor`)."""
+    return stacked_block_actor([logits], obs_dim, lambda actors, x: actors[0](x))
 
 
 def stacked_greedy_actor(policies: Sequence[object], obs_dim: int) -> BlockActor | None:

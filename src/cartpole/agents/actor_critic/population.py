@@ -41,7 +41,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -70,12 +69,18 @@ from cartpole.agents.actor_critic.policy_gradient import (
 from cartpole.agents.actor_critic.ppo import PPOConfig
 from cartpole.agents.actor_critic.reinforce import ReinforceConfig
 from cartpole.agents.learner import LearnResult
-from cartpole.agents.nn.fast_tanh import tanh, tanh_gradient
+from cartpole.agents.nn.fast_tanh import tanh_gradient
 from cartpole.agents.nn.flat_parameters import FlatParameters, on_the_cpu
 from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step
-from cartpole.agents.nn.population_optimizers import PopulationAdam, PopulationOptimizer, PopulationRMSprop
+from cartpole.agents.nn.population_optimizers import population_optimizer
 from cartpole.agents.nn.stacked_conv import channels_last, stacked_conv2d
-from cartpole.agents.nn.stacked_linear import ActivationGradient, mlp_gradients, relu_gradient, stacked_linear
+from cartpole.agents.nn.stacked_linear import (
+    TORCH_ACTIVATIONS,
+    ActivationGradient,
+    mlp_gradients,
+    relu_gradient,
+    stacked_linear,
+)
 from cartpole.agents.nn.standardize import StandardizeObservations
 from cartpole.agents.population import Finished, SeedEpisodes, SeedRows, require_training_state
 from cartpole.agents.registry import AgentSpec
@@ -83,12 +88,6 @@ from cartpole.core.seeding import derived_seed
 from cartpole.envs import EnvInfo
 from cartpole.envs.seed_envs import LONGEST_EPISODE_WITHOUT_TIME_LIMIT
 from cartpole.evaluation import BlockActor
-
-TORCH_ACTIVATIONS: dict[type[nn.Module], Callable[[torch.Tensor], torch.Tensor]] = {
-    nn.Tanh: tanh,
-    nn.ReLU: torch.relu,
-    nn.ELU: nn.functional.elu,
-}
 
 
 @dataclass(frozen=True)
@@ -279,10 +278,7 @@ class StackedActorCritic(FlatParameters[ActorCritic]):
         graph's bookkeeping, which costs more than small layers' arithmetic)."""
         update, self.update_pass = self.update_pass, None
         if update is None:
-            with warnings.catch_warnings():
-                # The gradients are views of one [S, P] tensor on purpose (see FlatParameters).
-                warnings.filterwarnings("ignore", "grad and param do not obey the gradient layout")
-                loss.backward()
+            super().backward(loss)
             return
         head_grads = torch.autograd.grad(loss, update.heads, allow_unused=True)
         for hand, inputs, grad in zip(self.hand, update.inputs, head_grads, strict=True):
@@ -312,12 +308,7 @@ class StackedActorCritic(FlatParameters[ActorCritic]):
         plan: list[Step] = []
         for step in self.actor_plan:
             if isinstance(step, tuple):
-                weight, bias = self.params[step[0]].detach(), self.params[step[1]].detach()
-                if rows is not None:
-                    weight, bias = weight[rows], bias[rows]
-                plan.append(
-                    (weight.transpose(1, 2).cpu().numpy().copy(), bias.unsqueeze(1).cpu().numpy().copy())
-                )
+                plan.append(self.numpy_linear(*step, rows))
             elif isinstance(step, ConvStep):
                 raise ValueError("a convolutional actor has no numpy copy: act with rollout_actor")
             elif isinstance(step, StandardizeObservations):
@@ -369,6 +360,17 @@ def mean_entropy(
     it 0 needs none, and its backward pass would only add zeros)."""
     with torch.set_grad_enabled(differentiable and torch.is_grad_enabled()):
         return masked_mean(-(log_probs.exp() * log_probs).sum(dim=-1), mask, count)
+
+
+def log_probs_and_entropy(
+    logits: torch.Tensor, actions: torch.Tensor, mask: torch.Tensor, count: torch.Tensor, ent_coef: float
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The log-probabilities [S, B] of ``actions`` [S, B] under ``logits`` [S, B, n_actions], and
+    each seed's mean entropy [S] over the masked rows (differentiable only where ``ent_coef`` weighs
+    it in the loss: :func:`mean_entropy`)."""
+    log_probs_all = torch.log_softmax(logits, dim=-1)
+    log_probs = log_probs_all.gather(-1, actions.unsqueeze(-1)).squeeze(-1)
+    return log_probs, mean_entropy(log_probs_all, mask, count, ent_coef != 0.0)
 
 
 def masked_normalize(x: torch.Tensor, mask: torch.Tensor, count: torch.Tensor) -> torch.Tensor:
@@ -470,7 +472,9 @@ class PopulationActorCritic(SeedRows):
         env: EnvInfo,
         seeds: list[int],
         device: str,
-        make_optimizer: Callable[[int, int, torch.device], PopulationOptimizer],
+        optimizer: str = "adam",
+        eps: float = 1e-8,
+        rms_alpha: float = 0.99,
     ):
         config.validate()
         self.config, self.env_info = config, env
@@ -482,7 +486,9 @@ class PopulationActorCritic(SeedRows):
         with on_the_cpu():  # initialized as the single run initializes them, then moved
             models = [seeded_actor_critic(config, env, seed) for seed in self.seeds]
         self.model = StackedActorCritic(models, self.device)
-        self.optimizer = make_optimizer(len(self.seeds), self.model.size, self.device)
+        self.optimizer = population_optimizer(
+            optimizer, len(self.seeds), self.model.size, self.device, eps, rms_alpha
+        )
         self.generators = [torch.Generator().manual_seed(derived_seed(s, "actions")) for s in self.seeds]
         self.episodes = SeedEpisodes(env, config.simulator, self.seeds, config.num_envs)
         self.env_steps = np.zeros(len(self.seeds), dtype=np.int64)
@@ -682,11 +688,9 @@ class PopulationActorCritic(SeedRows):
 
     def step(self, lr: torch.Tensor, active: torch.Tensor) -> None:
         """Clip each seed's gradient norm to ``max_grad_norm`` (as clip_grad_norm_ does), then Adam."""
-        grads = self.model.grad
         if self.config.max_grad_norm is not None:
-            norms = torch.linalg.vector_norm(grads, dim=1, keepdim=True)
-            grads.mul_((self.config.max_grad_norm / (norms + 1e-6)).clamp(max=1.0))
-        self.optimizer.step(self.model.flat, grads, lr, active)
+            self.model.clip_grad_norms(self.config.max_grad_norm)
+        self.optimizer.step(self.model.flat, self.model.grad, lr, active)
 
     def greedy_actor(self, seeds: list[int]) -> BlockActor:
         """The greedy policies of ``seeds`` as one :data:`~cartpole.evaluation.BlockActor` (block i
@@ -748,10 +752,7 @@ class PopulationPPO(PopulationActorCritic):
     config: PPOConfig
 
     def __init__(self, config: PPOConfig, env: EnvInfo, seeds: list[int], device: str = "cpu"):
-        def make_optimizer(rows: int, size: int, device: torch.device) -> PopulationOptimizer:
-            return PopulationAdam(rows, size, config.adam_eps, device=device)
-
-        super().__init__(config, env, seeds, device, make_optimizer)
+        super().__init__(config, env, seeds, device, eps=config.adam_eps)
 
     # -- one learning step --------------------------------------------------------------------------
 
@@ -857,9 +858,7 @@ class PopulationPPO(PopulationActorCritic):
         old_log_probs, old_values = take(rollout.log_probs), take(rollout.values)
         advantages, returns = take(rollout.advantages), take(rollout.returns)
         logits, values = self.model.forward_for_update(observations)
-        log_probs_all = torch.log_softmax(logits, dim=-1)
-        log_probs = log_probs_all.gather(-1, actions.unsqueeze(-1)).squeeze(-1)
-        entropy = mean_entropy(log_probs_all, mask, count, config.ent_coef != 0.0)
+        log_probs, entropy = log_probs_and_entropy(logits, actions, mask, count, config.ent_coef)
         if normalize:
             advantages = masked_normalize(advantages, mask, count)
         log_ratio = log_probs - old_log_probs
@@ -881,12 +880,7 @@ class PopulationA2C(PopulationActorCritic):
     config: A2CConfig
 
     def __init__(self, config: A2CConfig, env: EnvInfo, seeds: list[int], device: str = "cpu"):
-        def make_optimizer(rows: int, size: int, device: torch.device) -> PopulationOptimizer:
-            if config.optimizer == "adam":
-                return PopulationAdam(rows, size, config.optimizer_eps, device=device)
-            return PopulationRMSprop(rows, size, config.rms_alpha, config.optimizer_eps, device)
-
-        super().__init__(config, env, seeds, device, make_optimizer)
+        super().__init__(config, env, seeds, device, config.optimizer, config.optimizer_eps, config.rms_alpha)
 
     def learn(self) -> dict[int, LearnResult]:
         config = self.config
@@ -895,9 +889,7 @@ class PopulationA2C(PopulationActorCritic):
         results = self.count_steps(rollout.counts.to(torch.int64).tolist(), finished)
         valid, count = rollout.valid.float(), rollout.counts
         logits, values = self.model.forward_for_update(rollout.observations)
-        log_probs_all = torch.log_softmax(logits, dim=-1)
-        log_probs = log_probs_all.gather(-1, rollout.actions.unsqueeze(-1)).squeeze(-1)
-        entropy = mean_entropy(log_probs_all, valid, count, config.ent_coef != 0.0)
+        log_probs, entropy = log_probs_and_entropy(logits, rollout.actions, valid, count, config.ent_coef)
         advantages = rollout.advantages
         if config.normalize_advantages:
             advantages = masked_normalize(advantages, valid, count)
@@ -943,10 +935,7 @@ class PopulationReinforce(PopulationActorCritic):
     config: ReinforceConfig
 
     def __init__(self, config: ReinforceConfig, env: EnvInfo, seeds: list[int], device: str = "cpu"):
-        def make_optimizer(rows: int, size: int, device: torch.device) -> PopulationOptimizer:
-            return PopulationAdam(rows, size, 1e-8, device=device)
-
-        super().__init__(config, env, seeds, device, make_optimizer)
+        super().__init__(config, env, seeds, device)
         self.episode_rngs = [np.random.default_rng(derived_seed(s, "episodes")) for s in self.seeds]
         """Seed each batch's fresh episodes, as the single run's ``rng`` does."""
         self.longest = env.max_episode_steps or LONGEST_EPISODE_WITHOUT_TIME_LIMIT
@@ -1016,9 +1005,7 @@ class PopulationReinforce(PopulationActorCritic):
         )
         valid, count = rollout.valid.float(), rollout.counts
         logits, values = self.model.forward_for_update(rollout.observations, index)
-        log_probs_all = torch.log_softmax(logits, dim=-1)
-        log_probs = log_probs_all.gather(-1, rollout.actions.unsqueeze(-1)).squeeze(-1)
-        entropy = mean_entropy(log_probs_all, valid, count, config.ent_coef != 0.0)
+        log_probs, entropy = log_probs_and_entropy(logits, rollout.actions, valid, count, config.ent_coef)
         weights = (
             masked_normalize(rollout.advantages, valid, count)
             if config.normalize_returns
@@ -1144,9 +1131,7 @@ over seeds (above)."""
 __all__ = [
     "AGENTS",
     "PopulationA2C",
-    "PopulationAdam",
     "PopulationPPO",
-    "PopulationRMSprop",
     "PopulationReinforce",
     "StackedActorCritic",
     "a2c_bytes_per_seed",

@@ -61,7 +61,6 @@ from __future__ import annotations
 
 import itertools
 import math
-import warnings
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -77,7 +76,13 @@ from cartpole.agents.dqn.algorithm import (
     td_targets,
 )
 from cartpole.agents.dqn.n_step import NStepWindows
-from cartpole.agents.dqn.q_network import ACTIVATIONS, QNetwork, QNetworkPolicy, network_input_shape
+from cartpole.agents.dqn.q_network import (
+    ACTIVATIONS,
+    QNetwork,
+    QNetworkPolicy,
+    network_input_shape,
+    q_values_from,
+)
 from cartpole.agents.learner import LearnResult
 from cartpole.agents.nn.conv import (
     LastFrameDifference,
@@ -87,12 +92,12 @@ from cartpole.agents.nn.conv import (
     last_frame_difference,
     scale_pixels,
 )
-from cartpole.agents.nn.fast_tanh import tanh
 from cartpole.agents.nn.flat_parameters import FlatParameters, on_the_cpu
-from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step, run_steps
-from cartpole.agents.nn.population_optimizers import PopulationAdam, PopulationOptimizer, PopulationRMSprop
+from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step, stacked_block_actor
+from cartpole.agents.nn.population_optimizers import population_optimizer
 from cartpole.agents.nn.stacked_conv import channels_last, stacked_conv2d
 from cartpole.agents.nn.stacked_linear import (
+    TORCH_ACTIVATIONS,
     linear_forward,
     mlp_gradients,
     relu_gradient_in_place,
@@ -108,18 +113,6 @@ from cartpole.evaluation import BlockActor
 ALIGN = 32
 """Every seed's block of an elementwise operation is a multiple of this many float32 elements: two
 AVX-512 vectors, the widest step of torch's vectorized CPU loops (see the module docstring)."""
-
-ADAM_EPS = 1e-8
-"""Adam's epsilon (torch's default)."""
-RMSPROP_ALPHA, RMSPROP_EPS = 0.99, 1e-8
-"""RMSprop's smoothing constant and epsilon (torch's defaults)."""
-
-TORCH_ACTIVATIONS: dict[str, Callable[[torch.Tensor], torch.Tensor]] = {
-    "relu": torch.relu,
-    "tanh": tanh,  # the populations' fast tanh (cartpole.agents.nn.fast_tanh)
-    "elu": F.elu,
-    "gelu": F.gelu,
-}
 
 
 class Round(NamedTuple):
@@ -496,16 +489,12 @@ class PopulationDQN(SeedRows):
         (numpy) and every random draw comes from a seed's own CPU generator, so a seed's draws are the
         same on any device."""
         self.seeds = list(seeds)
-        self.activation = TORCH_ACTIVATIONS[config.activation]
+        self.activation = TORCH_ACTIVATIONS[ACTIVATIONS[config.activation]]
         self.net = StackedQNetwork(
             [seeded_q_network(config, env, s) for s in self.seeds], config.target_network, self.device
         )
         width = self.net.flat.shape[1]
-        self.optimizer: PopulationOptimizer = (
-            PopulationAdam(len(self.seeds), width, ADAM_EPS, device=self.device)
-            if config.optimizer == "adam"
-            else PopulationRMSprop(len(self.seeds), width, RMSPROP_ALPHA, RMSPROP_EPS, device=self.device)
-        )
+        self.optimizer = population_optimizer(config.optimizer, len(self.seeds), width, self.device)
         self.replay = StackedReplay(len(self.seeds), config.buffer_size, env.obs_shape, self.device)
         self.explore_rngs = [np.random.default_rng(derived_seed(s, "explore")) for s in self.seeds]
         self.replay_generators = [self.cpu_generator(derived_seed(s, "replay")) for s in self.seeds]
@@ -532,7 +521,7 @@ class PopulationDQN(SeedRows):
         self.acting_rows = padded(config.num_envs)
         self.rounds: dict[bytes, Round] = {}
         """The last training round's tensors (see :meth:`round_tensors`), by who trained and their rows."""
-        self.acting_plans: tuple[list[Step], list[Step], list[Step] | None] | None = None
+        self.acting_networks: list[StackedNumpyMLP] | None = None
         """:meth:`numpy_q_values`'s NumPy views of the online weights (which the updates change in
         place), made on first use and again after seeds leave."""
 
@@ -547,7 +536,7 @@ class PopulationDQN(SeedRows):
         rows_np, envs = self.leave(seeds, self.config.num_envs)
         rows = torch.from_numpy(rows_np).to(self.device)
         self.net.keep(rows)
-        self.acting_plans = None
+        self.acting_networks = None
         self.optimizer.keep(rows)
         self.replay.keep(rows_np)
         self.episodes.keep(rows_np, envs)
@@ -646,35 +635,22 @@ class PopulationDQN(SeedRows):
         """Q-values ``[S, B, n_actions]`` of ``x`` [S, B, obs_dim] as :meth:`StackedQNetwork.forward`
         computes them, in NumPy on views of the online weights (CPU only; no copies). ``np.matmul``
         multiplies each seed's slice on its own, so a seed's actions do not depend on its neighbours."""
-        if self.acting_plans is None:
-            self.acting_plans = self.numpy_plans(None, copy=False)
-        body, head, value = self.acting_plans
-        features = run_steps(body, x)
-        q = run_steps(head, features)
-        if value is not None:  # dueling, as QNetworkPolicy.scores
-            q = run_steps(value, features) + q - q.mean(axis=2, keepdims=True)
-        return q
+        if self.acting_networks is None:
+            self.acting_networks = self.numpy_networks(None, copy=False)
+        return q_values_from(self.acting_networks, x)
 
-    def numpy_plans(
-        self, rows: list[int] | None, copy: bool
-    ) -> tuple[list[Step], list[Step], list[Step] | None]:
-        """The online networks of ``rows`` (None: all) as NumPy plans: body, head and (dueling) value
-        head, weights ``[S, in, out]``; views of the weights (CPU, ``rows`` None) unless ``copy``."""
-        params = {name: p.detach() for name, p in self.net.params.items()}
-
-        def linear(name: str) -> tuple[np.ndarray, np.ndarray]:
-            weight, bias = params[f"{name}.weight"], params[f"{name}.bias"]
-            if rows is not None:
-                weight, bias = weight[rows], bias[rows]
-            step = (weight.cpu().numpy().transpose(0, 2, 1), bias.cpu().numpy()[:, None, :])
-            return (step[0].copy(), step[1].copy()) if copy else step
-
+    def numpy_networks(self, rows: list[int] | None, copy: bool) -> list[StackedNumpyMLP]:
+        """The online networks of ``rows`` (None: all) as NumPy stacks: the body, the head and (dueling)
+        the value head (:func:`~cartpole.agents.dqn.q_network.q_values_from`); views of the weights
+        (CPU, ``rows`` None) unless ``copy``."""
+        net = self.net
         activation = NUMPY_ACTIVATIONS[ACTIVATIONS[self.config.activation]]
         body: list[Step] = []
-        for weight, _ in self.net.hidden:
-            body += [linear(weight.removesuffix(".weight")), activation]
-        value: list[Step] | None = [linear("value")] if self.net.dueling else None
-        return body, [linear("head")], value
+        for weight, bias in net.hidden:
+            body += [net.numpy_linear(weight, bias, rows, copy), activation]
+        heads = ["head", "value"] if net.dueling else ["head"]
+        linear = [net.numpy_linear(f"{head}.weight", f"{head}.bias", rows, copy) for head in heads]
+        return [StackedNumpyMLP(body)] + [StackedNumpyMLP([step]) for step in linear]
 
     def read_back(self, metrics: torch.Tensor | None, training: np.ndarray) -> None:
         """This call's metrics ([S, 2]: loss, Q mean) and, off the CPU, the next call's greedy
@@ -825,15 +801,11 @@ class PopulationDQN(SeedRows):
         else:
             assert losses is not None
             net.grad.zero_()
-            with warnings.catch_warnings():
-                # The gradients are views of one [S, P] tensor on purpose (see StackedQNetwork).
-                warnings.filterwarnings("ignore", "grad and param do not obey the gradient layout")
-                (losses * active.to(losses.dtype)).sum().backward()
+            net.backward((losses * active.to(losses.dtype)).sum())
         if config.max_grad_value is not None:  # every value on its own, as clip_grad_value_
             net.grad.clamp_(-config.max_grad_value, config.max_grad_value)
-        if config.max_grad_norm is not None:  # each seed's global norm, as clip_grad_norm_ computes it
-            norms = torch.linalg.vector_norm(net.grad, dim=1, keepdim=True)
-            net.grad.mul_((config.max_grad_norm / (norms + 1e-6)).clamp(max=1.0))
+        if config.max_grad_norm is not None:
+            net.clip_grad_norms(config.max_grad_norm)
         self.optimizer.step(net.flat, net.grad, shared.lr, active)
         if not metrics or losses is None:
             return None
@@ -921,8 +893,8 @@ class PopulationDQN(SeedRows):
         networks)."""
         if self.env_info.is_image:
             return self.torch_block_actor([self.row(seed) for seed in seeds])
-        body, head, value = self.numpy_plans([self.row(seed) for seed in seeds], copy=True)
-        return block_greedy_q_actor(body, head, value, self.env_info.obs_dim)
+        networks = self.numpy_networks([self.row(seed) for seed in seeds], copy=True)
+        return stacked_block_actor(networks, self.env_info.obs_dim, q_values_from)
 
     def torch_block_actor(self, rows: list[int]) -> BlockActor:
         """The greedy actions of the online networks of ``rows`` as one :data:`BlockActor`, through
@@ -1014,38 +986,6 @@ def nan_if_none(value: float | None) -> float:
     return math.nan if value is None else float(value)
 
 
-def block_greedy_q_actor(
-    body: list[Step], head: list[Step], value: list[Step] | None, obs_dim: int
-) -> BlockActor:
-    """The greedy actions of S stacked Q-networks (numpy plans with ``[S, in, out]`` weights) as one
-    :data:`~cartpole.evaluation.BlockActor`: rows of blocks ``blocks`` ``[k * E, obs_dim]`` (network
-    b's E rows in block b) to actions ``[k * E]``. A subset of the blocks runs through a stack of
-    those networks only, kept until the subset changes."""
-    parts = [StackedNumpyMLP(body), StackedNumpyMLP(head)] + ([StackedNumpyMLP(value)] if value else [])
-    count = parts[1].count
-    kept: dict[bytes, list[StackedNumpyMLP]] = {}
-
-    def networks(blocks: np.ndarray) -> list[StackedNumpyMLP]:
-        if len(blocks) == count:
-            return parts
-        key = np.asarray(blocks, dtype=np.int64).tobytes()
-        if key not in kept:
-            kept.clear()
-            kept[key] = [part.subset(np.asarray(blocks)) for part in parts]
-        return kept[key]
-
-    def act(observations: np.ndarray, blocks: np.ndarray) -> np.ndarray:
-        mlps = networks(blocks)
-        x = np.asarray(observations, dtype=np.float32).reshape(len(blocks), -1, obs_dim)
-        features = mlps[0](x)
-        q = mlps[1](features)
-        if len(mlps) == 3:  # dueling, as QNetworkPolicy.scores
-            q = mlps[2](features) + q - q.mean(axis=-1, keepdims=True)
-        return q.argmax(axis=-1).reshape(-1)
-
-    return act
-
-
 def q_network_parameters(config: DQNConfig, env: EnvInfo) -> int:
     """Parameters of one Q-network."""
     features, conv = env.obs_dim, 0
@@ -1116,7 +1056,6 @@ __all__ = [
     "PopulationDQN",
     "StackedQNetwork",
     "StackedReplay",
-    "block_greedy_q_actor",
     "dqn_bytes_per_seed",
     "n_step_window_bytes",
     "q_network_parameters",

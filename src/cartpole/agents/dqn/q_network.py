@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import copy
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Protocol
 
 import numpy as np
@@ -181,6 +181,18 @@ class QNetwork(nn.Module):
             return self(observations_t).cpu().numpy()
 
 
+def q_values_from(parts: Sequence[Callable[[np.ndarray], np.ndarray]], x: np.ndarray) -> np.ndarray:
+    """Q-values ``[..., n_actions]`` of ``x`` through a Q-network's NumPy parts, as ``QNetwork.forward``
+    without dropout: the body, then the head, and for a dueling network (a third part, the value
+    head) ``value + advantages - mean(advantages)``."""
+    body, head, *value = parts
+    features = body(x)
+    q = head(features)
+    if value:  # dueling: the head gives advantages
+        q = value[0](features) + q - q.mean(axis=-1, keepdims=True)
+    return q
+
+
 class QNetworkPolicy:
     """Greedy policy of a Q-network: ``act`` = argmax of ``scores`` (the Q-values).
 
@@ -196,19 +208,15 @@ class QNetworkPolicy:
         if q_net.is_image:
             self.torch_net = copy.deepcopy(q_net).requires_grad_(False).eval()
             return
-        self.body = NumpyMLP(q_net.body)
-        self.head = NumpyMLP([q_net.head])
-        self.value = None if q_net.value is None else NumpyMLP([q_net.value])
+        value = [] if q_net.value is None else [NumpyMLP([q_net.value])]
+        self.parts = [NumpyMLP(q_net.body), NumpyMLP([q_net.head]), *value]
+        """The body, the head and (dueling) the value head (:func:`q_values_from`)."""
 
     def scores(self, observations: np.ndarray) -> np.ndarray:
         """Q-values, shape [N, n_actions] (as ``QNetwork.forward`` in eval mode)."""
         if self.torch_net is not None:
             return self.torch_net.q_values(observations)
-        features = self.body(observations)
-        q = self.head(features)
-        if self.value is not None:  # dueling: the head gives advantages
-            q = self.value(features) + q - q.mean(axis=1, keepdims=True)
-        return q
+        return q_values_from(self.parts, observations)
 
     def act(self, observations: np.ndarray) -> np.ndarray:
         return self.scores(observations).argmax(axis=1)

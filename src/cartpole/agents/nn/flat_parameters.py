@@ -10,6 +10,7 @@ module (``unstack``: a template overwritten) and goes back in (``load_row``); se
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable
 from contextlib import AbstractContextManager, nullcontext
 from typing import Generic, TypeVar
@@ -18,6 +19,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from cartpole.agents.nn.numpy_mlp import Step
 from cartpole.evaluation import BlockActor
 
 Params = dict[str, torch.Tensor]
@@ -93,6 +95,31 @@ class FlatParameters(Generic[Module]):
         """Keep only the seeds at ``rows``."""
         self.flat = self.flat[rows.to(self.flat.device)]
         self.bind()
+
+    def backward(self, loss: torch.Tensor) -> None:
+        """Accumulate the gradient of ``loss`` (a scalar) into ``grad`` through autograd."""
+        with warnings.catch_warnings():
+            # The gradients are views of one [S, P] tensor on purpose (see the module docstring).
+            warnings.filterwarnings("ignore", "grad and param do not obey the gradient layout")
+            loss.backward()
+
+    @torch.no_grad()
+    def clip_grad_norms(self, max_norm: float) -> None:
+        """Scale each seed's gradient down to a global norm of at most ``max_norm``, as
+        ``torch.nn.utils.clip_grad_norm_`` computes it for one network."""
+        norms = torch.linalg.vector_norm(self.grad, dim=1, keepdim=True)
+        self.grad.mul_((max_norm / (norms + 1e-6)).clamp(max=1.0))
+
+    def numpy_linear(self, weight: str, bias: str, rows: list[int] | None = None, copy: bool = True) -> Step:
+        """The linear layer of parameters ``weight`` and ``bias`` of the networks at ``rows`` (None:
+        all) as a NumPy step (:data:`~cartpole.agents.nn.numpy_mlp.Step`: weights ``[S, in, out]``,
+        biases ``[S, 1, out]``): frozen copies, or with ``copy`` False (CPU, all rows) views of the
+        parameters, which follow the updates made in place."""
+        w, b = self.params[weight].detach(), self.params[bias].detach()
+        if rows is not None:
+            w, b = w[rows], b[rows]
+        step = (w.cpu().numpy().transpose(0, 2, 1), b.cpu().numpy()[:, None, :])
+        return (step[0].copy(), step[1].copy()) if copy else step
 
     def block_actor(
         self,

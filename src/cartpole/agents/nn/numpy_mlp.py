@@ -16,6 +16,7 @@ from torch import nn
 
 from cartpole.agents.nn.fast_tanh import tanh_array
 from cartpole.agents.nn.standardize import StandardizeObservations
+from cartpole.evaluation import BlockActor
 
 
 def _relu(x: np.ndarray) -> np.ndarray:
@@ -135,4 +136,31 @@ class StackedNumpyMLP:
         return run_steps(self.plan, np.asarray(inputs, dtype=np.float32))
 
 
-__all__ = ["NUMPY_ACTIVATIONS", "NumpyMLP", "StackedNumpyMLP"]
+def stacked_block_actor(
+    networks: list[StackedNumpyMLP],
+    obs_dim: int,
+    scores: Callable[[list[StackedNumpyMLP], np.ndarray], np.ndarray],
+) -> BlockActor:
+    """The greedy actions of stacks of S networks as one :data:`~cartpole.evaluation.BlockActor`: the
+    rows of blocks ``blocks`` ``[k * E, obs_dim]`` (network b's E rows in block b) to the argmax of
+    ``scores(networks, rows [k, E, obs_dim])``, ``[k * E]``. A subset of the blocks runs through
+    stacks of those networks only, kept until the subset changes."""
+    kept: dict[bytes, list[StackedNumpyMLP]] = {}
+
+    def subset(blocks: np.ndarray) -> list[StackedNumpyMLP]:
+        if len(blocks) == networks[-1].count:
+            return networks
+        key = np.asarray(blocks, dtype=np.int64).tobytes()
+        if key not in kept:
+            kept.clear()
+            kept[key] = [network.subset(np.asarray(blocks)) for network in networks]
+        return kept[key]
+
+    def act(observations: np.ndarray, blocks: np.ndarray) -> np.ndarray:
+        x = np.asarray(observations, dtype=np.float32).reshape(len(blocks), -1, obs_dim)
+        return scores(subset(blocks), x).argmax(axis=-1).reshape(-1)
+
+    return act
+
+
+__all__ = ["NUMPY_ACTIVATIONS", "NumpyMLP", "StackedNumpyMLP", "stacked_block_actor"]

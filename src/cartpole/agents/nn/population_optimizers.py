@@ -164,4 +164,14 @@ class PopulationOptimizer(Protocol):
     def load_row_state(self, row: int, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None: ...
 
 
-__all__ = ["PopulationAdam", "PopulationOptimizer", "PopulationRMSprop"]
+def population_optimizer(
+    name: str, rows: int, size: int, device: torch.device, eps: float = 1e-8, rms_alpha: float = 0.99
+) -> PopulationOptimizer:
+    """Optimizer ``name`` ("adam" or "rmsprop") over ``[rows, size]`` parameters, with torch's
+    defaults but for ``eps`` (and RMSprop's ``rms_alpha``)."""
+    if name == "adam":
+        return PopulationAdam(rows, size, eps, device=device)
+    return PopulationRMSprop(rows, size, rms_alpha, eps, device)
+
+
+__all__ = ["PopulationAdam", "PopulationOptimizer", "PopulationRMSprop", "population_optimizer"]

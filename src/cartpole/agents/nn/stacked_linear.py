@@ -17,6 +17,18 @@ from collections.abc import Callable
 from typing import Any
 
 import torch
+from torch import nn
+
+from cartpole.agents.nn.fast_tanh import tanh
+
+TORCH_ACTIVATIONS: dict[type[nn.Module], Callable[[torch.Tensor], torch.Tensor]] = {
+    nn.ReLU: torch.relu,
+    nn.Tanh: tanh,  # the populations' fast tanh (cartpole.agents.nn.fast_tanh)
+    nn.ELU: nn.functional.elu,
+    nn.GELU: nn.functional.gelu,
+}
+"""The hidden activations of the stacked networks, by the module type a single network uses (their
+NumPy twins: :data:`~cartpole.agents.nn.numpy_mlp.NUMPY_ACTIVATIONS`)."""
 
 
 def weight_gradient(grad: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
@@ -145,6 +157,7 @@ def stacked_linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) ->
 
 
 __all__ = [
+    "TORCH_ACTIVATIONS",
     "ActivationGradient",
     "input_gradient",
     "linear_forward",
