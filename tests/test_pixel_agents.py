@@ -105,6 +105,7 @@ TINY_CONFIGS = {
 }
 
 
+@pytest.mark.independence
 @pytest.mark.parametrize("agent", sorted(TINY_CONFIGS))
 def test_a_pixel_seed_alone_is_bit_identical_to_the_seed_in_a_population(agent):
     spec, env = get_agent(agent), env_info(PIXELS)
