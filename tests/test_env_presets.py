@@ -29,8 +29,8 @@ def test_dqn_mountaincar_preset_solves_some_seeds(tmp_path):
     """``cartpole train dqn --env MountainCar-v0 --preset mountaincar`` (the RL Zoo's settings), seeds
     0-2 trained as one population: at least one verified solve and a median verdict >= -125.
     Measured: -141.2, -108.9, -99.8; with ``ATEN_CPU_CAPABILITY=default`` -105.6, -200.0 (seed 1 never
-    drove up to the flag greedily within the budget), -103.4. Unseen seeds 9300-9306 solved 7 of 7
-    (benchmarks/README.md#other-envs). The preset before this one ended at -200 on some seeds."""
+    drove up to the flag greedily within the budget), -103.4. Unseen seeds:
+    benchmarks/README.md#mountaincar."""
     outcome = train_population("dqn", [0, 1, 2], "MountainCar-v0", preset="mountaincar", runs_dir=tmp_path)
     means = {seed: report.mean for seed, report in outcome.reports.items()}
     assert len(means) == 3
@@ -44,8 +44,7 @@ def test_ppo_mountaincar_preset_solves_most_seeds(tmp_path):
     """``cartpole train ppo --env MountainCar-v0 --preset mountaincar`` (observations standardized),
     seeds 0-4 as one population: at least 2 verified solves and a median verdict >= -125. Seeds 0-2
     under the three float paths CI runs: 7 of 9 solved, the others -111.8 and -167.3 (PPO can lose
-    what it found); unseen seeds 9300-9302 solved 3 of 3 (benchmarks/README.md#other-envs). PPO's
-    default preset ends at -200."""
+    what it found). Unseen seeds: benchmarks/README.md#mountaincar."""
     seeds = [0, 1, 2, 3, 4]
     outcome = train_population("ppo", seeds, "MountainCar-v0", preset="mountaincar", runs_dir=tmp_path)
     means = {seed: report.mean for seed, report in outcome.reports.items()}
@@ -65,8 +64,8 @@ def test_acrobot_presets_solve_most_seeds(tmp_path, agent):
     threads (other kernels), A2C -83.3, -101.2, -89.3, -97.8, -103.2 (3 of 5), and 5 of 5 with
     ``ATEN_CPU_CAPABILITY=default``; REINFORCE 5 of 5 in both, -97.3 the worst; PPO 5 of 5 with one
     thread and with ``MKL_CBWR=COMPATIBLE`` (-100.0 the worst), 4 of 5 with ``ATEN_CPU_CAPABILITY=default``
-    (seed 0 at -500). Their default presets leave some seeds at -500, never swinging up
-    (benchmarks/README.md#other-envs)."""
+    (seed 0 at -500). Their default presets leave some seeds at -500, never swinging up. Unseen seeds:
+    benchmarks/README.md#acrobot."""
     seeds = [0, 1, 2, 3, 4]
     outcome = train_population(agent, seeds, "Acrobot-v1", preset="acrobot", runs_dir=tmp_path)
     means = {seed: report.mean for seed, report in outcome.reports.items()}
