@@ -66,9 +66,8 @@ class Benchmark:
         ]
 
     def shown(self) -> str:
-        return " ".join(["python", f"benchmarks/{self.script}", self.args, "--table", self.name]).replace(
-            "  ", " "
-        )
+        parts = ["python", f"benchmarks/{self.script}", self.args, "--table", self.name]
+        return " ".join(part for part in parts if part)
 
 
 TTS_AGENTS = "ppo,dqn,a2c,reinforce,cem"

@@ -212,7 +212,8 @@ def play_greedy_blocks(
     early costs no more forward passes than it would alone. The returns and lengths ``[n]``.
 
     ``workers`` > 1: Gymnasium's pictures (a pixel env on ``"gymnasium"``, slow to draw: see
-    benchmarks/README.md#renderer) are drawn by that many processes (:func:`~cartpole.envs.make_eval_envs`); the episodes are the same."""
+    benchmarks/README.md#renderer) are drawn by that many processes
+    (:func:`~cartpole.envs.make_eval_envs`); the episodes are the same."""
     n = len(seeds)
     if n % block_size:
         raise ValueError(f"{n} episodes do not split into blocks of {block_size}")
