@@ -76,7 +76,7 @@ TUTORIALS = "dqn:tutorial-keras,dqn:tutorial-pytorch,random-search:tutorial"
 TABLES = [
     Benchmark(
         "time-to-solve", "time_to_solve.py",
-        f"--agents {TTS_AGENTS} --seeds 20 --first-seed 10000 --sb3 ppo,dqn,a2c --jobs 1", minutes=45,
+        f"--agents {TTS_AGENTS} --seeds 20 --first-seed 10000 --sb3 ppo,dqn,a2c --jobs 1", minutes=35,
         tiny=f"--agents {TTS_AGENTS} --seeds 1 --first-seed 10000 --sb3 ppo,dqn,a2c",
         headline="CPU seconds to a verified solve, beside Stable-Baselines3",
     ),
