@@ -41,11 +41,10 @@ TORCH_ACTIVATIONS: dict[type[nn.Module], Callable[[torch.Tensor], torch.Tensor]]
 NumPy twins: :data:`~cartpole.agents.nn.numpy_mlp.NUMPY_ACTIVATIONS`)."""
 
 
-def lone_seed_on_threads(a: torch.Tensor) -> bool:
-    """Whether a batched product of ``a`` [S, n, k] would go to MKL's single product on more than one
-    thread: one seed on the CPU, several torch threads (asked cheapest first: one thread is the
-    CLI's default)."""
-    return torch.get_num_threads() > 1 and a.shape[0] == 1 and a.device.type == "cpu"
+def is_lone_cpu_seed(a: torch.Tensor) -> bool:
+    """Whether ``a`` [S, n, k] holds one seed on the CPU: asked of a product on several threads,
+    whether torch would give it to MKL's single product."""
+    return a.shape[0] == 1 and a.device.type == "cpu"
 
 
 def as_two_seeds(t: torch.Tensor) -> torch.Tensor:
@@ -56,19 +55,20 @@ def as_two_seeds(t: torch.Tensor) -> torch.Tensor:
 def per_seed_bmm(a: torch.Tensor, b: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:
     """``torch.bmm(a, b)``, ``[S, n, m]``, each seed's product by the kernel that multiplies it among
     other seeds (see the module docstring); written into ``out`` when given, but for a lone seed on
-    several threads."""
-    if lone_seed_on_threads(a):
+    several threads. (One thread, the CLI's default, is asked first: the cheapest test; and ``out``
+    is passed only when given, since torch parses ``out=None`` more slowly.)"""
+    if torch.get_num_threads() > 1 and is_lone_cpu_seed(a):
         return torch.bmm(as_two_seeds(a), as_two_seeds(b))[:1]
-    return torch.bmm(a, b, out=out)
+    return torch.bmm(a, b) if out is None else torch.bmm(a, b, out=out)
 
 
 def per_seed_baddbmm(
     c: torch.Tensor, a: torch.Tensor, b: torch.Tensor, out: torch.Tensor | None = None
 ) -> torch.Tensor:
     """``torch.baddbmm(c, a, b)``, ``[S, n, m]``, as :func:`per_seed_bmm` (``c`` [S, 1 or n, m])."""
-    if lone_seed_on_threads(a):
+    if torch.get_num_threads() > 1 and is_lone_cpu_seed(a):
         return torch.baddbmm(as_two_seeds(c), as_two_seeds(a), as_two_seeds(b))[:1]
-    return torch.baddbmm(c, a, b, out=out)
+    return torch.baddbmm(c, a, b) if out is None else torch.baddbmm(c, a, b, out=out)
 
 
 def weight_gradient(grad: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
