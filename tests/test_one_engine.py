@@ -161,11 +161,9 @@ def test_a_seed_on_gymnasiums_envs_resumes_mid_episode_exactly(agent, env_id, pr
         assert torch.equal(tensor, again[key]), key
 
 
-NEURAL_AGENTS = ["a2c", "dqn", "ppo", "reinforce"]
-
-
+@pytest.mark.independence
 @pytest.mark.parametrize("env_id", ["CartPole-v1", "Acrobot-v1"])
-@pytest.mark.parametrize("agent", NEURAL_AGENTS)
+@pytest.mark.parametrize("agent", sorted(NEURAL))
 def test_with_two_threads_a_seed_alone_is_still_the_seed_in_a_population(agent, env_id):
     """On two torch threads (``--torch-threads 2``; a pixel env's default, every core) torch gives a
     lone seed's products to a threaded single matrix product and several seeds' to a batched one:

@@ -54,6 +54,7 @@ def test_a_seed_s_gradients_do_not_depend_on_the_others() -> None:
         assert torch.equal(ours, theirs)
 
 
+@pytest.mark.independence
 @pytest.mark.parametrize(("inputs", "outputs"), [(6, 16), (4, 16), (16, 64), (64, 16), (64, 2), (64, 1)])
 def test_on_two_threads_a_lone_seed_gets_the_bits_it_gets_among_others(inputs: int, outputs: int) -> None:
     """A batch of one goes to a threaded single matrix product, several to a batched one: a first
