@@ -20,11 +20,10 @@ import numpy as np
 import pytest
 import torch
 
-from cartpole.agents.actor_critic.a2c import A2CConfig
+from cartpole.agents.actor_critic.a2c import A2CConfig, PopulationA2C
 from cartpole.agents.actor_critic.policy_gradient import seeded_actor_critic
-from cartpole.agents.actor_critic.population import PopulationA2C, PopulationPPO, PopulationReinforce
-from cartpole.agents.actor_critic.ppo import PPOConfig
-from cartpole.agents.actor_critic.reinforce import ReinforceConfig
+from cartpole.agents.actor_critic.ppo import PopulationPPO, PPOConfig
+from cartpole.agents.actor_critic.reinforce import PopulationReinforce, ReinforceConfig
 from cartpole.agents.learner import LearnResult
 from cartpole.agents.registry import build_population, get_agent, load_policy
 from cartpole.cli.main import main
@@ -308,7 +307,8 @@ def test_networks_that_autograd_differentiates():
 def test_reinforce_batches_start_where_the_seed_alone_starts_them():
     config = ReinforceConfig(**REINFORCE_SMALL)  # type: ignore[arg-type]
     population, alone = small_population("reinforce", [2, 5]), small_population("reinforce", [5])
-    envs = slice(population.row(5) * config.num_envs, (population.row(5) + 1) * config.num_envs)
+    row = population.seeds.index(5)
+    envs = slice(row * config.num_envs, (row + 1) * config.num_envs)
     starts = []
     for _ in range(3):
         population.restart()

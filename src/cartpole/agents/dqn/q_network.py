@@ -25,6 +25,7 @@ network has no numpy twin: its policy is a frozen torch copy (convolutions are t
 from __future__ import annotations
 
 import copy
+import itertools
 import math
 from collections.abc import Callable, Sequence
 from typing import Protocol
@@ -33,8 +34,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from cartpole.agents.nn.conv import LastFrameDifference, ScalePixels, conv_output_size
+from cartpole.agents.nn.conv import LastFrameDifference, ScalePixels, conv_output_size, conv_parameters
 from cartpole.agents.nn.numpy_mlp import NumpyMLP
+from cartpole.envs import EnvInfo
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {"relu": nn.ReLU, "tanh": nn.Tanh, "elu": nn.ELU, "gelu": nn.GELU}
 
@@ -191,6 +193,20 @@ def q_values_from(parts: Sequence[Callable[[np.ndarray], np.ndarray]], x: np.nda
     if value:  # dueling: the head gives advantages
         q = value[0](features) + q - q.mean(axis=-1, keepdims=True)
     return q
+
+
+def q_network_parameters(config: NetworkShape, env: EnvInfo) -> int:
+    """Parameters of one Q-network."""
+    features, conv = env.obs_dim, 0
+    if env.is_image:
+        inputs = network_input_shape(env.obs_shape, config.frame_difference)
+        conv = conv_parameters(inputs[0], config.conv_layers)
+        features = conv_output_size(inputs, config.conv_layers)
+    sizes = [features, *config.hidden_sizes]
+    body = sum(n_in * n_out + n_out for n_in, n_out in itertools.pairwise(sizes))
+    head = sizes[-1] * env.n_actions + env.n_actions
+    value = sizes[-1] + 1 if config.dueling else 0
+    return conv + body + head + value
 
 
 class QNetworkPolicy:

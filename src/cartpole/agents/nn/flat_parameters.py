@@ -36,6 +36,12 @@ def on_the_cpu() -> AbstractContextManager[object]:
     return nullcontext() if torch.get_default_device().type == "cpu" else torch.device("cpu")
 
 
+def to_device(tensor: torch.Tensor, device: torch.device) -> torch.Tensor:
+    """A CPU tensor copied to ``device`` without waiting for the device (no sync): only a read-back
+    waits for it."""
+    return tensor.to(device, non_blocking=True)
+
+
 class FlatParameters(Generic[Module]):
     """The parameters of ``models`` (one per seed, all shaped like the first) in ``flat`` ``[S, P]``,
     each row padded with zeros to a multiple of ``align`` floats; ``params`` and their gradients are
@@ -82,6 +88,14 @@ class FlatParameters(Generic[Module]):
                 start, end = self.offsets[name]
                 p.copy_(source[row, start:end].view_as(p))
         return self.template
+
+    def row_state_dict(
+        self, row: int, prefix: str, flat: torch.Tensor | None = None
+    ) -> dict[str, torch.Tensor]:
+        """Row ``row`` of ``flat`` (default: ``self.flat``) as the template's state dict, each name
+        prefixed with ``prefix`` (CPU copies)."""
+        model = self.unstack(row, flat)
+        return {prefix + k: v.detach().clone() for k, v in model.state_dict().items()}
 
     def load_row(self, row: int, tensors: dict[str, torch.Tensor], flat: torch.Tensor | None = None) -> None:
         """Put the parameters ``tensors`` (by module name) into row ``row`` of ``flat`` (default:
@@ -144,4 +158,4 @@ class FlatParameters(Generic[Module]):
         return act
 
 
-__all__ = ["FlatParameters", "Params"]
+__all__ = ["FlatParameters", "Params", "on_the_cpu", "to_device"]
