@@ -283,7 +283,7 @@ def fail_every_member(members: list[Member], active: dict[int, Member], error: B
         if member.loop.state.stop_reason is None or member.seed in active:
             member.loop.state.stop(StopReason.FAILED, detail)
         if member.seed in active:
-            with suppress(Exception):  # as a single run does: save latest if the state allows
+            with suppress(Exception):  # save latest where the state still allows it
                 member.loop.end(now)
         fields = status_fields(member.loop.state)
         if member.loop.state.stop_reason is not StopReason.FAILED:  # it had stopped; then saving failed

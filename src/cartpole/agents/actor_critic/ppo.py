@@ -178,7 +178,7 @@ class PopulationPPO(PopulationActorCritic):
         seeds, rows = rollout.valid.shape
         size = config.minibatch_size
         has_rows = rollout.counts > 0
-        whole = size >= rows  # one minibatch of every row, as the single run takes it: no shuffle
+        whole = size >= rows  # one minibatch of every row: no shuffle
         if not whole:  # each seed's shuffles for all epochs from its own generator; invalid rows last
             keys = torch.stack(
                 [torch.rand(config.n_epochs, rows, generator=g, device="cpu") for g in self.generators]

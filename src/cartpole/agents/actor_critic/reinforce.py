@@ -79,7 +79,7 @@ class PopulationReinforce(PopulationActorCritic):
     def __init__(self, config: ReinforceConfig, env: EnvInfo, seeds: list[int], device: str = "cpu"):
         super().__init__(config, env, seeds, device)
         self.episode_rngs = [np.random.default_rng(derived_seed(s, "episodes")) for s in self.seeds]
-        """Seed each batch's fresh episodes, as the single run's ``rng`` does."""
+        """Each seed's generator of the seeds of its batches' fresh episodes."""
         self.longest = env.max_episode_steps or LONGEST_EPISODE_WITHOUT_TIME_LIMIT
 
     def backward_group(

@@ -224,9 +224,8 @@ class StackedActorCritic(FlatParameters[ActorCritic]):
     def backward(self, loss: torch.Tensor) -> None:
         """Add to ``grad`` the gradient of ``loss`` (a scalar) with respect to the parameters, through
         the last :meth:`forward_for_update`. For MLPs, autograd differentiates the loss only as far as
-        the logits and values; the networks' gradients are then computed by hand
-        (:func:`~cartpole.agents.nn.stacked_linear.mlp_gradients`: autograd's products, without its
-        graph's bookkeeping, which costs more than small layers' arithmetic)."""
+        the logits and values; the networks' gradients are then computed by hand, autograd's own
+        products (:func:`~cartpole.agents.nn.stacked_linear.mlp_gradients`)."""
         update, self.update_pass = self.update_pass, None
         if update is None:
             super().backward(loss)
@@ -251,11 +250,9 @@ class StackedActorCritic(FlatParameters[ActorCritic]):
             target.index_add_(0, rows, gradient)
 
     def numpy_actor(self, rows: list[int] | None = None) -> StackedNumpyMLP:
-        """A frozen NumPy copy of the actors of ``rows`` (default: all), logits ``[S, B, n_actions]``.
-
-        NumPy, as a single run's policy (:class:`~cartpole.agents.nn.numpy_mlp.NumpyMLP`): acting
-        runs a few rows at a time, where torch's per-op overhead dominates, so ``np.matmul`` over the
-        stacked weights (each seed's slice on its own) costs less than ``baddbmm``."""
+        """A frozen NumPy twin of the actors of ``rows`` (default: all), logits ``[S, B, n_actions]``
+        (:class:`~cartpole.agents.nn.numpy_mlp.StackedNumpyMLP`: each seed's slice multiplied on its
+        own; why NumPy: :mod:`cartpole.agents.nn.numpy_mlp`)."""
         plan: list[Step] = []
         for step in self.actor_plan:
             if isinstance(step, tuple):

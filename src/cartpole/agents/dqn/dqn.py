@@ -135,11 +135,11 @@ class PopulationDQN(QLearningPopulation):
         self, next_observations: torch.Tensor, rewards: torch.Tensor, terminated: torch.Tensor
     ) -> torch.Tensor:
         """The Bellman targets [S, B] (:func:`~cartpole.agents.dqn.algorithm.td_targets`, per row). Without a
-        target network the online nets (without dropout) value s', as the single run does."""
+        target network the online nets (without dropout) value s'."""
         config, net = self.config, self.net
         next_q_online = None
         if config.double_dqn and net.target is not None:  # both networks in one pass
-            twice = torch.cat([next_observations, next_observations])  # a fifth of repeat()'s time
+            twice = torch.cat([next_observations, next_observations])  # cheaper than repeat()
             q = net.forward(net.pair_params, twice, self.activation, buffers="next")
             next_q_target, next_q_online = q.chunk(2)
         else:

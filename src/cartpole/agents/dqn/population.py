@@ -159,7 +159,8 @@ class QLearningPopulation:
 
     def select_actions(self, epsilons: list[float]) -> np.ndarray:
         """Epsilon-greedy actions of all envs: each seed's exploration draws from its own generator
-        (the single run's draws), the greedy actions from one forward pass for all seeds."""
+        (its draws are its own whoever shares the batch), the greedy actions from one forward pass for
+        all seeds."""
         n, n_actions = self.config.num_envs, self.env_info.n_actions
         greedy = self.greedy if self.greedy is not None else self.greedy_actions()
         explore = np.empty((len(self.seeds), n), dtype=bool)
@@ -182,8 +183,7 @@ class QLearningPopulation:
 
     def greedy_actions(self) -> np.ndarray:
         """The online networks' greedy actions [S, num_envs] for ``observations``: on the CPU through
-        NumPy views of the weights (:meth:`numpy_q_values`: cheaper than torch for a few rows); an
-        image network through torch."""
+        NumPy views of the weights (:meth:`numpy_q_values`); an image network through torch."""
         if self.device.type == "cpu" and not self.env_info.is_image:
             n, obs_dim = self.config.num_envs, self.env_info.obs_dim
             return self.numpy_q_values(self.episodes.observations.reshape(-1, n, obs_dim)).argmax(axis=2)

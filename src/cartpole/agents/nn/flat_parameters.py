@@ -5,6 +5,13 @@ tensor, into which autograd accumulates in place), so clipping and the optimizer
 of operations over ``[S, P]`` for the whole population. One seed's row comes out as an ordinary
 module (``unstack``: a template overwritten) and goes back in (``load_row``); seeds that stop leave
 (``keep``).
+
+Why stacked: each layer then runs as one kernel for every seed
+(:mod:`~cartpole.agents.nn.stacked_linear`), so S seeds train in one process for much less than S
+separate runs (benchmarks/README.md#population). Batched products rather than ``torch.func.vmap``
+over ``functional_call``: a batched product multiplies each seed's slice on its own, so a seed's bits
+do not depend on the seeds beside it (tested), and on the CPU vmap's per-call batching rules cost
+more than these small layers' arithmetic.
 """
 
 from __future__ import annotations
