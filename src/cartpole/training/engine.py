@@ -80,16 +80,10 @@ def went_past_best(run: RunDir, state: LoopState) -> bool:
 
 
 class SeedLearner:
-    """One seed of a population behind the ``Learner`` protocol: what callbacks and checkpoints use.
-
-    ``learn`` is the population's business (all seeds at once), so it is not offered here.
-    """
+    """One seed of a population behind the ``Learner`` protocol: what callbacks and checkpoints use."""
 
     def __init__(self, population: Population, seed: int):
         self.population, self.seed = population, seed
-
-    def learn(self) -> Any:
-        raise RuntimeError("a population seed learns through its population's learn()")
 
     def policy(self) -> Policy:
         return self.population.seed_policy(self.seed)

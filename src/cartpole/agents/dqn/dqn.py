@@ -134,8 +134,8 @@ class PopulationDQN(QLearningPopulation):
     def targets(
         self, next_observations: torch.Tensor, rewards: torch.Tensor, terminated: torch.Tensor
     ) -> torch.Tensor:
-        """The Bellman targets [S, B] (:func:`~cartpole.agents.dqn.algorithm.td_targets`, per row). Without a
-        target network the online nets (without dropout) value s'."""
+        """The Bellman targets [S, B] of every seed's minibatch (:func:`td_targets`, per row), with
+        ``gamma^n_step``. Without a target network the online nets (without dropout) value s'."""
         config, net = self.config, self.net
         next_q_online = None
         if config.double_dqn and net.target is not None:  # both networks in one pass
