@@ -20,6 +20,7 @@ import torch
 from cartpole.agents.actor_critic.stacked import StackedActorCritic
 from cartpole.agents.episodes import Finished, SeedEpisodes
 from cartpole.agents.nn.flat_parameters import Params
+from cartpole.agents.seed_state import SeedState
 
 
 @dataclass
@@ -89,9 +90,12 @@ def play(
     """Up to ``steps`` batched steps of all S x N envs of ``episodes``; what they did, and each seed's
     finished episodes (returns, lengths). Seed i's actions are sampled from ``generators[i]``. With
     ``whole_episodes`` (REINFORCE) each env plays one episode: its rows after it ended are invalid,
-    and play stops once every env has ended one. The actors act through a frozen NumPy copy
-    (:meth:`StackedActorCritic.rollout_actor`); the log-probabilities of their actions (PPO's old
-    ones; zeros without ``log_probs``) come from one torch pass after the rollout."""
+    and play stops once every env has ended one. Until then a seed whose envs have all ended steps
+    them on, idle (every seed's envs step as one batch); afterwards they are put back where they
+    stood when its last episode ended, where the seed alone leaves them. The actors act through a
+    frozen NumPy copy (:meth:`StackedActorCritic.rollout_actor`); the log-probabilities of their
+    actions (PPO's old ones; zeros without ``log_probs``) come from one torch pass after the
+    rollout."""
     seeds, envs = len(generators), episodes.num_envs
     obs_shape = model.template.obs_shape
     actor = model.rollout_actor()
@@ -107,6 +111,8 @@ def play(
         [torch.rand(steps, envs, generator=g, device="cpu").numpy() for g in generators], axis=1
     )
     finished: Finished = [([], []) for _ in range(seeds)]
+    held: dict[int, SeedState] = {}
+    """The envs of the seeds whose episodes have all ended, as they stood then, by seed row."""
     used = steps
     for t in range(steps):
         observations[t] = episodes.observations
@@ -124,7 +130,12 @@ def play(
             if ended_once.all():
                 used = t + 1
                 break
+            for row in np.flatnonzero(ended_once.reshape(seeds, envs).all(axis=1)).tolist():
+                if row not in held:
+                    held[row] = episodes.seed_state(row)
     observations[used] = episodes.observations
+    for seed_row, (env_tensors, env_data) in held.items():
+        episodes.load_seed_state(seed_row, env_tensors, env_data)
     device = model.flat.device
 
     def tensor(x: np.ndarray) -> torch.Tensor:
