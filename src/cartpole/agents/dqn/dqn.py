@@ -12,7 +12,8 @@
    optimizer step).
 4. A training round (:meth:`PopulationDQN.train`): ``gradient_steps`` gradient steps on minibatches
    drawn from each seed's replay memory, each followed by the due target-network updates (Polyak or
-   hard copies) and the multiplicative epsilon decay (:meth:`PopulationDQN.after_step`).
+   hard copies: :meth:`PopulationDQN.update_targets`) and the multiplicative epsilon decay
+   (:meth:`PopulationDQN.after_step`).
 5. One ``learn()`` (:meth:`PopulationDQN.learn`): one batched env step of every seed, epsilon-greedy
    (:func:`epsilon_at`), its transitions stored (with the tutorials' reward shaping where configured:
    :func:`shaped_rewards`), then a training round for the seeds whose round is due.
@@ -272,13 +273,31 @@ class PopulationDQN(QLearningPopulation):
             self.rounds = {key: Round(mask, count, active, lr, row_weights)}
         return self.rounds[key]
 
+    @torch.no_grad()
+    def update_targets(self, rows: np.ndarray) -> None:
+        """Polyak update of the target networks of the seeds at ``rows``: target <- target + tau *
+        (online - target); a copy when tau is 1."""
+        net, tau = self.net, self.config.tau
+        if net.target is None or not rows.any():
+            return
+        if rows.all():
+            if tau >= 1.0:
+                net.target.copy_(net.flat)
+            else:
+                net.target.lerp_(net.flat, tau)
+            return
+        index = to_device(torch.from_numpy(np.flatnonzero(rows)), net.flat.device)
+        online = net.flat.index_select(0, index)
+        moved = online if tau >= 1.0 else net.target.index_select(0, index).lerp_(online, tau)
+        net.target.index_copy_(0, index, moved)
+
     def after_step(self, training: np.ndarray) -> None:
         """Count the gradient step of the ``training`` seeds; their due target updates and their
         multiplicative epsilon decay."""
         config = self.config
         self.gradient_steps += training
         due = training & (self.gradient_steps % config.target_update_interval == 0)
-        self.net.update_target(due, config.tau)
+        self.update_targets(due)
         if config.epsilon_schedule == "multiplicative":
             m = self.epsilon_multiplied
             decays = training & (m > config.epsilon_end)

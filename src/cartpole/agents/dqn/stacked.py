@@ -30,12 +30,11 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-import numpy as np
 import torch
 
 from cartpole.agents.dqn.q_network import QNetwork
 from cartpole.agents.nn.conv import LastFrameDifference, last_frame_difference, scale_pixels
-from cartpole.agents.nn.flat_parameters import FlatParameters, to_device
+from cartpole.agents.nn.flat_parameters import FlatParameters
 from cartpole.agents.nn.stacked_conv import channels_last, stacked_conv2d
 from cartpole.agents.nn.stacked_linear import (
     linear_forward,
@@ -175,23 +174,6 @@ class StackedQNetwork(FlatParameters[QNetwork]):
         if self.target is not None:
             self.target = self.target[rows]
         super().keep(rows)
-
-    @torch.no_grad()
-    def update_target(self, rows: np.ndarray, tau: float) -> None:
-        """Polyak update of the targets of ``rows``: target <- target + tau * (online - target); a copy
-        when tau is 1."""
-        if self.target is None or not rows.any():
-            return
-        if rows.all():
-            if tau >= 1.0:
-                self.target.copy_(self.flat)
-            else:
-                self.target.lerp_(self.flat, tau)
-            return
-        index = to_device(torch.from_numpy(np.flatnonzero(rows)), self.flat.device)
-        online = self.flat.index_select(0, index)
-        moved = online if tau >= 1.0 else self.target.index_select(0, index).lerp_(online, tau)
-        self.target.index_copy_(0, index, moved)
 
 
 __all__ = ["ALIGN", "StackedQNetwork", "padded"]
