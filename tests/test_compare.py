@@ -218,3 +218,26 @@ def test_help_is_complete(command, capsys):
         main([command, "--help"])
     assert exit_info.value.code == 0
     assert f"usage: cartpole {command}" in capsys.readouterr().out
+
+
+def test_a_worker_trains_on_the_clis_torch_thread_count(tmp_path, monkeypatch):
+    """A compare worker is a process of its own: it trains on `cartpole train`'s default thread count
+    (one on state observations), not on torch's one per core, which with --jobs 2 would oversubscribe."""
+    import torch
+
+    from cartpole.experiments import processes, worker
+
+    seen: list[int] = []
+
+    def spy(task: worker.Task) -> dict:
+        seen.append(torch.get_num_threads())
+        return {"state": worker.FINISHED}
+
+    monkeypatch.setattr(worker, "run_task", spy)
+    monkeypatch.setattr(processes, "stop_when_orphaned", lambda: None)
+    record = str(tmp_path / "record.json")
+    task = worker.Task("cem", "default", 0, "CartPole-v1", "2gen", str(tmp_path), record, [])
+    (tmp_path / "task.json").write_text(json.dumps(task.__dict__))
+    torch.set_num_threads(3)
+    assert worker.main([str(tmp_path / "task.json")]) == 0
+    assert seen == [1] and torch.get_num_threads() == 3

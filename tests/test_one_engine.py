@@ -180,3 +180,29 @@ def test_a_seed_on_gymnasiums_envs_resumes_mid_episode_exactly(agent, env_id, pr
     assert after.keys() == again.keys()
     for key, tensor in after.items():
         assert torch.equal(tensor, again[key]), key
+
+
+NEURAL_AGENTS = ["a2c", "dqn", "ppo", "reinforce"]
+
+
+@pytest.mark.parametrize("env_id", ["CartPole-v1", "Acrobot-v1"])
+@pytest.mark.parametrize("agent", NEURAL_AGENTS)
+def test_with_two_threads_a_seed_alone_is_still_the_seed_in_a_population(agent, env_id):
+    """On two torch threads (``--torch-threads 2``; a pixel env's default, every core) torch gives a
+    lone seed's products to a threaded single matrix product and several seeds' to a batched one:
+    the seed must still train bit for bit the same alone as among others. Acrobot's 6 inputs tell
+    the two apart on any CPU, CartPole's 4 on CPUs without AVX-512 (run with ``MKL_CBWR=AVX2``)."""
+    torch.set_num_threads(2)  # the autouse fixture sets one thread again for the next test
+    spec = get_agent(agent)
+    config, _ = resolve_config(agent, spec.config_cls, "default", dict(SMALL[agent][0]))
+    env = env_info(env_id)
+    alone = build_population(spec, config, env, [3])
+    among = build_population(spec, config, env, [5, 3, 8])
+    for _ in range(30 if agent == "dqn" else 3):  # DQN: past its learning_starts
+        assert alone.learn()[3] == among.learn()[3]
+    idle = ("collector.",) if agent == "reinforce" else ()  # see run_files
+    tensors, _ = alone.seed_state_dict(3, resume=True)
+    others, _ = among.seed_state_dict(3, resume=True)
+    assert tensors.keys() == others.keys()
+    for key, tensor in tensors.items():
+        assert key.startswith(idle) or torch.equal(tensor, others[key]), key

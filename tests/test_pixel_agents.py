@@ -309,5 +309,5 @@ def test_pictures_are_drawn_by_as_many_processes_as_torch_threads_at_most_four()
     assert MAX_PICTURE_WORKERS == 4
     torch.set_num_threads(3)
     assert picture_workers() == 3
-    torch.set_num_threads(16)  # each worker holds ~170 MB of imports: a big machine gets 4, not 16
+    torch.set_num_threads(16)  # each worker holds its own imports: a big machine gets 4, not 16
     assert picture_workers() == 4

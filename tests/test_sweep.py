@@ -223,3 +223,25 @@ def test_ctrl_c_leaves_the_study_consistent_and_a_rerun_finishes_it(tmp_path):
     again = run_cli(*args)
     assert again.returncode == 0, again.stderr
     assert len(finished(load(folder, "c"))) == 2
+
+
+def test_a_worker_trains_on_the_clis_torch_thread_count(tmp_path, monkeypatch):
+    """A sweep worker is a process of its own: it trains on `cartpole train`'s default thread count
+    (one on state observations), not on torch's one per core."""
+    import torch
+
+    from cartpole.experiments import processes, sweep
+
+    seen: list[int] = []
+
+    def spy(spec: sweep.SweepSpec) -> int:
+        seen.append(torch.get_num_threads())
+        return 0
+
+    monkeypatch.setattr(sweep, "run_worker", spy)
+    monkeypatch.setattr(processes, "stop_when_orphaned", lambda: None)
+    spec = sweep.SweepSpec("s", "cem", "default", "CartPole-v1", "2gen", 1, 1, "", None, str(tmp_path))
+    (tmp_path / "spec.json").write_text(json.dumps(spec.__dict__))
+    torch.set_num_threads(3)
+    assert sweep.main([str(tmp_path / "spec.json")]) == 0
+    assert seen == [1] and torch.get_num_threads() == 3

@@ -15,7 +15,9 @@ keep the bits equal where torch's kernels would otherwise betray a seed's positi
   parameters are padded, minibatches and acting batches have a multiple of :data:`ALIGN` rows): no
   seed's elements ever fall into the scalar tail.
 - A value head (one output) multiplies in the orientation whose bits do not depend on the number
-  of seeds (:func:`~cartpole.agents.nn.stacked_linear.linear_forward`), so a lone seed needs no company.
+  of seeds (:func:`~cartpole.agents.nn.stacked_linear.linear_forward`), so a lone seed needs no company
+  (but on several torch threads every product of a lone seed runs as a batch of two: see
+  :mod:`~cartpole.agents.nn.stacked_linear`).
 
 Torch's batched products give every seed the same bits wherever it sits in the batch when the layer
 widths are multiples of 4 (every preset's are; ``tests/test_one_engine.py``); for other widths (7,
