@@ -1,13 +1,12 @@
-"""DQN's gradient step on its own: its time, a population's memory and CPU, and a fingerprint of its bits.
+"""DQN's gradient step on its own: its time, and a population's memory and CPU.
 
     python benchmarks/dqn_step.py step                       # us per gradient step, one seed, default preset
     python benchmarks/dqn_step.py step --seeds 100           # the same step for a population of 100
     python benchmarks/dqn_step.py memory --seeds 100 --steps 400
-    python benchmarks/dqn_step.py fingerprint                # weight hashes of every DQN variant below
     python benchmarks/dqn_step.py table                      # step (1 and 100 seeds) and memory, a table
 
 ``time_to_solve.py`` and ``population.py`` measure whole runs; this script isolates what a change to
-the update costs or saves, and whether it changed a bit:
+the update costs or saves (``fingerprint.py`` says whether it changed a bit):
 
 - ``step``: fills each seed's replay with ``--warmup`` batched env steps (``learn()``), then times
   ``--repeats`` training rounds (``train()``: the preset's ``gradient_steps`` updates for every seed) and
@@ -15,10 +14,6 @@ the update costs or saves, and whether it changed a bit:
 - ``memory``: ``--seeds`` seeds take ``--steps`` batched env steps with their updates (``learn()``, as in
   training, without evaluations or files); prints the process's peak RSS, its CPU seconds for those steps,
   and glibc's heap: its size and how much of it is in use (``mallinfo2``; where glibc has it).
-- ``fingerprint``: seeds 3 and 5 as one population take ``--steps`` batched env steps under each of the
-  tutorial presets, the default and variants of it (no double DQN, no target network, a dueling head,
-  MSE with 1-step rows and hard target copies, gradient norms clipped to 0.5); prints a hash of each
-  seed's online and target weights and its last loss. Run it at two commits: equal hashes, the same bits.
 - ``table``: ``step`` for one seed and for ``--seeds`` (default 100; ``--repeats`` a tenth as many),
   and ``memory`` for ``--seeds``, each in a process of its own, as one table (``--table`` writes it).
 
@@ -30,7 +25,6 @@ from __future__ import annotations
 import argparse
 import ctypes
 import dataclasses
-import hashlib
 import json
 import resource
 import statistics
@@ -41,8 +35,6 @@ from typing import Any
 
 from cpu import describe_cpu
 from table_file import Measurement, Table, add_table_arguments
-
-FINGERPRINT_SEEDS = [3, 5]
 
 
 def build(preset: str, seeds: list[int], **changes: Any) -> Any:
@@ -121,38 +113,6 @@ def memory_and_cpu(args: argparse.Namespace) -> dict[str, Any]:
     }
 
 
-VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
-    "default": ("default", {}),
-    "tutorial-keras": ("tutorial-keras", {}),
-    "tutorial-pytorch": ("tutorial-pytorch", {}),
-    "no double DQN": ("default", {"double_dqn": False}),
-    "no target network": ("default", {"target_network": False}),
-    "dueling": ("default", {"dueling": True}),
-    "mse, 1-step, hard target copies": (
-        "default",
-        {"loss": "mse", "n_step": 1, "tau": 1.0, "target_update_interval": 50},
-    ),
-    "gradient clipping": ("default", {"max_grad_norm": 0.5}),
-}
-
-
-def fingerprints(args: argparse.Namespace) -> dict[str, Any]:
-    found = {}
-    for name, (preset, changes) in VARIANTS.items():
-        population = build(preset, FINGERPRINT_SEEDS, **changes)
-        for _ in range(args.steps):
-            population.learn()
-        digest = hashlib.sha256()
-        losses = []
-        for seed in FINGERPRINT_SEEDS:
-            tensors, data = population.seed_state_dict(seed, resume=True)
-            for key in sorted(k for k in tensors if k.startswith(("q_net.", "target_net."))):
-                digest.update(tensors[key].numpy().tobytes())
-            losses.append(data["last_loss"])
-        found[name] = {"hash": digest.hexdigest()[:16], "last_losses": losses}
-    return found
-
-
 def table(args: argparse.Namespace) -> Table:
     """``step`` for one seed and for ``args.seeds``, then ``memory`` for ``args.seeds``, each in a child
     process of its own (so the memory measure's peak is its own)."""
@@ -186,22 +146,17 @@ def table(args: argparse.Namespace) -> Table:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("measure", choices=["step", "memory", "fingerprint", "table"])
+    parser.add_argument("measure", choices=["step", "memory", "table"])
     parser.add_argument("--preset", default="default", help="DQN preset (step, memory)")
     parser.add_argument("--seeds", type=int, help="seeds 0..N-1 (default: step 1, memory 100)")
-    parser.add_argument("--steps", type=int, help="batched env steps (default: memory 400, fingerprint 300)")
+    parser.add_argument("--steps", type=int, help="batched env steps (default: memory 400)")
     parser.add_argument("--warmup", type=int, default=300, help="step: batched env steps before timing")
     parser.add_argument("--repeats", type=int, default=200, help="step: training rounds per trial")
     parser.add_argument("--trials", type=int, default=5, help="step: timed trials (the median is printed)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     add_table_arguments(parser)
     args = parser.parse_args(argv)
-    defaults = {
-        "step": (1, 0),
-        "memory": (100, 400),
-        "fingerprint": (len(FINGERPRINT_SEEDS), 300),
-        "table": (100, 400),
-    }
+    defaults = {"step": (1, 0), "memory": (100, 400), "table": (100, 400)}
     seeds, steps = defaults[args.measure]
     args.seeds = seeds if args.seeds is None else args.seeds
     args.steps = steps if args.steps is None else args.steps
@@ -219,18 +174,14 @@ def main(argv: list[str] | None = None) -> int:
     import torch
 
     torch.set_num_threads(1)
-    measure = {"step": step_microseconds, "memory": memory_and_cpu, "fingerprint": fingerprints}
+    measure = {"step": step_microseconds, "memory": memory_and_cpu}
     result = {"measure": args.measure, "machine": describe_cpu(), **measure[args.measure](args)}
-    if args.measure != "fingerprint":
-        result |= {"preset": args.preset, "seeds": args.seeds}
+    result |= {"preset": args.preset, "seeds": args.seeds}
     if args.json:
         print(json.dumps(result))
         return 0
     for key, value in result.items():
-        if isinstance(value, dict):
-            print(f"{key}: {value['hash']}  last losses {value['last_losses']}")
-        else:
-            print(f"{key}: {round(value, 1) if isinstance(value, float) else value}")
+        print(f"{key}: {round(value, 1) if isinstance(value, float) else value}")
     return 0
 
 

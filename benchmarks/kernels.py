@@ -19,6 +19,9 @@ of ``[seeds, 9218]`` parameters (a 64x64 actor-critic) in torch's elementwise fo
 or not), so the CPU is printed first. Last, one ``learn()`` (rollout and update) of PPO's, A2C's and
 REINFORCE's default presets for one seed and for ``--seeds``, with the networks' gradients by autograd
 and by hand (``agents/nn/stacked_linear.py``'s ``mlp_gradients``, what the populations use for MLPs).
+Then acting: one step of PPO's and DQN's default networks for every env of 1 and ``--seeds`` seeds,
+and a greedy policy on 1 and 100 rows, through the NumPy twins (``agents/nn/numpy_mlp.py``, how they
+act) and through torch on the same weights.
 
 ``--pixels``: instead, one seed's conv trunk (a 512-row batch of 4x30x100 frame stacks through
 ``agents/actor_critic/network.py``'s ``CONV_LAYERS``, forward and backward) with the images laid
@@ -31,6 +34,7 @@ from __future__ import annotations
 import argparse
 import time
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import torch
@@ -132,6 +136,78 @@ def updates_by_hand(seeds: int, repeats: int) -> list[list[str]]:
     return rows
 
 
+def default_population(agent: str, seeds: int) -> tuple[object, int]:
+    """``seeds`` seeds of ``agent``'s default preset on CartPole-v1, and their envs per seed."""
+    from cartpole.agents.registry import build_population, get_agent
+    from cartpole.envs import env_info
+    from cartpole.training.config import resolve_config
+
+    spec = get_agent(agent)
+    config, _ = resolve_config(agent, spec.config_cls, "default")
+    return build_population(spec, config, env_info("CartPole-v1"), list(range(seeds)), "cpu"), config.num_envs
+
+
+def acting_calls(population: Any, x: np.ndarray) -> dict[str, Callable[[], object]]:
+    """The greedy actions of every seed's envs ``x`` [S, N, 4] through the NumPy twin the population
+    acts through, and through torch's stacked forward pass on the same weights."""
+    if hasattr(population, "model"):  # an actor-critic: its actors
+        model = population.model
+        params = {name: p.detach() for name, p in model.params.items()}
+        twin = model.numpy_actor()
+        return {
+            "numpy": lambda: twin(x).argmax(axis=-1),
+            "torch": lambda: model.run(model.actor_plan, params, torch.from_numpy(x)).argmax(-1),
+        }
+    net = population.net  # DQN: the online Q-networks, on their padded acting rows
+    padded = np.zeros((x.shape[0], population.acting_rows, x.shape[2]), dtype=np.float32)
+    padded[:, : x.shape[1]] = x
+    return {
+        "numpy": lambda: population.numpy_q_values(x).argmax(axis=-1),
+        "torch": lambda: net.forward(net.params, torch.from_numpy(padded), population.activation).argmax(-1),
+    }
+
+
+def policy_calls(population: Any, observations: np.ndarray) -> dict[str, Callable[[], object]]:
+    """Seed 0's greedy policy on ``observations`` as it acts (its NumPy snapshot), and through torch."""
+    policy = population.seed_policy(0)
+    if hasattr(population, "model"):
+        forward = population.model.unstack(0).logits
+    else:
+        forward = population.net.unstack(0).forward
+    return {
+        "numpy": lambda: policy.act(observations),
+        "torch": lambda: forward(torch.from_numpy(observations)).argmax(-1),
+    }
+
+
+def numpy_against_torch(what: str, calls: dict[str, Callable[[], object]], repeats: int) -> list[str]:
+    with torch.no_grad():
+        times = {name: seconds_per_call(call, repeats) * 1e6 for name, call in calls.items()}
+    return [f"{what}: numpy / torch", f"{times['numpy']:.1f} / {times['torch']:.1f} us"]
+
+
+def acting(seeds: int, repeats: int) -> list[list[str]]:
+    """What acting costs through a network's NumPy twin (how the populations and greedy policies act)
+    and through torch on the same weights: one step of the default presets' networks for every env of
+    1 and ``seeds`` seeds (a rollout's or DQN's batched env step), and a greedy policy on 1 and 100
+    rows (the web app's step, an evaluation's block)."""
+    rng = np.random.default_rng(0)
+    rows = []
+    for agent in ("ppo", "dqn"):
+        for count in (1, seeds):
+            population, envs = default_population(agent, count)
+            x = rng.standard_normal((count, envs, 4)).astype(np.float32)
+            what = f"acting, {agent} default network, {count} seed(s) x {envs} envs"
+            rows.append(numpy_against_torch(what, acting_calls(population, x), repeats * 20))
+        for batch in (1, 100):
+            observations = rng.standard_normal((batch, 4)).astype(np.float32)
+            what = f"greedy policy, {agent} default network, {batch} row(s)"
+            rows.append(numpy_against_torch(what, policy_calls(population, observations), repeats * 20))
+    for row in rows:
+        print(*row, sep=": ", flush=True)
+    return rows
+
+
 def pixels() -> list[list[str]]:
     rows = []
     for channels_last in (False, True):
@@ -215,6 +291,7 @@ def main() -> None:
         rows = pixels()
     else:
         rows = arithmetic(args) + updates_by_hand(args.seeds, max(1, args.repeats // 5))
+        rows += acting(args.seeds, args.repeats)
     notes = [f"torch CPU capability {capability}, {args.threads} torch thread(s)."]
     table = Table(["measure", "time"], rows, summary={"capability": capability}, notes=notes)
     print(table.markdown())

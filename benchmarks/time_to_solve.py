@@ -179,7 +179,7 @@ def run_sb3(seed: int, max_seconds: float | None, env_id: str, eval_every: int, 
     from stable_baselines3 import DQN
     from stable_baselines3.common.callbacks import BaseCallback
 
-    from cartpole.agents.dqn.algorithm import DQNConfig
+    from cartpole.agents.dqn.config import DQNConfig
     from cartpole.envs import env_info
     from cartpole.evaluation import evaluate
     from cartpole.training.callbacks import report_rank, screened_evaluation

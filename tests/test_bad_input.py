@@ -647,7 +647,7 @@ def test_set_values_become_finite_numbers_of_the_right_kind_or_are_refused(value
 @given(st.one_of(st.text(max_size=12), st.floats(), st.integers(min_value=-(10**30), max_value=10**30)))
 @settings(max_examples=400, deadline=None)
 def test_float_settings_are_always_finite(value):
-    from cartpole.agents.dqn.algorithm import DQNConfig
+    from cartpole.agents.dqn.config import DQNConfig
 
     try:
         parsed = build_config(DQNConfig, {"lr": value}).lr

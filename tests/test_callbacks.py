@@ -11,12 +11,13 @@ import numpy as np
 import pytest
 import torch
 
+from cartpole.agents.linear.population import LinearPopulation
 from cartpole.agents.registry import get_agent
 from cartpole.core.names import StopReason
 from cartpole.envs import env_info
 from cartpole.evaluation import EvalReport
 from cartpole.runs import LiveStatus, RunDir, load_checkpoint
-from cartpole.training import Budget, Callback, LearnResult, LoopState, TrainingLoop, TrainSettings
+from cartpole.training import Budget, Callback, LearnResult, LoopState, TrainingLoop, TrainSettings, train
 from cartpole.training.callbacks import (
     BudgetCallback,
     CheckpointCallback,
@@ -82,6 +83,18 @@ class InterruptedAt(FakeLearner):
         return super().learn()
 
 
+def run_until_stopped(loop: TrainingLoop) -> LoopState:
+    """Drive ``loop`` as the engine drives each seed's loop (start; each learn() result counted,
+    until a callback or a stop request ends training; end); its final counters."""
+    learner = loop.learner
+    assert isinstance(learner, FakeLearner)
+    loop.start(time.perf_counter())
+    while loop.state.stop_reason is None:
+        loop.advance(learner.learn(), time.perf_counter())
+    loop.end(time.perf_counter())
+    return loop.state
+
+
 class StopAfter(Callback):
     def __init__(self, steps: int):
         self.steps = steps
@@ -111,25 +124,28 @@ def run(tmp_path) -> RunDir:
 
 
 def test_loop_counts_and_stops_when_a_callback_says_so():
-    state = TrainingLoop(FakeLearner(), [StopAfter(3)]).run()
+    state = run_until_stopped(TrainingLoop(FakeLearner(), [StopAfter(3)]))
     assert (state.env_steps, state.episodes, state.iterations) == (30, 3, 3)
     assert list(state.recent_returns) == [10.0, 20.0, 30.0]
     assert state.stop_reason == StopReason.CALLBACK and state.stop_detail == "stopped by a callback"
 
 
-def test_request_stop_finishes_the_step_and_failure_is_recorded():
+def test_request_stop_finishes_the_step():
     learner = InterruptedAt(2)
     loop = learner.loop = TrainingLoop(learner, [StopAfter(100)])
-    assert loop.run().stop_reason == StopReason.INTERRUPTED
+    assert run_until_stopped(loop).stop_reason == StopReason.INTERRUPTED
     assert loop.state.stop_detail == "interrupted (SIGINT)"
     assert loop.state.env_steps == 20  # the step in progress is finished, then it stops
 
-    broken = TrainingLoop(FakeLearner(), [])
-    broken.learner.learn = lambda: 1 / 0  # type: ignore[method-assign]
+
+def test_a_failing_learning_step_is_recorded_as_the_runs_failure(monkeypatch, tmp_path):
+    monkeypatch.setattr(LinearPopulation, "learn", lambda self: 1 / 0)
     with pytest.raises(ZeroDivisionError):
-        broken.run()
-    assert broken.state.stop_reason == StopReason.FAILED
-    assert broken.state.stop_detail == "failed: ZeroDivisionError: division by zero"
+        train("cem", overrides={"population": 8}, budget="3gen", runs_dir=tmp_path)
+    (folder,) = tmp_path.iterdir()
+    status = RunDir.open(folder).status()
+    assert status["state"] == "failed" and status["stop_reason"] == StopReason.FAILED
+    assert status["stop_detail"] == "failed: ZeroDivisionError: division by zero"
 
 
 # --- budget ---------------------------------------------------------------------------------------
@@ -144,26 +160,29 @@ def test_request_stop_finishes_the_step_and_failure_is_recorded():
     ],
 )
 def test_budget_stops_at_the_first_limit_reached(budget, iterations, unit):
-    state = TrainingLoop(FakeLearner(), [BudgetCallback(budget)]).run()
+    state = run_until_stopped(TrainingLoop(FakeLearner(), [BudgetCallback(budget)]))
     assert state.iterations == iterations
     assert state.stop_reason == StopReason.BUDGET and unit in (state.stop_detail or "")
 
 
 def test_budget_in_seconds():
     loop = TrainingLoop(FakeLearner(), [BudgetCallback(Budget(seconds=0.05))])
-    state = loop.run()
+    state = run_until_stopped(loop)
     assert state.elapsed >= 0.05 and "seconds" in (state.stop_detail or "")
 
 
 def test_budget_counts_sessions_before_a_resume():
     state = LoopState(env_steps=40, iterations=4)
-    assert TrainingLoop(FakeLearner(), [BudgetCallback(Budget(env_steps=50))], state).run().iterations == 5
+    loop = TrainingLoop(FakeLearner(), [BudgetCallback(Budget(env_steps=50))], state)
+    assert run_until_stopped(loop).iterations == 5
 
 
 def test_a_resume_whose_budget_is_spent_takes_no_step():
     """Killed after its last step but before its verdict: the resumed loop only ends."""
     learner = FakeLearner()
-    state = TrainingLoop(learner, [BudgetCallback(Budget(env_steps=50))], LoopState(env_steps=50)).run()
+    state = run_until_stopped(
+        TrainingLoop(learner, [BudgetCallback(Budget(env_steps=50))], LoopState(env_steps=50))
+    )
     assert learner.calls == 0 and state.env_steps == 50 and state.stop_reason == StopReason.BUDGET
 
 
@@ -184,7 +203,7 @@ def test_eval_runs_every_n_steps_and_at_the_end():
         EvalCallback(env_info("CartPole-v1"), 0, settings),
         Spy(),
     ]
-    state = TrainingLoop(FakeLearner(), callbacks).run()
+    state = run_until_stopped(TrainingLoop(FakeLearner(), callbacks))
     # at 30 and 60 steps (every >= 25 steps); nothing new to judge at the end
     assert state.evaluations == len(evaluations) >= 2
     assert all(r.episodes == 3 and r.mean < 20 for r in evaluations)  # always-left falls fast
@@ -255,7 +274,7 @@ def test_checkpoints_latest_every_k_best_and_solved(run):
 
     checkpoints = Recorded(run, spec, meta, only_every(env_steps=30), saves=saves)
     loop = TrainingLoop(FakeLearner(), [StopAfter(7), checkpoints])
-    loop.run()
+    run_until_stopped(loop)
     assert latest_steps(saves) == [0, 30, 60, 70]  # at start, every 30 steps, and at the end
     latest = load_checkpoint(run.checkpoint_path("latest"))
     assert latest.meta["step"] == 70 and latest.meta["resumable"] is True
@@ -308,7 +327,7 @@ def test_latest_every_share_of_the_budget(run, budget, steps):
     saves: list[tuple[str, int]] = []
     schedule = only_every(fraction=0.25, budget=budget)
     checkpoints = Recorded(run, get_agent("cem"), {"agent": "cem"}, schedule, saves=saves)
-    TrainingLoop(FakeLearner(steps=7), [BudgetCallback(budget), checkpoints]).run()
+    run_until_stopped(TrainingLoop(FakeLearner(steps=7), [BudgetCallback(budget), checkpoints]))
     assert latest_steps(saves) == steps
 
 
@@ -320,7 +339,7 @@ def test_latest_every_few_seconds_of_wall_time(run):
 
     saves: list[tuple[str, int]] = []
     checkpoints = Recorded(run, get_agent("cem"), {"agent": "cem"}, only_every(seconds=0.05), saves=saves)
-    TrainingLoop(Slow(), [StopAfter(20), checkpoints]).run()  # 0.4 s or more
+    run_until_stopped(TrainingLoop(Slow(), [StopAfter(20), checkpoints]))  # 0.4 s or more
     assert 4 <= len(latest_steps(saves)) - 1 <= 20  # besides the save at the end
 
 
@@ -353,7 +372,7 @@ def test_latest_checkpoint_writes_pending_metric_rows_first(run):
 
     loop = TrainingLoop(FakeLearner(per_generation=True), [metrics, checkpoints, KillAfterLatest()])
     with pytest.raises(KeyboardInterrupt):
-        loop.run()
+        run_until_stopped(loop)
     assert seen == [(20, [10, 20])]
 
 
@@ -363,7 +382,7 @@ def test_latest_checkpoint_writes_pending_metric_rows_first(run):
 def test_metrics_rows_and_sps(run):
     metrics = MetricsCallback(run)
     loop = TrainingLoop(FakeLearner(), [StopAfter(3), metrics])
-    loop.run()
+    run_until_stopped(loop)
     rows = run.metrics()
     assert [r["train/episode_return"] for r in rows] == [10.0, 20.0, 30.0]
     assert [(r["step"], r["episode"]) for r in rows] == [(10, 1), (20, 2), (30, 3)]
@@ -381,7 +400,7 @@ def test_metrics_rows_and_sps(run):
 def test_metrics_per_generation_rows(run):
     learner = InterruptedAt(1, per_generation=True)
     loop = learner.loop = TrainingLoop(learner, [StopAfter(2), MetricsCallback(run)])
-    loop.run()
+    run_until_stopped(loop)
     rows = run.metrics()
     assert [(r["train/iteration"], r["train/mean_return"], r["episode"]) for r in rows] == [(1, 1.0, 2)]
 
@@ -389,7 +408,9 @@ def test_metrics_per_generation_rows(run):
 def test_status_stays_running_with_counters_and_the_stop_reason(run):
     """The loop's end is not the run's end: only the session writes an end state (after the verdict)."""
     with LiveStatus(run) as live:
-        TrainingLoop(FakeLearner(), [BudgetCallback(Budget(env_steps=30)), StatusCallback(live)]).run()
+        run_until_stopped(
+            TrainingLoop(FakeLearner(), [BudgetCallback(Budget(env_steps=30)), StatusCallback(live)])
+        )
     status = run.status()
     assert status["state"] == "running" and status["env_steps"] == 30
     assert status["stop_reason"] == "budget" and status["stop_detail"] == "budget reached (30 env steps)"
@@ -410,7 +431,7 @@ def test_progress_plain_lines_when_not_a_terminal():
     progress.PLAIN_SECONDS = 0.0
     loop = TrainingLoop(FakeLearner(), [BudgetCallback(Budget(env_steps=50)), progress])
     loop.record_eval(report(123.0, episodes=10))
-    loop.run()
+    run_until_stopped(loop)
     lines = stream.getvalue().splitlines()
     assert len(lines) == 5 and "\x1b" not in stream.getvalue()
     assert "50/50 steps" in lines[-1] and "steps/s" in lines[-1]
@@ -430,7 +451,7 @@ def test_progress_generations_and_time_budgets_label_their_unit():
 def test_progress_bar_on_a_terminal():
     stream = FakeTerminal()
     progress = ProgressCallback(Budget(env_steps=50), "step", stream)
-    TrainingLoop(FakeLearner(), [BudgetCallback(Budget(env_steps=50)), progress]).run()
+    run_until_stopped(TrainingLoop(FakeLearner(), [BudgetCallback(Budget(env_steps=50)), progress]))
     final = stream.getvalue().split("\r")[-1]  # what the terminal shows at the end
     assert "training" in final and "50/50" in final and "steps/s" in final
     assert "return 50 (mean100 30.0)" in final  # on its own line, so the bar keeps its room
@@ -446,7 +467,7 @@ def test_tensorboard_mirrors_the_metric_rows(run):
     metrics = MetricsCallback(run)
     board = TensorBoardCallback(run, metrics)
     loop = TrainingLoop(FakeLearner(), [StopAfter(3), metrics, board])
-    loop.run()
+    run_until_stopped(loop)
     events = EventAccumulator(str(run.path / "tensorboard"))
     events.Reload()
     returns = events.Scalars("train/episode_return")

@@ -12,7 +12,9 @@ import pytest
 import torch
 from one_seed import one_seed
 
-from cartpole.agents.dqn.algorithm import DQNConfig, QNetwork, td_targets
+from cartpole.agents.dqn.config import DQNConfig
+from cartpole.agents.dqn.dqn import td_targets
+from cartpole.agents.dqn.q_network import QNetwork
 from cartpole.agents.registry import get_agent
 from cartpole.core.errors import ConfigError
 from cartpole.envs import env_info

@@ -13,9 +13,10 @@ import numpy as np
 import pytest
 import torch
 
-from cartpole.agents.dqn.algorithm import DQNConfig
-from cartpole.agents.dqn.population import dqn_bytes_per_seed, q_network_parameters, replay_bytes
-from cartpole.agents.dqn.q_network import QNetworkPolicy
+from cartpole.agents.dqn.config import DQNConfig
+from cartpole.agents.dqn.population import dqn_bytes_per_seed
+from cartpole.agents.dqn.q_network import QNetworkPolicy, q_network_parameters
+from cartpole.agents.dqn.replay import replay_bytes
 from cartpole.agents.registry import build_population, get_agent, load_policy
 from cartpole.cli.main import main
 from cartpole.core.errors import ConfigError

@@ -12,13 +12,10 @@ import numpy as np
 import pytest
 import torch
 
-from cartpole.agents.dqn.algorithm import DQNConfig, epsilon_at, policy_from_checkpoint
-from cartpole.agents.dqn.population import (
-    PopulationDQN,
-    dqn_bytes_per_seed,
-    q_network_parameters,
-    seeded_q_network,
-)
+from cartpole.agents.dqn.config import DQNConfig
+from cartpole.agents.dqn.dqn import PopulationDQN, epsilon_at
+from cartpole.agents.dqn.population import dqn_bytes_per_seed, policy_from_checkpoint, seeded_q_network
+from cartpole.agents.dqn.q_network import q_network_parameters
 from cartpole.agents.learner import LearnResult
 from cartpole.core.config import config_to_dict
 from cartpole.core.errors import ConfigError

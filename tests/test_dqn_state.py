@@ -13,7 +13,7 @@ import pytest
 import torch
 from one_seed import one_seed
 
-from cartpole.agents.dqn.algorithm import DQNConfig
+from cartpole.agents.dqn.config import DQNConfig
 from cartpole.agents.registry import get_agent
 from cartpole.envs import env_info
 from cartpole.runs import Checkpoint, load_checkpoint, save_checkpoint

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from cartpole import evaluate, load_policy
-from cartpole.agents.linear.search import LinearPolicy, ObservationScaling, policy_from_checkpoint
+from cartpole.agents.linear.policy import LinearPolicy, ObservationScaling, policy_from_checkpoint
 from cartpole.envs import env_info
 from cartpole.runs import load_checkpoint
 from cartpole.training import train

@@ -47,29 +47,29 @@ def test_every_agent_is_covered():
     assert set(SMALL) == set(agent_names())
 
 
-def run_files(run: Path, idle: tuple[str, ...]) -> dict[str, Any]:
-    """What a run left that must not depend on its neighbours: metric rows (without wall times),
-    the verdict, and every tensor of its latest and best checkpoints but one: REINFORCE plays until
-    the longest episode of its batch ends, so a seed's finished envs step on idle until then, and
-    where they stand (``collector.*``) is never used: every batch restarts them."""
+def run_files(run: Path) -> dict[str, Any]:
+    """What a run left that must not depend on its neighbours: metric rows (without wall times), the
+    verdict, and every tensor and the learner's metadata (generators, envs, counters) of its latest
+    and best checkpoints."""
     rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
     rows = [{k: v for k, v in row.items() if k not in ("time", "time/sps")} for row in rows]
     files: dict[str, Any] = {"metrics": rows, "verdict": json.loads((run / "eval.json").read_text())}
     for name in ("latest", "best"):
-        tensors = torch.load(run / "checkpoints" / f"{name}.pt", weights_only=True)["tensors"]
-        files[name] = {k: v for k, v in tensors.items() if not k.startswith(idle)}
+        saved = torch.load(run / "checkpoints" / f"{name}.pt", weights_only=True)
+        files[name] = saved["tensors"]
+        files[f"{name} learner"] = json.loads(saved["meta"])["learner"]
     return files
 
 
-def assert_same_run(a: Path, b: Path, agent: str) -> None:
-    idle = ("collector.",) if agent == "reinforce" else ()
-    left, right = run_files(a, idle), run_files(b, idle)
+def assert_same_run(a: Path, b: Path) -> None:
+    left, right = run_files(a), run_files(b)
     assert left["metrics"] == right["metrics"]
     assert left["verdict"] == right["verdict"]
     for name in ("latest", "best"):
         assert left[name].keys() == right[name].keys()
         for key, tensor in left[name].items():
             assert torch.equal(tensor, right[name][key]), f"{name}.pt: {key} differs"
+        assert left[f"{name} learner"] == right[f"{name} learner"], f"{name}.pt: learner data differs"
 
 
 @pytest.mark.parametrize("agent", marked(sorted(SMALL)))
@@ -80,7 +80,7 @@ def test_seed_alone_is_bit_identical_to_the_seed_in_a_population(agent, tmp_path
     among = train_population(agent, [9, 4, 2], runs_dir=tmp_path / "among", **options)
     assert alone.states[4].env_steps == among.states[4].env_steps > 0
     assert alone.states[4].evaluations >= 1
-    assert_same_run(alone.runs[4].path, among.runs[4].path, agent)
+    assert_same_run(alone.runs[4].path, among.runs[4].path)
 
 
 @pytest.mark.parametrize("agent", marked(sorted(SMALL)))
@@ -91,7 +91,28 @@ def test_a_single_run_is_its_seed_in_a_population(agent, tmp_path):
     single = train(agent, seed=4, runs_dir=tmp_path / "single", **options)
     among = train_population(agent, [9, 4], runs_dir=tmp_path / "among", **options)
     assert single.state.env_steps == among.states[4].env_steps > 0
-    assert_same_run(single.run.path, among.runs[4].path, agent)
+    assert_same_run(single.run.path, among.runs[4].path)
+
+
+@pytest.mark.parametrize("agent", marked(sorted(SMALL)))
+def test_a_seeds_whole_training_state_is_the_same_alone_and_among_others(agent):
+    """After every learn(), everything seed 4's checkpoint holds (tensors and data: envs, generators,
+    counters) is the same alone as beside seeds 9 and 2. (REINFORCE's envs step on, idle, while the
+    other seeds' episodes run: they are put back where the seed alone leaves them.)"""
+    spec = get_agent(agent)
+    config, _ = resolve_config(agent, spec.config_cls, "default", dict(SMALL[agent][0]))
+    env = env_info("CartPole-v1")
+    alone, among = build_population(spec, config, env, [4]), build_population(spec, config, env, [9, 4, 2])
+    for _ in range(40 if agent == "dqn" else 4):
+        mine, theirs = alone.learn()[4], among.learn()[4]
+        assert mine.episode_returns == theirs.episode_returns
+        assert mine.episode_lengths == theirs.episode_lengths
+        tensors, data = alone.seed_state_dict(4, resume=True)
+        other_tensors, other_data = among.seed_state_dict(4, resume=True)
+        assert tensors.keys() == other_tensors.keys()
+        for key, tensor in tensors.items():
+            assert torch.equal(tensor, other_tensors[key]), key
+        assert json.dumps(data, sort_keys=True) == json.dumps(other_data, sort_keys=True)
 
 
 OTHER_ENVS = [
@@ -115,7 +136,7 @@ def test_other_envs_batch_with_the_same_independence(agent, env_id, preset, tmp_
     alone = train_population(agent, [2], env_id, runs_dir=tmp_path / "alone", **options)
     among = train_population(agent, [1, 2], env_id, runs_dir=tmp_path / "among", **options)
     assert alone.states[2].env_steps == among.states[2].env_steps > 0
-    assert_same_run(alone.runs[2].path, among.runs[2].path, agent)
+    assert_same_run(alone.runs[2].path, among.runs[2].path)
 
 
 @pytest.mark.independence

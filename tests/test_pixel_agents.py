@@ -24,8 +24,7 @@ from cartpole.agents.actor_critic.network import (
     TorchActor,
     parameter_count,
 )
-from cartpole.agents.actor_critic.population import ppo_bytes_per_seed
-from cartpole.agents.actor_critic.ppo import PPOConfig
+from cartpole.agents.actor_critic.ppo import PPOConfig, ppo_bytes_per_seed
 from cartpole.agents.actor_critic.reinforce import ReinforceConfig
 from cartpole.agents.registry import build_population, get_agent, load_policy
 from cartpole.cli.main import main

@@ -20,14 +20,10 @@ from cartpole.agents.actor_critic.network import (
     schedule_value,
     stacked_greedy_actor,
 )
-from cartpole.agents.actor_critic.policy_gradient import generalized_advantages
-from cartpole.agents.actor_critic.population import (
-    clipped_surrogate_loss,
-    clipped_value_loss,
-    masked_normalize,
-)
-from cartpole.agents.actor_critic.ppo import PPOConfig
+from cartpole.agents.actor_critic.ppo import PPOConfig, clipped_surrogate_loss, clipped_value_loss
 from cartpole.agents.actor_critic.reinforce import ReinforceConfig
+from cartpole.agents.actor_critic.rollout import generalized_advantages
+from cartpole.agents.nn.masked import masked_normalize
 from cartpole.agents.presets import preset_names
 from cartpole.agents.registry import get_agent, load_policy
 from cartpole.core.errors import ConfigError

@@ -20,11 +20,10 @@ import numpy as np
 import pytest
 import torch
 
-from cartpole.agents.actor_critic.a2c import A2CConfig
+from cartpole.agents.actor_critic.a2c import A2CConfig, PopulationA2C
 from cartpole.agents.actor_critic.policy_gradient import seeded_actor_critic
-from cartpole.agents.actor_critic.population import PopulationA2C, PopulationPPO, PopulationReinforce
-from cartpole.agents.actor_critic.ppo import PPOConfig
-from cartpole.agents.actor_critic.reinforce import ReinforceConfig
+from cartpole.agents.actor_critic.ppo import PopulationPPO, PPOConfig
+from cartpole.agents.actor_critic.reinforce import PopulationReinforce, ReinforceConfig
 from cartpole.agents.learner import LearnResult
 from cartpole.agents.registry import build_population, get_agent, load_policy
 from cartpole.cli.main import main
@@ -39,6 +38,7 @@ from cartpole.training.callbacks import screened_evaluation
 from cartpole.training.config import TrainSettings
 from cartpole.training.engine import PopulationEvaluations
 from cartpole.training.session import parse_seeds, resume_population, train_population
+from cartpole.training.setup import RunSetup
 
 CARTPOLE = env_info("CartPole-v1")
 SMALL = {"n_steps": 8, "num_envs": 4, "n_epochs": 2, "minibatch_size": 16, "hidden_sizes": (16, 16)}
@@ -308,7 +308,8 @@ def test_networks_that_autograd_differentiates():
 def test_reinforce_batches_start_where_the_seed_alone_starts_them():
     config = ReinforceConfig(**REINFORCE_SMALL)  # type: ignore[arg-type]
     population, alone = small_population("reinforce", [2, 5]), small_population("reinforce", [5])
-    envs = slice(population.row(5) * config.num_envs, (population.row(5) + 1) * config.num_envs)
+    row = population.seeds.index(5)
+    envs = slice(row * config.num_envs, (row + 1) * config.num_envs)
     starts = []
     for _ in range(3):
         population.restart()
@@ -653,3 +654,17 @@ def test_resume_of_a_population_says_where_its_seeds_go_on_from_and_passes_over_
         first
         == f"resuming 2 seed(s) of the population from env step {where} (each seed's checkpoints/latest.pt)"
     )
+
+
+def test_a_new_run_hands_its_agent_down_instead_of_rebuilding_it(monkeypatch, tmp_path):
+    """The session builds the agent (spec, config) once: the population trains with it and every
+    seed's callbacks get it, not a copy rebuilt from the config.json just written (a resume builds it
+    from there)."""
+
+    def rebuilt(cls: type[RunSetup], run: RunDir, record: dict[str, Any]) -> RunSetup:
+        raise AssertionError(f"{run.name} rebuilt its agent from the record it had just written")
+
+    monkeypatch.setattr(RunSetup, "from_record", classmethod(rebuilt))
+    outcome = train_population("cem", [1, 2], budget="1gen", runs_dir=tmp_path, overrides={"population": 8})
+    assert sorted(outcome.reports) == [1, 2]
+    assert json.loads((outcome.runs[1].path / "config.json").read_text())["config"]["population"] == 8

@@ -36,11 +36,8 @@ class LearnResult:
 
 
 class Learner(Protocol):
-    """What an agent gives the loop."""
-
-    def learn(self) -> LearnResult:
-        """Advance by one unit: a generation, or one batched env step and its gradient steps."""
-        ...
+    """One seed of a population, as its loop's callbacks see it: its greedy policy and its checkpoint.
+    (Learning is the population's: all its seeds at once.)"""
 
     def policy(self) -> Policy:
         """The current greedy policy (what evaluation and checkpoints judge)."""

@@ -82,13 +82,13 @@ def one_by_one_actor(policies: list[Policy]) -> BlockActor:
 
 
 AGENT_MODULES = {
-    "random-search": "cartpole.agents.linear.population",
-    "hill-climbing": "cartpole.agents.linear.population",
-    "cem": "cartpole.agents.linear.population",
-    "dqn": "cartpole.agents.dqn.population",
-    "reinforce": "cartpole.agents.actor_critic.population",
-    "a2c": "cartpole.agents.actor_critic.population",
-    "ppo": "cartpole.agents.actor_critic.population",
+    "random-search": "cartpole.agents.linear.search",
+    "hill-climbing": "cartpole.agents.linear.search",
+    "cem": "cartpole.agents.linear.search",
+    "dqn": "cartpole.agents.dqn.dqn",
+    "reinforce": "cartpole.agents.actor_critic.reinforce",
+    "a2c": "cartpole.agents.actor_critic.a2c",
+    "ppo": "cartpole.agents.actor_critic.ppo",
 }
 """Agent name -> the module that defines its spec and its learner, batched over seeds (imported only
 when the agent is used: torch is slow)."""

@@ -80,16 +80,10 @@ def went_past_best(run: RunDir, state: LoopState) -> bool:
 
 
 class SeedLearner:
-    """One seed of a population behind the ``Learner`` protocol: what callbacks and checkpoints use.
-
-    ``learn`` is the population's business (all seeds at once), so it is not offered here.
-    """
+    """One seed of a population behind the ``Learner`` protocol: what callbacks and checkpoints use."""
 
     def __init__(self, population: Population, seed: int):
         self.population, self.seed = population, seed
-
-    def learn(self) -> Any:
-        raise RuntimeError("a population seed learns through its population's learn()")
 
     def policy(self) -> Policy:
         return self.population.seed_policy(self.seed)
@@ -283,7 +277,7 @@ def fail_every_member(members: list[Member], active: dict[int, Member], error: B
         if member.loop.state.stop_reason is None or member.seed in active:
             member.loop.state.stop(StopReason.FAILED, detail)
         if member.seed in active:
-            with suppress(Exception):  # as a single run does: save latest if the state allows
+            with suppress(Exception):  # save latest where the state still allows it
                 member.loop.end(now)
         fields = status_fields(member.loop.state)
         if member.loop.state.stop_reason is not StopReason.FAILED:  # it had stopped; then saving failed

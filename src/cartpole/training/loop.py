@@ -1,9 +1,10 @@
-"""The one training loop. Agents expose a learning step; everything else is a callback.
+"""Each seed's training loop: its counters (:class:`LoopState`) and its callbacks.
 
-``TrainingLoop.run`` calls ``learner.learn()`` until a callback says stop, and tells its callbacks
-about every step, every finished episode and every evaluation. Progress, metrics, periodic evaluation,
-checkpoints, stop-when-solved and budgets are all callbacks (:mod:`cartpole.training.callbacks`), so
-no agent re-implements them.
+The engine (:mod:`cartpole.training.engine`) steps a population and hands each seed's loop its
+result (:meth:`TrainingLoop.advance`); the loop counts it and tells its callbacks about every step,
+every finished episode and every evaluation, until one of them says stop. Progress, metrics,
+periodic evaluation, checkpoints, stop-when-solved and budgets are all callbacks
+(:mod:`cartpole.training.callbacks`), so no agent re-implements them.
 """
 
 from __future__ import annotations
@@ -117,7 +118,8 @@ class Callback:
 
 
 class TrainingLoop:
-    """Drives a learner and its callbacks until one of them says stop."""
+    """One seed's counters and callbacks, from :meth:`start` through each :meth:`advance` to
+    :meth:`end`; ``learner`` is the seed, as its callbacks see it."""
 
     def __init__(self, learner: Learner, callbacks: list[Callback], state: LoopState | None = None):
         self.learner = learner
@@ -180,17 +182,3 @@ class TrainingLoop:
         self.state.elapsed = now - self.clock_start
         for cb in self.callbacks:
             cb.on_end(self)
-
-    def run(self) -> LoopState:
-        """Train ``learner`` alone until a callback stops it or a stop is requested; returns the final
-        counters. (The engine drives many loops with :meth:`start`, :meth:`advance` and :meth:`end`.)"""
-        self.start(time.perf_counter())
-        try:
-            while self.state.stop_reason is None:
-                self.advance(self.learner.learn(), time.perf_counter())
-        except BaseException as error:
-            self.state.stop(StopReason.FAILED, failure_detail(error))
-            raise
-        finally:
-            self.end(time.perf_counter())
-        return self.state

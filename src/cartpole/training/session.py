@@ -156,7 +156,9 @@ def start(
     callbacks: Sequence[Callback],
     population: bool,
 ) -> PopulationOutcome:
-    """Check everything, build the seeds' learner, make their run folders, train."""
+    """Check everything, build the agent (spec, config) and the seeds' population once, make their run
+    folders (each records the agent), train: the population and every seed's callbacks use the same
+    agent."""
     if tensorboard:
         require_tensorboard()  # before a run folder is made
     spec = get_agent(agent)
@@ -182,7 +184,7 @@ def start(
             )
             record |= (population_record if population else {}) | {"tensorboard": tensorboard}
             run.write_config(record)
-            setups.append(RunSetup.from_record(run, record))
+            setups.append(RunSetup.of(run, record, spec, env, config, settings, budget))
         return run_members(learner, setups, {}, quiet, stream, callbacks)
 
 

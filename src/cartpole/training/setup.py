@@ -1,5 +1,5 @@
-"""What a run trains with: its setup rebuilt from ``config.json``, the record that goes there, the
-device, and the standard callbacks every seed's loop gets."""
+"""What a run trains with: its setup (the agent, built once per run and handed down), the record that
+goes to ``config.json``, the device, and the standard callbacks every seed's loop gets."""
 
 from __future__ import annotations
 
@@ -51,7 +51,9 @@ def resolve_device(device: str, seeds: int = 1) -> str:
 
 @dataclass(frozen=True)
 class RunSetup:
-    """Everything a run is trained with, rebuilt from its ``config.json`` (so a resume is the same)."""
+    """Everything a run is trained with. A new run's agent (spec, env, config) and settings are those
+    the session built and checked, handed down as they are (:meth:`of`); a resume builds them once
+    from the run's ``config.json``, which records them (:meth:`from_record`)."""
 
     run: RunDir
     spec: AgentSpec
@@ -65,7 +67,33 @@ class RunSetup:
     """What every checkpoint of the run records about it."""
 
     @classmethod
+    def of(
+        cls,
+        run: RunDir,
+        record: dict[str, Any],
+        spec: AgentSpec,
+        env: EnvInfo,
+        config: Any,
+        settings: TrainSettings,
+        budget: Budget,
+    ) -> RunSetup:
+        """The setup of ``run``, whose ``record`` (its ``config.json``) was written from ``spec``,
+        ``env``, ``config``, ``settings`` and ``budget``."""
+        return cls(
+            run=run,
+            spec=spec,
+            env=env,
+            seed=record["seed"],
+            config=config,
+            settings=settings,
+            budget=budget,
+            tensorboard=bool(record.get("tensorboard", False)),
+            meta={k: record[k] for k in ("agent", "env_id", "seed", "preset", "config")},
+        )
+
+    @classmethod
     def from_record(cls, run: RunDir, record: dict[str, Any]) -> RunSetup:
+        """The setup of a run to resume, built from its ``config.json`` ``record``."""
         if record["agent"] not in agent_names():
             raise ConfigError(f"{run.path / 'config.json'} names an unknown agent {record['agent']!r}")
         missing = [key for key in ("config", "settings", "budget") if key not in record]
@@ -74,16 +102,14 @@ class RunSetup:
         if not 0 <= record["seed"] <= MAX_TRAIN_SEED:
             raise ConfigError(f"{run.path / 'config.json'} records seed {record['seed']}, out of range")
         spec = get_agent(record["agent"])
-        return cls(
-            run=run,
-            spec=spec,
-            env=env_info(record["env_id"]),
-            seed=record["seed"],
-            config=build_valid_config(spec.config_cls, record["config"]),
-            settings=build_valid_config(TrainSettings, record["settings"]),
-            budget=Budget.from_dict(record["budget"]),
-            tensorboard=bool(record.get("tensorboard", False)),
-            meta={k: record[k] for k in ("agent", "env_id", "seed", "preset", "config")},
+        return cls.of(
+            run,
+            record,
+            spec,
+            env_info(record["env_id"]),
+            build_valid_config(spec.config_cls, record["config"]),
+            build_valid_config(TrainSettings, record["settings"]),
+            Budget.from_dict(record["budget"]),
         )
 
 

@@ -5,8 +5,9 @@
   scheme CleanRL and Stable-Baselines3 use: gain sqrt(2) on hidden layers, 0.01 on the policy head,
   1 on the value head, zero biases). For image observations ``[channels, height, width]`` each trunk
   starts with a small convolutional network (:data:`CONV_LAYERS`, on pixels scaled to [0, 1] and
-  inverted: :func:`scale_pixels`) whose
-  flattened output feeds the MLP.
+  inverted: :func:`scale_pixels`) whose flattened output feeds the MLP. The network's ``nn.Module``
+  form: what each seed is initialized as and what a checkpoint holds (``model.*``); a population
+  trains the stacked form (:mod:`cartpole.agents.actor_critic.stacked`).
 - ``CategoricalPolicy``: the greedy policy of a trained actor, frozen: ``scores`` are the action
   probabilities, ``act`` their argmax. It runs the actor with numpy on copies of its weights
   (:class:`~cartpole.agents.nn.numpy_mlp.NumpyMLP`), or, for a convolutional actor (which has no

@@ -1,9 +1,8 @@
-"""What REINFORCE, A2C and PPO share: the common settings, GAE, the network a seed starts from, and
-the greedy policy of a checkpoint.
+"""What REINFORCE, A2C and PPO share in their settings and checkpoints: the common settings, the
+network a seed starts from, and the greedy policy of a checkpoint.
 
 ``PolicyGradientConfig`` holds the settings all three have (network, envs, discount, learning rate
-and its schedule, loss coefficients); each agent's config adds its own. The learners, batched over
-seeds, are in :mod:`cartpole.agents.actor_critic.population`.
+and its schedule, loss coefficients); each agent's config (ppo.py, a2c.py, reinforce.py) adds its own.
 """
 
 from __future__ import annotations
@@ -22,6 +21,7 @@ from cartpole.agents.actor_critic.network import (
     CategoricalPolicy,
     Standardization,
 )
+from cartpole.agents.seed_state import unprefixed
 from cartpole.core.config import build_config, require
 from cartpole.core.errors import ConfigError
 from cartpole.core.seeding import derived_seed
@@ -97,34 +97,6 @@ class PolicyGradientConfig:
         check_simulator(self.simulator)
 
 
-def generalized_advantages(
-    rewards: torch.Tensor,
-    values: torch.Tensor,
-    terminated: torch.Tensor,
-    truncated: torch.Tensor,
-    valid: torch.Tensor,
-    gamma: float,
-    gae_lambda: float,
-) -> torch.Tensor:
-    """GAE(lambda) advantages, shape [T, N], of a rollout of T steps from N envs.
-
-    ``values`` has T + 1 rows: ``values[t + 1]`` is the value of the observation that step ``t``
-    returned (row T: the observation after the rollout). The TD error of a valid step is
-    ``r + gamma * (1 - terminated) * V(next) - V(obs)``: a terminated step has no future, a
-    truncated one does (its next observation is the real final state, under next-step autoreset).
-    The lambda-sum stops where an episode ended (terminated or truncated): the next row is the
-    autoreset step, which is not a transition (``valid`` False) and gets advantage 0.
-    """
-    valid_f = valid.to(rewards.dtype)
-    deltas = valid_f * (rewards + gamma * (1.0 - terminated) * values[1:] - values[:-1])
-    carry = gamma * gae_lambda * valid_f * (1.0 - terminated) * (1.0 - truncated)
-    steps = rewards.shape[0]
-    advantages = torch.zeros((steps + 1, *rewards.shape[1:]), dtype=rewards.dtype, device=rewards.device)
-    for t in range(steps - 1, -1, -1):
-        torch.addcmul(deltas[t], carry[t], advantages[t + 1], out=advantages[t])
-    return advantages[:steps]
-
-
 def standardization(config: PolicyGradientConfig, obs_shape: tuple[int, ...]) -> Standardization | None:
     """The (mean, std) constants of ``config.observation_mean``/``observation_std`` for observations
     of ``obs_shape``, None when both are empty; ConfigError when they do not fit the observations."""
@@ -159,10 +131,6 @@ def seeded_actor_critic(config: PolicyGradientConfig, env: EnvInfo, seed: int) -
     )
 
 
-def with_prefix(tensors: dict[str, torch.Tensor], prefix: str) -> dict[str, torch.Tensor]:
-    return {k.removeprefix(prefix): v for k, v in tensors.items() if k.startswith(prefix)}
-
-
 def observation_shape(learner: dict[str, Any]) -> tuple[int, ...]:
     """The observation shape a checkpoint's ``learner`` data names (checkpoints written before
     image observations name only ``obs_dim``: flat)."""
@@ -189,7 +157,7 @@ def policy_loader(agent: str, config_cls: type) -> Callable[[Checkpoint], Catego
                 generator=torch.Generator(),
                 standardize=standardization(config, obs_shape),
             )
-            model.load_state_dict(with_prefix(checkpoint.tensors, "model."))
+            model.load_state_dict(unprefixed(checkpoint.tensors, "model."))
         except (KeyError, RuntimeError, TypeError, ValueError) as err:
             raise CheckpointError(f"not a usable {agent} checkpoint: {err!s:.120}") from err
         return CategoricalPolicy(model)

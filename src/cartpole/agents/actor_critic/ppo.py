@@ -1,25 +1,43 @@
-"""Proximal Policy Optimization (PPO, clipped surrogate) in PyTorch, readable top to bottom.
+"""Proximal Policy Optimization (PPO, clipped surrogate) for a batch of seeds, read top to bottom.
 
-What it does, in order:
+1. :class:`PPOConfig`: every setting, with a one-line docstring each (presets in ``presets/ppo.toml``).
+2. The loss of one minibatch, each seed's on its own rows of ``[S, B]`` tensors:
+   :func:`clipped_surrogate_loss` (the probability ratio clipped to ``1 +- clip_range``),
+   :func:`clipped_value_loss`, and the entropy term (:meth:`PopulationPPO.minibatch_loss`).
+3. The update (:meth:`PopulationPPO.update`): ``n_epochs`` passes over each seed's rollout in
+   shuffled minibatches, each one gradient step with the gradient norm clipped, with an optional
+   early stop once a seed's approximate KL passes ``target_kl``.
+4. One ``learn()`` (:meth:`PopulationPPO.learn`): a rollout of ``n_steps`` batched steps from
+   ``num_envs`` envs per seed, GAE advantages (bootstrapping at truncation, never at termination:
+   :mod:`cartpole.agents.actor_critic.rollout`), then the update.
+5. The agent's spec, as the registry finds it.
 
-1. ``PPOConfig``: every knob, with a one-line docstring each (presets in ``presets/ppo.toml``).
-2. The learner, batched over seeds (a single run is a population of one):
-   :class:`~cartpole.agents.actor_critic.population.PopulationPPO`. One ``learn()`` call = one
-   rollout of ``n_steps`` batched steps from ``num_envs`` envs per seed, GAE advantages
-   (bootstrapping at truncation, never at termination), then ``n_epochs`` passes of shuffled
-   minibatches with gradient-norm clipping and an optional early stop on a target KL.
-
+A single run is a population of one. What every actor-critic shares (the stacked networks, the envs,
+the optimizer, checkpoints) is :class:`~cartpole.agents.actor_critic.population.PopulationActorCritic`.
 The greedy policy (``act`` = argmax of the action probabilities) is
 :class:`~cartpole.agents.actor_critic.network.CategoricalPolicy`.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass
 
-from cartpole.agents.actor_critic.network import SCHEDULES
+import torch
+
+from cartpole.agents.actor_critic.network import SCHEDULES, schedule_value
 from cartpole.agents.actor_critic.policy_gradient import PolicyGradientConfig
+from cartpole.agents.actor_critic.population import (
+    PopulationActorCritic,
+    actor_critic_bytes_per_seed,
+    actor_critic_spec,
+)
+from cartpole.agents.actor_critic.rollout import Rollout
+from cartpole.agents.learner import LearnResult
+from cartpole.agents.nn.masked import log_probs_and_entropy, masked_mean, masked_normalize
 from cartpole.core.config import require
+from cartpole.envs import EnvInfo
 
 # ----------------------------------------------------------------------------------------------
 # 1. Configuration
@@ -65,4 +83,195 @@ class PPOConfig(PolicyGradientConfig):
         require(self.adam_eps > 0, f"adam_eps must be > 0, got {self.adam_eps}")
 
 
-__all__ = ["PPOConfig"]
+# ----------------------------------------------------------------------------------------------
+# 2. The loss
+# ----------------------------------------------------------------------------------------------
+
+
+def clipped_surrogate_loss(
+    ratio: torch.Tensor, advantages: torch.Tensor, clip: torch.Tensor, mask: torch.Tensor, count: torch.Tensor
+) -> torch.Tensor:
+    """PPO's policy loss per seed [S]: the masked mean over rows of ``max(-A r, -A clip(r, 1 - c,
+    1 + c))``, ``ratio`` r and ``advantages`` A [S, B], ``clip`` c [S, 1] (each seed's own)."""
+    clipped_ratio = torch.minimum(torch.maximum(ratio, 1.0 - clip), 1.0 + clip)
+    return masked_mean(torch.max(-advantages * ratio, -advantages * clipped_ratio), mask, count)
+
+
+def clipped_value_loss(
+    values: torch.Tensor,
+    old_values: torch.Tensor,
+    returns: torch.Tensor,
+    clip_range_vf: float | None,
+    mask: torch.Tensor,
+    count: torch.Tensor,
+) -> torch.Tensor:
+    """Half the masked mean squared error of ``values`` against ``returns`` per seed [S]; with
+    ``clip_range_vf``, each row's error is the larger of the plain one and that of the value clipped
+    to ``old_values +- clip_range_vf`` (as SB3 and CleanRL clip)."""
+    squared = (values - returns).square()
+    if clip_range_vf is not None:
+        clipped_values = old_values + (values - old_values).clamp(-clip_range_vf, clip_range_vf)
+        squared = torch.max(squared, (clipped_values - returns).square())
+    return 0.5 * masked_mean(squared, mask, count)
+
+
+ROW_METRICS = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction")
+"""What each minibatch reports per seed; an update reports their means over its gradient steps."""
+
+
+# ----------------------------------------------------------------------------------------------
+# 3. and 4. The update, and one learn()
+# ----------------------------------------------------------------------------------------------
+
+
+class PopulationPPO(PopulationActorCritic):
+    """PPO for seeds ``seeds``, all with ``config``: one ``learn()`` = a rollout and an update each."""
+
+    config: PPOConfig
+
+    def __init__(self, config: PPOConfig, env: EnvInfo, seeds: list[int], device: str = "cpu"):
+        super().__init__(config, env, seeds, device, eps=config.adam_eps)
+
+    def minibatch_loss(
+        self,
+        rollout: Rollout,
+        index: torch.Tensor | None,
+        mask: torch.Tensor,
+        count: torch.Tensor,
+        clip: torch.Tensor,
+        normalize: bool,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Per-seed PPO loss [S], metrics [S, 5] (detached) and approximate KL [S] of one minibatch:
+        each seed's rows ``index`` [S, B] (None: every row), their advantages normalized first with
+        ``normalize``."""
+        config = self.config
+
+        def take(x: torch.Tensor) -> torch.Tensor:
+            if index is None:
+                return x
+            if x.dim() == 2:
+                return x.gather(1, index)
+            rows = index.view(*index.shape, *[1] * (x.dim() - 2))  # [S, B, 1, ...]: every column
+            return x.gather(1, rows.expand(-1, -1, *x.shape[2:]))
+
+        observations, actions = take(rollout.observations), take(rollout.actions)
+        old_log_probs, old_values = take(rollout.log_probs), take(rollout.values)
+        advantages, returns = take(rollout.advantages), take(rollout.returns)
+        logits, values = self.model.forward_for_update(observations)
+        log_probs, entropy = log_probs_and_entropy(logits, actions, mask, count, config.ent_coef)
+        if normalize:
+            advantages = masked_normalize(advantages, mask, count)
+        log_ratio = log_probs - old_log_probs
+        ratio = log_ratio.exp()
+        policy_loss = clipped_surrogate_loss(ratio, advantages, clip, mask, count)
+        value_loss = clipped_value_loss(values, old_values, returns, config.clip_range_vf, mask, count)
+        loss = policy_loss - config.ent_coef * entropy + config.vf_coef * value_loss
+        with torch.no_grad():
+            approx_kl = masked_mean((ratio - 1.0) - log_ratio, mask, count)
+            clip_fraction = masked_mean(((ratio - 1.0).abs() > clip).float(), mask, count)
+            row_metrics = torch.stack([policy_loss, value_loss, entropy, approx_kl, clip_fraction], dim=1)
+        return loss, row_metrics.detach(), approx_kl
+
+    def update(self, rollout: Rollout, lr: torch.Tensor, clip: torch.Tensor) -> list[dict[str, float]]:
+        """``n_epochs`` passes of each seed's shuffled valid rows in minibatches; per-seed metrics."""
+        config = self.config
+        seeds, rows = rollout.valid.shape
+        size = config.minibatch_size
+        has_rows = rollout.counts > 0
+        whole = size >= rows  # one minibatch of every row: no shuffle
+        if not whole:  # each seed's shuffles for all epochs from its own generator; invalid rows last
+            keys = torch.stack(
+                [torch.rand(config.n_epochs, rows, generator=g, device="cpu") for g in self.generators]
+            ).to(self.device)
+            keys.masked_fill_(~rollout.valid.unsqueeze(1), 2.0)
+            orders = keys.argsort(dim=-1, stable=True)
+        stopped = torch.zeros(seeds, dtype=torch.bool, device=self.device)
+        sums = torch.zeros(seeds, len(ROW_METRICS), device=self.device)
+        done_steps = torch.zeros(seeds, device=self.device)
+        batches = math.ceil(int(rollout.counts.max()) / size) if bool(has_rows.any()) else 0
+        positions = torch.arange(size, device=self.device)
+        mask, count = rollout.valid.float(), rollout.counts
+        normalize = config.normalize_advantages
+        if whole and normalize:  # the same rows in every epoch: their advantages normalized once
+            normalized = masked_normalize(rollout.advantages, mask, count)
+            rollout = dataclasses.replace(rollout, advantages=normalized)
+            normalize = False
+        for epoch in range(config.n_epochs):
+            for start in range(0, batches * size, size):
+                index: torch.Tensor | None = None
+                if not whole:
+                    index = orders[:, epoch, start : start + size]
+                    mask = (positions[: index.shape[1]] + start < rollout.counts.unsqueeze(1)).float()
+                    count = mask.sum(dim=1)
+                active = (count > 0) & ~stopped
+                losses, row_metrics, kl = self.minibatch_loss(rollout, index, mask, count, clip, normalize)
+                if config.target_kl is not None:
+                    over = active & (kl > config.target_kl)
+                    stopped |= over
+                    active &= ~over
+                if not bool(active.any()):
+                    continue
+                self.backward_and_step(losses, lr, active)
+                sums += row_metrics * active.float().unsqueeze(1)
+                done_steps += active.float()
+        self.updates += has_rows.cpu().numpy()
+        means = (sums / done_steps.clamp(min=1.0).unsqueeze(1)).tolist()
+        stopped_list, done_list = stopped.tolist(), done_steps.tolist()
+        explained = self.explained_variances(rollout).tolist()
+        metrics = []
+        for row in range(seeds):
+            scalars = {
+                "train/updates": float(self.updates[row]),
+                "train/stopped_early": float(stopped_list[row]),
+            }
+            if done_list[row] > 0:
+                scalars |= {f"train/{name}": v for name, v in zip(ROW_METRICS, means[row], strict=True)}
+            scalars["train/explained_variance"] = float(explained[row])
+            metrics.append(scalars)
+        return metrics
+
+    def learn(self) -> dict[int, LearnResult]:
+        """A rollout and an update for every active seed; each seed's result by seed."""
+        config = self.config
+        lr = self.learning_rates()
+        clip = [
+            max(schedule_value(config.clip_range, config.clip_schedule, int(s), config.schedule_steps), 1e-8)
+            for s in self.env_steps
+        ]
+        rollout, finished = self.collect(config.n_steps, config.gae_lambda)
+        results = self.count_steps(rollout.counts.to(torch.int64).tolist(), finished)
+        metrics = self.update(
+            rollout, torch.tensor(lr, device=self.device), torch.tensor(clip, device=self.device).unsqueeze(1)
+        )
+        self.model.forget_scaled()
+        extra = [{"train/learning_rate": r, "train/clip_range": c} for r, c in zip(lr, clip, strict=True)]
+        self.attach_metrics(results, rollout.counts, [m | e for m, e in zip(metrics, extra, strict=True)])
+        return results
+
+
+# ----------------------------------------------------------------------------------------------
+# 5. The spec
+# ----------------------------------------------------------------------------------------------
+
+
+def ppo_bytes_per_seed(config: PPOConfig, env: EnvInfo) -> int:
+    return actor_critic_bytes_per_seed(config, env, config.n_steps, config.minibatch_size)
+
+
+AGENT = actor_critic_spec(
+    "ppo",
+    "Proximal Policy Optimization (PyTorch): clipped surrogate, GAE, minibatch epochs, vector envs",
+    PPOConfig,
+    ppo_bytes_per_seed,
+    PopulationPPO,
+)
+
+
+__all__ = [
+    "AGENT",
+    "PPOConfig",
+    "PopulationPPO",
+    "clipped_surrogate_loss",
+    "clipped_value_loss",
+    "ppo_bytes_per_seed",
+]

@@ -1,3 +1,5 @@
-"""DQN with its Double and Dueling options and the tutorials' presets: its settings, TD target and
-exploration (algorithm.py), the Q-network and its greedy policy (q_network.py), and its learner, S
-seeds' networks, optimizers and replay memories batched in one (population.py, with the spec)."""
+"""DQN with its Double and Dueling options and the tutorials' presets: the learning rule in dqn.py
+(targets, loss, gradient steps, target updates, one learn(); the spec), its settings in config.py, on
+the parts it runs on: the population's networks, replay, envs, acting and checkpoints
+(population.py), the stacked networks (stacked.py), the replay memories (replay.py) with their n-step
+rows (n_step.py), and the Q-network with its greedy policy (q_network.py)."""

@@ -16,6 +16,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from cartpole.agents.dqn.config import DQNConfig
+from cartpole.envs import EnvInfo
 from cartpole.envs.seed_envs import env_rows
 
 
@@ -112,4 +114,14 @@ class NStepWindows:
         self.count[envs] = data["n_step_count"]
 
 
-__all__ = ["NStepWindows"]
+def n_step_window_bytes(config: DQNConfig, env: EnvInfo) -> int:
+    """The bytes of one seed's n-step windows (none for one-step rows): each env's last ``n_step``
+    observations (uint8 pixels or float32 states), int64 actions and float32 rewards, and how many
+    it holds (int64)."""
+    if config.n_step == 1:
+        return 0
+    observation = env.obs_dim * (1 if env.is_image else 4)
+    return config.num_envs * (config.n_step * (observation + 8 + 4) + 8)
+
+
+__all__ = ["NStepWindows", "n_step_window_bytes"]

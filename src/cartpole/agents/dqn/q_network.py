@@ -8,23 +8,20 @@ initialization, dropout masks), never from torch's process-wide generator: build
 network changes nothing global, and two networks built from equal generators are equal whatever else
 the process does.
 
-Public torch only. A private shortcut would stay only where it saves 20% of the CPU time to a
-verified solve on the same trajectories (``benchmarks/time_to_solve.py --agents dqn`` measures that;
-benchmarks/README.md has the figures), and none of these does: a numpy forward over the parameters'
-memory keyed by ``data_ptr`` for small batches, calling ``module.forward`` to bypass
-``nn.Module.__call__``, and the target update through ``torch._foreach_lerp_``/``_foreach_copy_`` (a
-population's target update is one public ``lerp`` over flat tensors). The hand-written dropout stays
-only because ``nn.Dropout`` cannot draw from an owned generator.
+Public torch only. The hand-written dropout is there because ``nn.Dropout`` cannot draw from an owned
+generator.
 
-The greedy policy (``QNetworkPolicy``) is a numpy snapshot of the weights, as PPO's is: training acts
-through torch, but evaluations and the web app's episodes act a few rows at a time, where torch's
-per-op overhead makes its forward pass several times dearer than the snapshot's. A convolutional
-network has no numpy twin: its policy is a frozen torch copy (convolutions are torch's strength).
+This is the network's ``nn.Module`` form: what each seed is initialized as and what a checkpoint
+holds (``q_net.*``). A population trains the stacked form
+(:class:`~cartpole.agents.dqn.stacked.StackedQNetwork`); the greedy policy (:class:`QNetworkPolicy`)
+acts through a NumPy twin of the weights, as the population does (why: :mod:`cartpole.agents.nn`). A
+convolutional network has no NumPy twin: its policy is a frozen torch copy.
 """
 
 from __future__ import annotations
 
 import copy
+import itertools
 import math
 from collections.abc import Callable, Sequence
 from typing import Protocol
@@ -33,8 +30,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from cartpole.agents.nn.conv import LastFrameDifference, ScalePixels, conv_output_size
+from cartpole.agents.nn.conv import LastFrameDifference, ScalePixels, conv_output_size, conv_parameters
 from cartpole.agents.nn.numpy_mlp import NumpyMLP
+from cartpole.envs import EnvInfo
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {"relu": nn.ReLU, "tanh": nn.Tanh, "elu": nn.ELU, "gelu": nn.GELU}
 
@@ -193,13 +191,26 @@ def q_values_from(parts: Sequence[Callable[[np.ndarray], np.ndarray]], x: np.nda
     return q
 
 
+def q_network_parameters(config: NetworkShape, env: EnvInfo) -> int:
+    """Parameters of one Q-network."""
+    features, conv = env.obs_dim, 0
+    if env.is_image:
+        inputs = network_input_shape(env.obs_shape, config.frame_difference)
+        conv = conv_parameters(inputs[0], config.conv_layers)
+        features = conv_output_size(inputs, config.conv_layers)
+    sizes = [features, *config.hidden_sizes]
+    body = sum(n_in * n_out + n_out for n_in, n_out in itertools.pairwise(sizes))
+    head = sizes[-1] * env.n_actions + env.n_actions
+    value = sizes[-1] + 1 if config.dueling else 0
+    return conv + body + head + value
+
+
 class QNetworkPolicy:
     """Greedy policy of a Q-network: ``act`` = argmax of ``scores`` (the Q-values).
 
-    A frozen snapshot: numpy copies of the network's weights taken when it is built, run without
-    dropout (:class:`~cartpole.agents.nn.numpy_mlp.NumpyMLP`: for one row several times faster than a torch
-    forward pass, which the web app's episodes and every evaluation pay per step). A convolutional
-    network has no numpy twin: its snapshot is a frozen torch copy (``torch_net``), run in eval mode.
+    A frozen snapshot: NumPy copies of the network's weights taken when it is built, run without
+    dropout (:class:`~cartpole.agents.nn.numpy_mlp.NumpyMLP`). A convolutional network has no NumPy
+    twin: its snapshot is a frozen torch copy (``torch_net``), run in eval mode.
     """
 
     def __init__(self, q_net: QNetwork):

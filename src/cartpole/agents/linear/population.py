@@ -1,53 +1,65 @@
-"""Linear-policy searches for a population of seeds in one process: a batch of populations.
+"""The linear searches of a population of seeds in one process: each seed's own search, their
+candidates played together.
 
-Every seed is its single run's search (:mod:`cartpole.agents.linear.search`): its own generator, its own
-candidates, its own update, the same start states. What is shared is the simulation: each
-generation, the candidates of every seed play their episodes in one vector env of the fast
-simulator, stepped by one call per step (on other envs and simulators each search plays its own).
-Because the fast simulator steps every env on its own and a candidate's actions depend only on its
-own parameters and observations, each seed's generations are bit-identical to its single run's
-(tested), whichever seeds share the process.
+Every seed is its own search (:mod:`cartpole.agents.linear.search`): its own generator, its own
+candidates, its own update, its own start states. What is shared is the simulation: each generation,
+the candidates of every seed play their episodes in one vector env of the fast simulator, stepped by
+one call per step (on other envs and simulators each search plays its own). Because the fast
+simulator steps every env on its own and a candidate's actions depend only on its own parameters and
+observations, each seed's generations are bit for bit those it has alone (tested), whichever seeds
+share the process.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Protocol
 
 import gymnasium as gym
 import numpy as np
 import torch
 
 from cartpole.agents.learner import LearnResult
-from cartpole.agents.linear.search import (
-    CrossEntropyMethod,
-    HillClimbing,
-    LinearPolicy,
-    LinearSearch,
-    LinearSearchConfig,
-    RandomSearch,
-    batched_actions,
-    play_candidates,
-    policy_from_checkpoint,
-)
-from cartpole.agents.registry import AgentSpec
-from cartpole.envs import EnvInfo, make_vec_env, resolve_simulator
+from cartpole.agents.linear.policy import LinearPolicy, batched_actions, play_candidates
+from cartpole.envs import EnvInfo, make_vec_env
 from cartpole.evaluation import BlockActor
 
 
-class LinearPopulation:
-    """The searches of seeds ``seeds``, all of class ``search`` with ``config``: one ``learn()`` =
-    one generation of every seed."""
+class Search(Protocol):
+    """One seed's search, as the population plays it
+    (:class:`~cartpole.agents.linear.search.LinearSearch`)."""
 
-    def __init__(
-        self, search: type[LinearSearch], config: LinearSearchConfig, env: EnvInfo, seeds: list[int]
-    ):
-        config.validate()
-        self.config, self.env_info = config, env
-        self.searches = {seed: search(config, env, seed) for seed in seeds}
+    vec_env: gym.vector.VectorEnv
+    """Its own envs: where it plays alone, and whose start states it draws."""
+    shape: LinearPolicy
+    """The shape of its candidates' policy (sizes, bias, scaling)."""
+    best: np.ndarray
+    """The parameters of its current policy."""
+
+    def propose(self) -> np.ndarray: ...
+
+    def reset_episodes(self) -> np.ndarray: ...
+
+    def finish_generation(self, candidates: np.ndarray, scores: np.ndarray, steps: int) -> LearnResult: ...
+
+    def learn(self) -> LearnResult: ...
+
+    def policy(self) -> LinearPolicy: ...
+
+    def state_dict(self, resume: bool) -> tuple[dict[str, torch.Tensor], dict[str, Any]]: ...
+
+    def load_state_dict(self, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None: ...
+
+
+class LinearPopulation:
+    """The searches ``searches`` (by seed) on ``env``: one ``learn()`` = one generation of every
+    seed. With ``plays_together`` (CartPole on the fast simulator) every seed's candidates play in one
+    fast vector env; elsewhere each search plays its own generation in its own envs."""
+
+    def __init__(self, searches: dict[int, Search], env: EnvInfo, plays_together: bool):
+        self.env_info = env
+        self.searches = searches
         self.shared_env: gym.vector.VectorEnv | None = None
-        self.plays_together = resolve_simulator(env.env_id, config.simulator) == "fast"
-        """Whether every seed's candidates play in one fast vector env (CartPole on the fast
-        simulator); elsewhere each search plays its own generation in its own envs."""
+        self.plays_together = plays_together
 
     @property
     def active_seeds(self) -> list[int]:
@@ -67,8 +79,8 @@ class LinearPopulation:
         return self.shared_env
 
     def learn(self) -> dict[int, LearnResult]:
-        """One generation of every seed: each proposes and resets its own envs as its single run
-        does, then all candidates play together from those start states."""
+        """One generation of every seed: each proposes and resets its own envs as it does alone, then
+        all candidates play together from those start states."""
         if not self.plays_together:
             return {seed: search.learn() for seed, search in self.searches.items()}
         searches = list(self.searches.items())
@@ -101,49 +113,17 @@ class LinearPopulation:
 
         return act
 
-    # -- one seed, as a single run sees it ----------------------------------------------------------
+    # -- each seed's policy and checkpoint ----------------------------------------------------------
 
     def seed_policy(self, seed: int) -> LinearPolicy:
         return self.searches[seed].policy()
 
     def seed_state_dict(self, seed: int, resume: bool) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
-        """Seed ``seed``'s checkpoint, in its single run's format."""
+        """Seed ``seed``'s checkpoint: its search's."""
         return self.searches[seed].state_dict(resume)
 
     def load_seed_state_dict(self, seed: int, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None:
         self.searches[seed].load_state_dict(tensors, data)
 
 
-def linear_bytes_per_seed(config: LinearSearchConfig, env: EnvInfo) -> int:
-    """About what one seed of a search holds: its generation's envs, and its run's bookkeeping."""
-    envs = config.population * config.episodes_per_candidate
-    return envs * (env.obs_dim + 8) * 8 * 4 + 2 * 1024**2
-
-
-def _spec(cls: type[LinearSearch], summary: str) -> AgentSpec:
-    def make_population(
-        config: LinearSearchConfig, env: EnvInfo, seeds: list[int], device: str
-    ) -> LinearPopulation:
-        return LinearPopulation(cls, config, env, seeds)
-
-    return AgentSpec(
-        name=cls.name,
-        summary=summary,
-        config_cls=LinearSearchConfig,
-        policy_from_checkpoint=policy_from_checkpoint,
-        bytes_per_seed=linear_bytes_per_seed,
-        make_population=make_population,
-        iteration="generation",
-        score_label="linear score",
-    )
-
-
-AGENTS = [
-    _spec(RandomSearch, "random linear policies, keep the best (the second tutorial)"),
-    _spec(HillClimbing, "perturb the best linear policy with adaptive noise"),
-    _spec(CrossEntropyMethod, "cross-entropy method over linear policies (fastest to solve)"),
-]
-"""The linear searches: each seed's own search (linear.py) and their batched population (above)."""
-
-
-__all__ = ["AGENTS", "LinearPopulation", "linear_bytes_per_seed"]
+__all__ = ["LinearPopulation", "Search"]

@@ -1,5 +1,22 @@
-"""Building blocks of the neural agents, batched over seeds where it pays: numpy snapshots of
-networks for greedy play (numpy_mlp, with fast_tanh), S networks' parameters in one flat tensor
-(flat_parameters), S linear layers as one (stacked_linear), S conv layers, one conv2d per seed
-(stacked_conv), Adam and RMSprop per seed row (population_optimizers). They know no agent: the
-algorithms in :mod:`cartpole.agents`' folders are built from them."""
+"""Building blocks of the neural agents, batched over seeds where it pays. They know no agent: the
+algorithms in :mod:`cartpole.agents`' folders are built from them.
+
+A network exists in up to five forms, each in one place, each for one reason (stated in that
+module, with the benchmark table that measures it):
+
+1. the ``nn.Module`` (``ActorCritic`` in ``actor_critic/network.py``, ``QNetwork`` in
+   ``dqn/q_network.py``): what a checkpoint holds (its state dict) and what each seed is
+   initialized as; the reference the other forms are tested against;
+2. S networks stacked on a seed axis: their parameters in one flat tensor
+   (:mod:`~cartpole.agents.nn.flat_parameters`), each layer one kernel for every seed
+   (:mod:`~cartpole.agents.nn.stacked_linear`, :mod:`~cartpole.agents.nn.stacked_conv`): what a
+   population trains;
+3. an MLP's gradients by hand (:func:`~cartpole.agents.nn.stacked_linear.mlp_gradients`): what an
+   update of a stacked MLP backpropagates with;
+4. a NumPy twin (:mod:`~cartpole.agents.nn.numpy_mlp`, with :mod:`~cartpole.agents.nn.fast_tanh`):
+   what a rollout, DQN's batched env step and every greedy policy act through;
+5. the optimizer's numba pass over the flat rows (:mod:`~cartpole.agents.nn.population_optimizers`).
+
+Besides: per-seed statistics over the valid rows of a batch (masked), the convolutional trunk's
+generic pieces (conv) and fixed observation standardization (standardize).
+"""

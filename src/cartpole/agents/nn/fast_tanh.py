@@ -1,12 +1,12 @@
 """``tanh`` for float32 arrays and tensors on the CPU, for the networks' hot paths.
 
-On CPUs without AVX-512, NumPy's and torch's float32 ``tanh`` cost more than the matrix products
-around them: a 64x64 tanh MLP spends most of its forward pass in it. The rational approximation of
-:mod:`cartpole.agents.nn._tanh_kernels` is several times cheaper there (``benchmarks/kernels.py`` times
-all three), within 2.7e-7 relative error of the exact value (a few float32 ulps, the size of the
-differences between two CPUs' kernels). Used by the numpy greedy policies
-(:class:`~cartpole.agents.nn.numpy_mlp.NumpyMLP`) and the populations' stacked networks; a single run's
-torch network keeps ``torch.tanh``.
+Why: torch's float32 ``tanh`` on the CPU, and NumPy's on CPUs without AVX-512, cost more than the
+matrix products around them (a 64x64 tanh MLP spends most of its forward pass in it). The rational
+approximation of :mod:`cartpole.agents.nn._tanh_kernels` is several times cheaper than torch's, and
+within a few float32 ulps of the exact value, the size of the differences between two CPUs' kernels
+(benchmarks/README.md#kernels times all three and gives its largest error). Used by the NumPy twins
+(:mod:`~cartpole.agents.nn.numpy_mlp`) and the stacked networks (``TORCH_ACTIVATIONS``); the
+``nn.Module`` networks keep ``torch.tanh``.
 
 ``tanh`` (torch) is differentiable: its gradient is ``(1 - y^2) * grad`` from the saved output. Other
 dtypes and devices fall back to NumPy's and torch's own ``tanh``.

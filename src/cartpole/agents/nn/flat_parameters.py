@@ -5,6 +5,13 @@ tensor, into which autograd accumulates in place), so clipping and the optimizer
 of operations over ``[S, P]`` for the whole population. One seed's row comes out as an ordinary
 module (``unstack``: a template overwritten) and goes back in (``load_row``); seeds that stop leave
 (``keep``).
+
+Why stacked: each layer then runs as one kernel for every seed
+(:mod:`~cartpole.agents.nn.stacked_linear`), so S seeds train in one process for much less than S
+separate runs (benchmarks/README.md#population). Batched products rather than ``torch.func.vmap``
+over ``functional_call``: a batched product multiplies each seed's slice on its own, so a seed's bits
+do not depend on the seeds beside it (tested), and on the CPU vmap's per-call batching rules cost
+more than these small layers' arithmetic.
 """
 
 from __future__ import annotations
@@ -34,6 +41,12 @@ def on_the_cpu() -> AbstractContextManager[object]:
     Entered only when the default is another device: ``torch.device`` as a context routes every
     factory call through a torch-function mode, whose first use imports sympy (a quarter second)."""
     return nullcontext() if torch.get_default_device().type == "cpu" else torch.device("cpu")
+
+
+def to_device(tensor: torch.Tensor, device: torch.device) -> torch.Tensor:
+    """A CPU tensor copied to ``device`` without waiting for the device (no sync): only a read-back
+    waits for it."""
+    return tensor.to(device, non_blocking=True)
 
 
 class FlatParameters(Generic[Module]):
@@ -82,6 +95,14 @@ class FlatParameters(Generic[Module]):
                 start, end = self.offsets[name]
                 p.copy_(source[row, start:end].view_as(p))
         return self.template
+
+    def row_state_dict(
+        self, row: int, prefix: str, flat: torch.Tensor | None = None
+    ) -> dict[str, torch.Tensor]:
+        """Row ``row`` of ``flat`` (default: ``self.flat``) as the template's state dict, each name
+        prefixed with ``prefix`` (CPU copies)."""
+        model = self.unstack(row, flat)
+        return {prefix + k: v.detach().clone() for k, v in model.state_dict().items()}
 
     def load_row(self, row: int, tensors: dict[str, torch.Tensor], flat: torch.Tensor | None = None) -> None:
         """Put the parameters ``tensors`` (by module name) into row ``row`` of ``flat`` (default:
@@ -144,4 +165,4 @@ class FlatParameters(Generic[Module]):
         return act
 
 
-__all__ = ["FlatParameters", "Params"]
+__all__ = ["FlatParameters", "Params", "on_the_cpu", "to_device"]

@@ -1,9 +1,14 @@
-"""A frozen numpy copy of a small torch MLP, for the greedy policies (CategoricalPolicy, QNetworkPolicy).
+"""NumPy twins of small torch MLPs, what the agents act through: :class:`NumpyMLP`, a frozen copy of
+one network (the greedy policies, CategoricalPolicy and QNetworkPolicy), and :class:`StackedNumpyMLP`,
+S networks of one shape run as one (a rollout's actors, DQN's epsilon-greedy step, a population's
+evaluations).
 
-A greedy policy acts on a few observations at a time (one per step in the web app, one per env in an
-evaluation), where torch's per-op overhead dominates: for DQN's 64x64 network a torch forward pass
-costs several times this one for a row, and still more for a hundred rows. Copying the weights also
-makes the policy a snapshot that later training cannot change.
+Why NumPy: acting runs a few rows at a time (one per step in the web app, one per env in an
+evaluation or a batched env step), where torch's per-op overhead costs more than the arithmetic, and
+``np.matmul`` on the weights acts several times faster than torch's forward pass on the same ones
+(benchmarks/README.md#kernels, the acting rows). Copying the weights also makes a policy a snapshot
+that later training cannot change. A convolutional network has no twin: convolutions are torch's
+strength, and it acts through torch.
 """
 
 from __future__ import annotations

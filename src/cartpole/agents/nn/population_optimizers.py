@@ -1,11 +1,11 @@
 """One optimizer step for every seed of a population: Adam and RMSprop over ``[S, P]`` parameters,
 with a learning rate, a step count and a "sit this step out" flag per seed.
 
-Each seed's row gets the update its single run's optimizer gives (torch.optim.Adam's and RMSprop's
-formulas; the floats may differ in the last bits). On the CPU the update is one numba pass per row
-(:mod:`cartpole.agents.nn._population_optimizer_kernels`, compiled on first use): for 100 PPO seeds
-(``[100, 9218]``) torch's elementwise form of Adam makes about ten passes over tensors that no longer
-fit the core's cache, several times the one pass's time (``benchmarks/kernels.py`` times both).
+Each seed's row gets the update torch.optim.Adam's and RMSprop's formulas give one network (the
+floats may differ in the last bits). On the CPU the update is one numba pass per row
+(:mod:`cartpole.agents.nn._population_optimizer_kernels`, compiled on first use): torch's
+elementwise form of Adam makes about ten passes over a population's ``[S, P]`` tensors, which no
+longer fit the core's cache, and costs several times the one pass (benchmarks/README.md#kernels).
 Other devices (and ``fused=False``) use the torch form.
 """
 

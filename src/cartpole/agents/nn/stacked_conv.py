@@ -3,7 +3,7 @@
 Each seed's images go through its own weights in its own ``conv2d`` call (a loop over the seed
 axis), not one grouped convolution: a seed's call then has the same shapes, memory layout and
 kernel whether it trains alone or beside other seeds, so its bits do not depend on its neighbours
-(a population's seed N is the single run of seed N). The loop costs one call per seed and layer,
+(seed N trains the same alone and beside others). The loop costs one call per seed and layer,
 small beside a frame stack's convolution.
 
 Each call takes its images channels-last (:func:`channels_last`: the channels of a pixel side by

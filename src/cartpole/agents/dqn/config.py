@@ -1,17 +1,6 @@
-"""Deep Q-Network (DQN) in PyTorch, readable top to bottom.
-
-What it does, in order:
-
-1. ``DQNConfig``: every knob, with a one-line docstring each (presets in ``presets/dqn.toml``).
-2. ``td_targets``: the one place the Bellman target is computed (double DQN, and no bootstrap at
-   termination; truncation by the time limit does bootstrap). With ``n_step`` > 1 a replay row holds
-   n steps' discounted rewards and bootstraps with ``gamma^n`` (:mod:`cartpole.agents.dqn.n_step`).
-3. ``epsilon_at`` and ``shaped_rewards``: exploration and the tutorials' reward shaping.
-4. The greedy policy rebuilt from a checkpoint.
-
-The learner itself, batched over seeds (a single run is a population of one), is
-:class:`~cartpole.agents.dqn.population.PopulationDQN`; the network and its greedy policy live in
-:mod:`cartpole.agents.dqn.q_network`.
+"""DQN's settings: :class:`DQNConfig`, every setting with a one-line docstring each (presets in
+``presets/dqn.toml``), checked on its own (``validate``) and against the env's observations
+(``check_env``). The learning rule that reads them is :mod:`cartpole.agents.dqn.dqn`.
 
 The three exploration schedules are the ones the tutorials used: linear (ours), exponential per env
 step (the PyTorch tutorial), and multiplicative per gradient step (the Keras tutorial).
@@ -19,28 +8,17 @@ step (the PyTorch tutorial), and multiplicative per gradient step (the Keras tut
 
 from __future__ import annotations
 
-import dataclasses
-import math
 from dataclasses import dataclass
 
-import numpy as np
-import torch
-
-from cartpole.agents.dqn.q_network import ACTIVATIONS, QNetwork, QNetworkPolicy, network_input_shape
+from cartpole.agents.dqn.q_network import ACTIVATIONS, network_input_shape
 from cartpole.agents.nn.conv import conv_output_size
-from cartpole.core.config import build_config, require
+from cartpole.core.config import require
 from cartpole.core.errors import ConfigError
 from cartpole.envs import EnvInfo, check_simulator
-from cartpole.runs import Checkpoint, CheckpointError
 
 SCHEDULES = ("linear", "exponential", "multiplicative")
 LOSSES = ("huber", "mse")
 OPTIMIZERS = ("adam", "rmsprop")
-
-
-# ----------------------------------------------------------------------------------------------
-# 1. Configuration
-# ----------------------------------------------------------------------------------------------
 
 
 @dataclass
@@ -184,95 +162,4 @@ class DQNConfig:
             ) from None
 
 
-# ----------------------------------------------------------------------------------------------
-# 2. The Bellman target
-# ----------------------------------------------------------------------------------------------
-
-
-def td_targets(
-    rewards: torch.Tensor,
-    terminated: torch.Tensor,
-    next_q_target: torch.Tensor,
-    next_q_online: torch.Tensor | None,
-    gamma: float,
-) -> torch.Tensor:
-    """``r + gamma * (1 - terminated) * Q_target(s', a*)``.
-
-    ``a*`` is argmax of the online net's values (double DQN) when ``next_q_online`` is given, else of
-    the target net's own. Only *termination* stops the bootstrap: a transition cut by the time limit
-    (truncated, e.g. step 500 of CartPole-v1) was stored with ``terminated=0``, because the pole was
-    still up and the state still had value. Treating truncation as termination teaches the agent that
-    step 500 is a cliff, which is the classic reason a DQN "solves" CartPole and then collapses.
-    """
-    chooser = next_q_target if next_q_online is None else next_q_online
-    next_actions = chooser.argmax(dim=1, keepdim=True)
-    next_values = next_q_target.gather(1, next_actions).squeeze(1)
-    return rewards + gamma * (1.0 - terminated) * next_values
-
-
-# ----------------------------------------------------------------------------------------------
-# 3. Exploration and reward shaping
-# ----------------------------------------------------------------------------------------------
-
-
-def shaped_rewards(
-    config: DQNConfig,
-    rewards: np.ndarray,
-    terminated: np.ndarray,
-    done: np.ndarray,
-    episode_lengths: np.ndarray,
-) -> np.ndarray:
-    """The tutorials' reward shaping, where configured (the raw rewards otherwise): ``termination_reward``
-    for a terminating transition, ``short_episode_reward`` for the last one of an episode shorter than
-    ``short_episode_length`` (``episode_lengths``: each env's episode so far)."""
-    if config.termination_reward is None and config.short_episode_reward is None:
-        return rewards
-    shaped = rewards.astype(np.float32, copy=True)
-    if config.termination_reward is not None:
-        shaped[terminated] = config.termination_reward
-    if config.short_episode_reward is not None:
-        shaped[done & (episode_lengths < config.short_episode_length)] = config.short_episode_reward
-    return shaped
-
-
-def epsilon_at(config: DQNConfig, env_steps: int, multiplied: float) -> float:
-    """Exploration rate after ``env_steps`` (``multiplied`` is the multiplicative schedule's value)."""
-    start, end = config.epsilon_start, config.epsilon_end
-    if config.epsilon_schedule == "linear":
-        return end + (start - end) * max(0.0, 1.0 - env_steps / config.epsilon_decay_steps)
-    if config.epsilon_schedule == "exponential":
-        return end + (start - end) * math.exp(-env_steps / config.epsilon_decay_steps)
-    return multiplied
-
-
-def unprefixed(prefix: str, tensors: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-    return {k.removeprefix(prefix): v for k, v in tensors.items() if k.startswith(prefix)}
-
-
-# ----------------------------------------------------------------------------------------------
-# 4. The greedy policy from a checkpoint
-# ----------------------------------------------------------------------------------------------
-
-
-def policy_from_checkpoint(checkpoint: Checkpoint) -> QNetworkPolicy:
-    """Rebuild the greedy policy on CPU from a checkpoint's tensors."""
-    try:
-        known = {f.name for f in dataclasses.fields(DQNConfig)}  # older checkpoints hold retired settings
-        config = build_config(DQNConfig, {k: v for k, v in checkpoint.meta["config"].items() if k in known})
-        data = checkpoint.meta["learner"]
-        obs_shape = [int(n) for n in data.get("obs_shape", [data["obs_dim"]])]
-        q_net = QNetwork(obs_shape, int(data["n_actions"]), config)
-        q_net.load_state_dict(unprefixed("q_net.", checkpoint.tensors))
-    except (KeyError, RuntimeError, TypeError, AttributeError) as err:
-        raise CheckpointError(f"not a usable dqn checkpoint: {err!s:.120}") from err
-    return QNetworkPolicy(q_net)
-
-
-__all__ = [
-    "DQNConfig",
-    "QNetwork",
-    "QNetworkPolicy",
-    "epsilon_at",
-    "policy_from_checkpoint",
-    "td_targets",
-]
+__all__ = ["LOSSES", "OPTIMIZERS", "SCHEDULES", "DQNConfig"]
