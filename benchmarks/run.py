@@ -121,9 +121,10 @@ TABLES = [
         "web-latency", "web_latency.py", "--sessions 1 20 --watch-load 4", minutes=3, quick=True,
         tiny="--steps 100 --sessions 1 4 --episodes 3 --watch-load 1", headline="Web app: play round-trip",
     ),
-    # Issue 55 writes benchmarks/pixels.py: a row per seed of the pixel agents; its summary's "readme"
-    # rows go into the README. Until then `run.py pixels` says that the script is not there.
-    Benchmark("pixels", "pixels.py", "", minutes=60, tiny="", headline="CartPole from pixels"),
+    Benchmark(
+        "pixels", "pixels.py", "--agents ppo:pixels,dqn:pixels --seeds 5 --first-seed 9900", minutes=60,
+        tiny="--agents ppo:pixels --seeds 1 --first-seed 9900 --budget 2k", headline="CartPole from pixels",
+    ),
     Benchmark(
         "renderer", "renderer.py", "--sizes 30x100,40x60,60x200", minutes=2, quick=True,
         tiny="--sizes 30x100 --envs 1,64 --seconds 0.1 --repeats 1",

@@ -205,6 +205,36 @@ def test_worker_processes_draw_gymnasiums_pictures_with_the_same_results(monkeyp
         evaluate(PixelHash(), env_id, episodes=7, seed=3, simulator="gymnasium", workers=0)
 
 
+class ThreadCounting(PixelHash):
+    """:class:`PixelHash` that notes torch's thread count at each call."""
+
+    def __init__(self) -> None:
+        self.threads: set[int] = set()
+
+    def act(self, observations: np.ndarray) -> np.ndarray:
+        import torch
+
+        self.threads.add(torch.get_num_threads())
+        return super().act(observations)
+
+
+def test_the_policy_acts_on_one_torch_thread_while_worker_processes_draw():
+    """The workers hold the cores: the policy's forward passes take one thread meanwhile, and the
+    process gets its thread count back; with no workers it keeps its threads."""
+    import torch
+
+    env_id, threads = "cartpole/CartPolePixels-v1", torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        sharded, alone = ThreadCounting(), ThreadCounting()
+        report = evaluate(sharded, env_id, episodes=4, seed=3, simulator="gymnasium", workers=2)
+        assert sharded.threads == {1} and torch.get_num_threads() == 2
+        assert evaluate(alone, env_id, episodes=4, seed=3, simulator="gymnasium").returns == report.returns
+        assert alone.threads == {2}
+    finally:
+        torch.set_num_threads(threads)
+
+
 def test_an_evaluation_interrupted_while_its_workers_draw_leaves_no_worker_and_no_traceback(
     monkeypatch, capfd
 ):

@@ -153,7 +153,8 @@ def test_preprocess_frames_is_gray_and_a_box_average_as_pillow_computes_them(
 @pytest.mark.parametrize("frame_size", [DEFAULT_FRAME_SIZE, (40, 60)])
 def test_frames_of_whole_screen_pixels_are_their_blocks_mean_gray_rounded_half_up(frame_size) -> None:
     """Where an output pixel covers whole screen pixels, a frame is exactly the mean gray level of
-    each block, halves rounded up (also on noise, and on blocks whose mean is exactly a half)."""
+    each block, halves rounded up (also on noise, on blocks whose mean is exactly a half, and on
+    pictures laid out column by column in memory)."""
     rng = np.random.default_rng(0)
     noise = rng.integers(0, 256, (2, 400, 600, 3), dtype=np.uint8)
     halves = np.indices((400, 600)).sum(axis=0) % 2  # a checkerboard of gray 0 and 1: means of 0.5
@@ -165,6 +166,8 @@ def test_frames_of_whole_screen_pixels_are_their_blocks_mean_gray_rounded_half_u
     expected = (2 * blocks + 1000 * pixel * pixel) // (2000 * pixel * pixel)
     frames = preprocess_frames(rgb, frame_size)
     assert np.array_equal(frames, expected) and (frames[2] == 1).all()
+    by_columns = np.ascontiguousarray(rgb.transpose(0, 2, 1, 3)).transpose(0, 2, 1, 3)  # any layout
+    assert np.array_equal(preprocess_frames(by_columns, frame_size), expected)
 
 
 def test_vector_env_observations_and_stacks() -> None:

@@ -10,7 +10,9 @@ solved means a mean return >= the registry's ``reward_threshold`` over at least 
 from __future__ import annotations
 
 import html
-from collections.abc import Callable
+import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol, runtime_checkable
 
@@ -213,7 +215,8 @@ def play_greedy_blocks(
 
     ``workers`` > 1: Gymnasium's pictures (a pixel env on ``"gymnasium"``, slow to draw: see
     benchmarks/README.md#renderer) are drawn by that many processes
-    (:func:`~cartpole.envs.make_eval_envs`); the episodes are the same."""
+    (:func:`~cartpole.envs.make_eval_envs`); the episodes are the same, and meanwhile a torch policy
+    acts on one thread (:func:`_one_torch_thread_while_workers_draw`)."""
     n = len(seeds)
     if n % block_size:
         raise ValueError(f"{n} episodes do not split into blocks of {block_size}")
@@ -221,37 +224,63 @@ def play_greedy_blocks(
         raise ValueError(f"workers must be >= 1, got {workers}")
     env = make_eval_envs(env_id, n, simulator=simulator, workers=workers)
     try:
-        observations = _reset_to_seeds(env, env_id, seeds)
-        returns = np.zeros(n, dtype=np.float64)
-        lengths = np.zeros(n, dtype=np.int64)
-        running = np.ones(n, dtype=bool)
-        acting = np.arange(n // block_size)
-        rows = np.arange(n)
-        while running.any():
-            playing = np.flatnonzero(running.reshape(-1, block_size).any(axis=1))
-            if len(playing) <= KEEP_ACTING_FRACTION * len(acting):
-                acting = playing
-                rows = (acting[:, None] * block_size + np.arange(block_size)).reshape(-1)
-            if len(rows) == n:
-                actions = np.asarray(act(observations, acting), dtype=np.int64).reshape(n)
-            else:
-                actions = np.zeros(n, dtype=np.int64)  # envs of ended blocks: stepped, not counted
-                actions[rows] = np.asarray(act(observations[rows], acting)).reshape(-1)
-            if isinstance(env, ShardedEnvs):
-                observations, rewards, terminated, truncated = env.step_playing(
-                    actions, running, observations
-                )
-            elif isinstance(env, gym.vector.SyncVectorEnv):
-                steps = step_playing(env.envs, actions, running)
-                observations, rewards, terminated, truncated = gather_steps(observations, steps)
-            else:
-                observations, rewards, terminated, truncated, _ = env.step(actions)
-            returns += np.where(running, rewards, 0.0)
-            lengths += running
-            running &= ~(terminated | truncated)
-        return returns, lengths
+        with _one_torch_thread_while_workers_draw(env):
+            return _play_blocks(act, env, env_id, seeds, block_size)
     finally:
         env.close()
+
+
+@contextmanager
+def _one_torch_thread_while_workers_draw(env: gym.vector.VectorEnv | ShardedEnvs) -> Iterator[None]:
+    """While worker processes draw the pictures (:class:`ShardedEnvs`), this process acts on one
+    torch thread, then gets its thread count back. The workers hold the cores: a second thread of
+    the policy's small forward pass waits for a core at each of its barriers (and spins on one when
+    done), so the workers, which wait for the actions, wait for it too. Torch is not imported here:
+    where no policy has loaded it, there is nothing to set."""
+    torch = sys.modules.get("torch")
+    if torch is None or not isinstance(env, ShardedEnvs):
+        yield
+        return
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _play_blocks(
+    act: BlockActor, env: gym.vector.VectorEnv | ShardedEnvs, env_id: str, seeds: list[int], block_size: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The loop of :func:`play_greedy_blocks` on its envs."""
+    n = len(seeds)
+    observations = _reset_to_seeds(env, env_id, seeds)
+    returns = np.zeros(n, dtype=np.float64)
+    lengths = np.zeros(n, dtype=np.int64)
+    running = np.ones(n, dtype=bool)
+    acting = np.arange(n // block_size)
+    rows = np.arange(n)
+    while running.any():
+        playing = np.flatnonzero(running.reshape(-1, block_size).any(axis=1))
+        if len(playing) <= KEEP_ACTING_FRACTION * len(acting):
+            acting = playing
+            rows = (acting[:, None] * block_size + np.arange(block_size)).reshape(-1)
+        if len(rows) == n:
+            actions = np.asarray(act(observations, acting), dtype=np.int64).reshape(n)
+        else:
+            actions = np.zeros(n, dtype=np.int64)  # envs of ended blocks: stepped, not counted
+            actions[rows] = np.asarray(act(observations[rows], acting)).reshape(-1)
+        if isinstance(env, ShardedEnvs):
+            observations, rewards, terminated, truncated = env.step_playing(actions, running, observations)
+        elif isinstance(env, gym.vector.SyncVectorEnv):
+            steps = step_playing(env.envs, actions, running)
+            observations, rewards, terminated, truncated = gather_steps(observations, steps)
+        else:
+            observations, rewards, terminated, truncated, _ = env.step(actions)
+        returns += np.where(running, rewards, 0.0)
+        lengths += running
+        running &= ~(terminated | truncated)
+    return returns, lengths
 
 
 def evaluate(

@@ -109,6 +109,7 @@ _RGB_POLE, _RGB_AXLE = (202, 152, 101), (129, 132, 203)
 
 GRAY_WEIGHTS: tuple[float, float, float] = (0.299, 0.587, 0.114)
 """ITU-R BT.601 luma weights of R, G, B."""
+_GRAY_WEIGHTS_INT = np.round(1000 * np.asarray(GRAY_WEIGHTS)).astype(np.int64)  # 299, 587, 114
 
 
 def _pole_tip_row(params: CartPoleParams) -> int:
@@ -245,9 +246,9 @@ def preprocess_frames(
     pixel = SCREEN_WIDTH / width
     frames = np.empty((len(pictures), height, width), dtype=np.uint8)
     if pixel.is_integer() and top.is_integer():  # whole screen pixels per output pixel (30x100)
-        weights_int = np.round(1000 * np.asarray(GRAY_WEIGHTS)).astype(np.int64)
-        for frame, picture in zip(frames, pictures, strict=True):
-            _kernels().gray_blocks(picture, int(top), int(pixel), weights_int, frame)
+        blocks = _kernels().gray_blocks
+        for frame, picture in zip(frames, pictures, strict=True):  # the kernel reads contiguous rows
+            blocks(np.ascontiguousarray(picture), int(top), int(pixel), _GRAY_WEIGHTS_INT, frame)
         return frames
     first = math.floor(top)
     last = min(SCREEN_HEIGHT, math.ceil(top + height * pixel))

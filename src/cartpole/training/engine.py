@@ -354,8 +354,9 @@ MAX_PICTURE_WORKERS = 4
 
 def picture_workers() -> int:
     """How many processes draw Gymnasium's pictures in a pixel env's evaluations: as many as the
-    threads torch computes with (the CLI's ``--torch-threads``; read here, never changed), at most
-    :data:`MAX_PICTURE_WORKERS`."""
+    threads torch computes with (the CLI's ``--torch-threads``, read here), at most
+    :data:`MAX_PICTURE_WORKERS`. While they draw, the policy acts on one of those threads
+    (:func:`~cartpole.evaluation.play_greedy_blocks`): the workers use the cores."""
     import torch
 
     return min(torch.get_num_threads(), MAX_PICTURE_WORKERS)
