@@ -26,7 +26,7 @@ pytestmark = pytest.mark.skipif(
     "CARTPOLE_TEST_POSTGRES_URL), then pytest tests/test_compare_postgres.py",
 )
 ENTRIES = ["cem", "random-search"]
-SEEDS = 8
+SEEDS = 4
 
 
 def compare_command(name: str, runs_dir: object) -> list[str]:

@@ -516,12 +516,17 @@ def test_bad_population_input_through_the_command(tmp_path):
     assert not (tmp_path / "runs").exists()
 
 
+RARE_EVALUATIONS = ["--set", "eval_every=1000000"]
+"""No evaluations while training (what a kill must not lose is the training state): once solved, an
+agent's 100-episode evaluations would cost more than its training."""
+
+
 def test_sigint_saves_every_seed_and_resume_continues_them_all(tmp_path):
     runs_dir = tmp_path / "runs"
     # Long enough to be training still when each seed's status first shows steps (every 5 s): 60k took
     # 4.8 s on a fast CPU, and a SIGINT after training (during interpreter exit) is not what is tested.
     args = ["train", "ppo", "--seeds", "0-2", "--budget", "200k", "--no-stop-when-solved", "--quiet"]
-    args += ["--runs-dir", str(runs_dir)]
+    args += ["--runs-dir", str(runs_dir), *RARE_EVALUATIONS]
     process = subprocess.Popen(
         [sys.executable, "-m", "cartpole", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
@@ -560,6 +565,7 @@ def test_kill_9_loses_at_most_one_checkpoint_interval_and_resume_finishes_every_
     env steps of one learning step, by which a save can land past its interval."""
     runs_dir = tmp_path / "runs"
     args = ["train", agent, "--seeds", "0-2", "--budget", str(budget), "--no-stop-when-solved", *settings]
+    args += RARE_EVALUATIONS
     process = subprocess.Popen(
         [sys.executable, "-m", "cartpole", *args, "--runs-dir", str(runs_dir), "--quiet"],
         stdout=subprocess.PIPE,
