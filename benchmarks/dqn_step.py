@@ -4,6 +4,7 @@
     python benchmarks/dqn_step.py step --seeds 100           # the same step for a population of 100
     python benchmarks/dqn_step.py memory --seeds 100 --steps 400
     python benchmarks/dqn_step.py fingerprint                # weight hashes of every DQN variant below
+    python benchmarks/dqn_step.py table                      # step (1 and 100 seeds) and memory, a table
 
 ``time_to_solve.py`` and ``population.py`` measure whole runs; this script isolates what a change to
 the update costs or saves, and whether it changed a bit:
@@ -18,6 +19,8 @@ the update costs or saves, and whether it changed a bit:
   tutorial presets, the default and variants of it (no double DQN, no target network, a dueling head,
   MSE with 1-step rows and hard target copies, gradient norms clipped to 0.5); prints a hash of each
   seed's online and target weights and its last loss. Run it at two commits: equal hashes, the same bits.
+- ``table``: ``step`` for one seed and for ``--seeds`` (default 100; ``--repeats`` a tenth as many),
+  and ``memory`` for ``--seeds``, each in a process of its own, as one table (``--table`` writes it).
 
 One torch thread (``cartpole train``'s default), on the CPU.
 """
@@ -31,11 +34,13 @@ import hashlib
 import json
 import resource
 import statistics
+import subprocess
 import sys
 import time
 from typing import Any
 
 from cpu import describe_cpu
+from table_file import Measurement, Table, add_table_arguments
 
 FINGERPRINT_SEEDS = [3, 5]
 
@@ -148,9 +153,40 @@ def fingerprints(args: argparse.Namespace) -> dict[str, Any]:
     return found
 
 
+def table(args: argparse.Namespace) -> Table:
+    """``step`` for one seed and for ``args.seeds``, then ``memory`` for ``args.seeds``, each in a child
+    process of its own (so the memory measure's peak is its own)."""
+
+    def child(*options: str) -> dict[str, Any]:
+        command = [sys.executable, __file__, *options, "--preset", args.preset, "--json"]
+        done = subprocess.run(command, capture_output=True, text=True, check=True)
+        return json.loads(done.stdout)
+
+    timing = ["--warmup", str(args.warmup), "--trials", str(args.trials)]
+    one = child("step", "--seeds", "1", "--repeats", str(args.repeats), *timing)
+    many_repeats = str(max(1, args.repeats // 10))
+    many = child("step", "--seeds", str(args.seeds), "--repeats", many_repeats, *timing)
+    memory = child("memory", "--seeds", str(args.seeds), "--steps", str(args.steps))
+    heap = (
+        "-"
+        if memory["heap_mb"] is None
+        else f"{memory['heap_mb']:,.0f} MB ({memory['heap_in_use_mb']:,.0f} in use)"
+    )
+    rows = [
+        ["one gradient step, 1 seed", f"{one['us_per_gradient_step']:,.0f} us"],
+        [f"one gradient step, {args.seeds} seeds", f"{many['us_per_gradient_step']:,.0f} us"],
+        [f"{args.seeds} seeds, {args.steps} batched env steps: peak RSS", f"{memory['peak_rss_mb']:,.0f} MB"],
+        [f"{args.seeds} seeds, {args.steps} batched env steps: CPU", f"{memory['cpu_s']:.1f} s"],
+        [f"{args.seeds} seeds: glibc heap", heap],
+    ]
+    notes = [f"Preset {args.preset!r}: batch {one['batch_size']}, hidden layers {one['hidden_sizes']}."]
+    summary = {"step_1": one, f"step_{args.seeds}": many, "memory": memory}
+    return Table(["measure", "figure"], rows, summary=summary, notes=notes)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("measure", choices=["step", "memory", "fingerprint"])
+    parser.add_argument("measure", choices=["step", "memory", "fingerprint", "table"])
     parser.add_argument("--preset", default="default", help="DQN preset (step, memory)")
     parser.add_argument("--seeds", type=int, help="seeds 0..N-1 (default: step 1, memory 100)")
     parser.add_argument("--steps", type=int, help="batched env steps (default: memory 400, fingerprint 300)")
@@ -158,8 +194,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=200, help="step: training rounds per trial")
     parser.add_argument("--trials", type=int, default=5, help="step: timed trials (the median is printed)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
+    add_table_arguments(parser)
     args = parser.parse_args(argv)
-    defaults = {"step": (1, 0), "memory": (100, 400), "fingerprint": (len(FINGERPRINT_SEEDS), 300)}
+    defaults = {
+        "step": (1, 0),
+        "memory": (100, 400),
+        "fingerprint": (len(FINGERPRINT_SEEDS), 300),
+        "table": (100, 400),
+    }
     seeds, steps = defaults[args.measure]
     args.seeds = seeds if args.seeds is None else args.seeds
     args.steps = steps if args.steps is None else args.steps
@@ -168,6 +210,12 @@ def main(argv: list[str] | None = None) -> int:
         if getattr(args, name) < least:
             parser.error(f"--{name} must be at least {least}")
 
+    if args.measure == "table":
+        measurement = Measurement(args, [__file__, *(sys.argv[1:] if argv is None else argv)])
+        found = table(args)
+        print(found.markdown())
+        measurement.finish(found)
+        return 0
     import torch
 
     torch.set_num_threads(1)

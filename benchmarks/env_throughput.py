@@ -34,6 +34,7 @@ for _var in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MK
 import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
 from cpu import describe_cpu, pin_to_one_cpu  # noqa: E402
+from table_file import Measurement, Table, add_table_arguments  # noqa: E402
 
 TARGET_STEPS_PER_S = 1e8  # at 65,536 envs, float32
 TARGET_SPEEDUP = 3.0  # over Gymnasium's CartPoleVectorEnv at 4,096 envs
@@ -169,25 +170,6 @@ def fmt(rate: float) -> str:
     return f"{rate:.3g}"
 
 
-def print_table(title: str, header: list[str], rows: list[list[str]]) -> None:
-    """A rich table when rich is installed, plain aligned text otherwise."""
-    try:
-        from rich.console import Console
-        from rich.table import Table
-    except ImportError:
-        widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
-        print(f"\n{title}")
-        for r in [header, *rows]:
-            print("  ".join(cell.rjust(w) for cell, w in zip(r, widths, strict=True)))
-        return
-    table = Table(title=title)
-    for h in header:
-        table.add_column(h, justify="right")
-    for r in rows:
-        table.add_row(*r)
-    Console().print(table)
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--sizes", default="1,16,256,4096,65536", help="comma-separated num_envs")
@@ -196,7 +178,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cpu", type=int, default=None, help="CPU to pin to (default: first)")
     parser.add_argument("--no-compile-check", action="store_true", help="skip the start-up probe")
     parser.add_argument("--wall", action="store_true", help="time by wall clock, not CPU time")
+    add_table_arguments(parser)
     args = parser.parse_args(argv)
+    measurement = Measurement(args, [__file__, *(sys.argv[1:] if argv is None else argv)])
     global CLOCK
     CLOCK = time.perf_counter if args.wall else time.thread_time
     sizes = [int(s) for s in args.sizes.split(",")]
@@ -217,50 +201,52 @@ def main(argv: list[str] | None = None) -> int:
     )
 
     rows = []
-    rates: dict[tuple[int, str], float] = {}
+    rates: dict[str, dict[str, float]] = {}
     for n in sizes:
         contenders = vector_contenders(n)
         measure(contenders, n, args.seconds, args.repeats)
-        base = contenders[0].best
-        for c in contenders:
-            rates[(n, c.name)] = c.best
-        rows.append([f"{n:,}", fmt(base)] + [f"{fmt(c.best)} ({c.best / base:.1f}x)" for c in contenders[1:]])
-    print_table(
-        "Vector envs: env steps/s (speed-up over Gymnasium)",
-        ["num_envs", "Gymnasium CartPoleVectorEnv", "fast float32", "fast float64"],
-        rows,
-    )
-
+        rates[str(n)] = {c.name: c.best for c in contenders}
+        rows.append([f"{n:,}", *cells(contenders)])
     singles = single_contenders()
     measure(singles, 1, args.seconds, args.repeats)
-    base = singles[0].best
-    print_table(
-        "Single env through gymnasium.make (wrappers included), plain Python loop: steps/s",
-        ["Gymnasium CartPoleEnv", "fast CartPoleEnv float64", "fast CartPoleEnv float32"],
-        [[fmt(base)] + [f"{fmt(c.best)} ({c.best / base:.1f}x)" for c in singles[1:]]],
-    )
+    rates["single"] = {c.name: c.best for c in singles}
+    rows.append(["1, a single env (`gymnasium.make`, wrappers included)", *cells(singles)])
+    notes = target_checks(rates)
+    if not args.no_compile_check:
+        notes.append("")
+        notes.append("Start-up (fresh process; first reset+step of a vector and a single env per dtype):")
+        notes += [f"- {label}: {text}" for label, text in startup_costs()]
+    columns = ["num_envs", "Gymnasium's CartPole", "fast float32 (speed-up)", "fast float64 (speed-up)"]
+    table = Table(columns, rows, summary={"steps_per_s": rates}, notes=notes)
+    print(table.markdown())
+    measurement.finish(table)
+    return 0
 
+
+def cells(contenders: list[Contender]) -> list[str]:
+    """Gymnasium's rate, then each fast simulator's with its speed-up over it (float32 first)."""
+    by_name = {c.name: c.best for c in contenders}
+    base = by_name["gymnasium"]
+    return [fmt(base)] + [
+        f"{fmt(by_name[name])} ({by_name[name] / base:.1f}x)" for name in ("fast float32", "fast float64")
+    ]
+
+
+def target_checks(rates: dict[str, dict[str, float]]) -> list[str]:
     checks = []
-    if (65536, "fast float32") in rates:
-        r = rates[(65536, "fast float32")]
+    if "65536" in rates:
+        r = rates["65536"]["fast float32"]
         ok = "met" if r >= TARGET_STEPS_PER_S else "NOT met"
         checks.append(f">= {TARGET_STEPS_PER_S:.0e} steps/s at 65,536 envs: {fmt(r)} ({ok})")
-    if (4096, "fast float32") in rates:
-        x = rates[(4096, "fast float32")] / rates[(4096, "gymnasium")]
+    if "4096" in rates:
+        x = rates["4096"]["fast float32"] / rates["4096"]["gymnasium"]
         ok = "met" if x >= TARGET_SPEEDUP else "NOT met"
         checks.append(f">= {TARGET_SPEEDUP:g}x Gymnasium at 4,096 envs: {x:.1f}x ({ok})")
-    if (1, "fast float32") in rates:
-        x = rates[(1, "fast float32")] / base
+    if "1" in rates:
+        x = rates["1"]["fast float32"] / rates["single"]["gymnasium"]
         ok = "met" if x >= 1 else "NOT met"
         checks.append(f"vector env at N=1 vs Gymnasium's single env: {x:.2f}x ({ok})")
-    for line in checks:
-        print("target " + line)
-
-    if not args.no_compile_check:
-        print("\nStart-up (fresh process; first reset+step of a vector and a single env per dtype):")
-        for label, text in startup_costs():
-            print(f"  {label}: {text}")
-    return 0
+    return ["Targets: " + "; ".join(checks) + "."] if checks else []
 
 
 if __name__ == "__main__":

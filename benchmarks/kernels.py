@@ -35,6 +35,7 @@ from collections.abc import Callable
 import numpy as np
 import torch
 from cpu import describe_cpu
+from table_file import Measurement, Table, add_table_arguments
 
 from cartpole.agents.nn.fast_tanh import tanh_array
 from cartpole.agents.nn.population_optimizers import PopulationAdam
@@ -114,7 +115,8 @@ def actor_critic_learn(agent: str, seeds: int, by_hand: bool) -> Callable[[], ob
     return population.learn
 
 
-def updates_by_hand(seeds: int, repeats: int) -> None:
+def updates_by_hand(seeds: int, repeats: int) -> list[list[str]]:
+    rows = []
     for agent in ("ppo", "a2c", "reinforce"):
         for count in (1, seeds):
             times = {
@@ -122,22 +124,77 @@ def updates_by_hand(seeds: int, repeats: int) -> None:
                 for by_hand in (False, True)
             }
             autograd, by_hand = times[False] * 1e3, times[True] * 1e3
-            print(
-                f"{agent} default preset, one learn() of {count} seed(s): autograd {autograd:6.2f} ms,"
-                f" by hand {by_hand:6.2f} ms ({by_hand / autograd:.2f}x)"
-            )
+            rows.append([
+                f"{agent} default preset, one `learn()` of {count} seed(s): autograd / by hand",
+                f"{autograd:.2f} / {by_hand:.2f} ms ({by_hand / autograd:.2f}x)",
+            ])  # fmt: skip
+            print(*rows[-1], sep=": ", flush=True)
+    return rows
 
 
-def pixels() -> None:
+def pixels() -> list[list[str]]:
+    rows = []
     for channels_last in (False, True):
         seconds = seconds_per_call(conv_trunk(channels_last), 3)
         layout = "channels-last" if channels_last else "as made (NCHW)"
-        print(f"conv trunk, 512 rows, forward + backward, {layout:<15} {seconds * 1e3:7.1f} ms")
+        rows.append([f"conv trunk, 512 rows, forward + backward, {layout}", f"{seconds * 1e3:.1f} ms"])
     learn, steps = pixel_ppo_learn()
     seconds = seconds_per_call(learn, 2)
-    print(
-        f"PPO pixels preset, one learn() of {steps} env steps: {seconds:.2f} s, {steps / seconds:.0f} steps/s"
+    rows.append(
+        [
+            f"PPO pixels preset, one `learn()` of {steps} env steps",
+            f"{seconds:.2f} s, {steps / seconds:.0f} steps/s",
+        ]
     )
+    return rows
+
+
+def arithmetic(args: argparse.Namespace) -> list[list[str]]:
+    """tanh three ways, bmm, a head's weight gradient both ways, a ReLU gradient two ways, Adam two ways."""
+    shape = (args.seeds, args.rows, args.width)
+    generator = torch.Generator().manual_seed(0)
+    x = 2 * torch.randn(*shape, generator=generator)
+    weights = torch.randn(args.seeds, args.width, args.width, generator=generator)
+    x_numpy, out = x.numpy(), np.empty(shape, dtype=np.float32)
+    rows = []
+    for name, call in [
+        ("torch.tanh", lambda: torch.tanh(x)),
+        ("np.tanh", lambda: np.tanh(x_numpy, out=out)),
+        ("fast_tanh", lambda: tanh_array(x_numpy, out=out)),
+    ]:
+        per_element = seconds_per_call(call, args.repeats) / x.numel()
+        rows.append([f"{name} {list(shape)}", f"{per_element * 1e9:.2f} ns an element"])
+    exact = np.tanh(x_numpy.astype(np.float64))
+    error = np.abs(tanh_array(x_numpy).astype(np.float64) - exact) / np.maximum(np.abs(exact), 1e-30)
+    rows.append(["fast_tanh, largest relative error against float64 tanh", f"{error.max():.2e}"])
+    bmm = seconds_per_call(lambda: torch.bmm(x, weights), args.repeats)
+    flops = 2 * args.seeds * args.rows * args.width * args.width
+    rows.append(
+        [
+            f"torch.bmm {list(shape)} x {[args.seeds, args.width, args.width]}",
+            f"{flops / bmm / 1e9:.1f} GFLOP/s",
+        ]
+    )
+    heads = torch.randn(args.seeds, args.rows, 2, generator=generator)
+    for name, call in [
+        ("x^T @ grad (autograd's)", lambda: torch.bmm(x.transpose(1, 2), heads)),
+        ("grad^T @ x (stacked_linear)", lambda: torch.bmm(heads.transpose(1, 2), x)),
+    ]:
+        rows.append([f"head weight gradient, {name}", f"{seconds_per_call(call, args.repeats) * 1e3:.3f} ms"])
+    y, grad = torch.relu(x[:1]), x[:1].flip(1)  # one seed's [rows, width]: DQN's single run
+    for name, call in [
+        ("torch.where (public fallback)", lambda: relu_gradient_by_where(grad, y)),
+        ("threshold_backward (autograd's)", lambda: relu_gradient(grad, y)),
+    ]:
+        seconds = seconds_per_call(call, args.repeats * 20)
+        rows.append([f"ReLU gradient, one seed {list(y.shape)}, {name}", f"{seconds * 1e6:.2f} us"])
+    for fused in (False, None):
+        seconds = seconds_per_call(adam_step(args.seeds, 9218, fused), args.repeats)
+        name = "torch elementwise" if fused is False else "numba, one pass"
+        rows.append([f"Adam step [{args.seeds}, 9218], {name}", f"{seconds * 1e3:.3f} ms"])
+    for row in rows:
+        print(*row, sep=": ", flush=True)
+    return rows
 
 
 def main() -> None:
@@ -148,53 +205,20 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=50)
     parser.add_argument("--pixels", action="store_true", help="the pixel trunk and a pixel PPO update")
     parser.add_argument("--threads", type=int, default=1, help="torch's CPU threads (default: 1)")
+    add_table_arguments(parser)
     args = parser.parse_args()
+    measurement = Measurement(args)
     torch.set_num_threads(args.threads)
-    if args.pixels:
-        capability = torch.backends.cpu.get_cpu_capability()
-        print(f"cpu: {describe_cpu()}, torch CPU capability {capability}, {args.threads} torch thread(s)")
-        pixels()
-        return
-    shape = (args.seeds, args.rows, args.width)
-    generator = torch.Generator().manual_seed(0)
-    x = 2 * torch.randn(*shape, generator=generator)
-    weights = torch.randn(args.seeds, args.width, args.width, generator=generator)
-    x_numpy, out = x.numpy(), np.empty(shape, dtype=np.float32)
     capability = torch.backends.cpu.get_cpu_capability()
-    print(f"cpu: {describe_cpu()}, torch CPU capability {capability}; one thread; shape {list(shape)}")
-    for name, call in [
-        ("torch.tanh", lambda: torch.tanh(x)),
-        ("np.tanh", lambda: np.tanh(x_numpy, out=out)),
-        ("fast_tanh", lambda: tanh_array(x_numpy, out=out)),
-    ]:
-        per_element = seconds_per_call(call, args.repeats) / x.numel()
-        print(f"{name:<12} {per_element * 1e9:6.2f} ns an element")
-    exact = np.tanh(x_numpy.astype(np.float64))
-    error = np.abs(tanh_array(x_numpy).astype(np.float64) - exact) / np.maximum(np.abs(exact), 1e-30)
-    print(f"fast_tanh largest relative error against float64 tanh: {error.max():.2e}")
-    bmm = seconds_per_call(lambda: torch.bmm(x, weights), args.repeats)
-    flops = 2 * args.seeds * args.rows * args.width * args.width
-    print(
-        f"torch.bmm {list(shape)} x {[args.seeds, args.width, args.width]}: {flops / bmm / 1e9:.1f} GFLOP/s"
-    )
-    heads = torch.randn(args.seeds, args.rows, 2, generator=generator)
-    for name, call in [
-        ("x^T @ grad (autograd's)", lambda: torch.bmm(x.transpose(1, 2), heads)),
-        ("grad^T @ x (stacked_linear)", lambda: torch.bmm(heads.transpose(1, 2), x)),
-    ]:
-        print(f"head weight gradient, {name:<28} {seconds_per_call(call, args.repeats) * 1e3:6.3f} ms")
-    y, grad = torch.relu(x[:1]), x[:1].flip(1)  # one seed's [rows, width]: DQN's single run
-    for name, call in [
-        ("torch.where (public fallback)", lambda: relu_gradient_by_where(grad, y)),
-        ("threshold_backward (autograd's)", lambda: relu_gradient(grad, y)),
-    ]:
-        seconds = seconds_per_call(call, args.repeats * 20)
-        print(f"ReLU gradient, one seed {list(y.shape)}, {name:<32} {seconds * 1e6:6.2f} us")
-    for fused in (False, None):
-        seconds = seconds_per_call(adam_step(args.seeds, 9218, fused), args.repeats)
-        name = "torch elementwise" if fused is False else "numba, one pass"
-        print(f"Adam step [{args.seeds}, 9218], {name:<18} {seconds * 1e3:6.3f} ms")
-    updates_by_hand(args.seeds, max(1, args.repeats // 5))
+    print(f"cpu: {describe_cpu()}, torch CPU capability {capability}, {args.threads} torch thread(s)")
+    if args.pixels:
+        rows = pixels()
+    else:
+        rows = arithmetic(args) + updates_by_hand(args.seeds, max(1, args.repeats // 5))
+    notes = [f"torch CPU capability {capability}, {args.threads} torch thread(s)."]
+    table = Table(["measure", "time"], rows, summary={"capability": capability}, notes=notes)
+    print(table.markdown())
+    measurement.finish(table)
 
 
 if __name__ == "__main__":

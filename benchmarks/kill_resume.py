@@ -37,6 +37,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from table_file import Measurement, Table, add_table_arguments
+
 SINGLE = ("dqn", "ppo", "a2c", "reinforce", "cem", "hill-climbing", "random-search")
 POPULATION = "-population"
 """An entry ``AGENT-population`` trains :data:`POPULATION_SEEDS` seeds of AGENT in one process."""
@@ -188,6 +190,43 @@ def run_trial(trial: Trial, base: Path, device: str | None) -> Trial:
     return trial
 
 
+def table_of(done: list[Trial], durations: dict[str, float]) -> Table:
+    """A row per agent: its kills (when, and its whole run's length), how many resumed to a verdict,
+    the largest loss and one checkpoint interval, in env steps."""
+    rows, per_agent = [], []
+    for agent, duration in durations.items():
+        trials = [t for t in done if t.agent == agent]
+        if not trials:
+            continue
+        worst = max(trials, key=lambda t: t.lost)
+        kills = min(t.kill_after for t in trials), max(t.kill_after for t in trials)
+        resumed = sum(t.finished and t.verdict is not None for t in trials)
+        name = agent.replace(POPULATION, f", {POPULATION_SEEDS}-seed population")
+        count = len(trials)
+        rows.append([
+            name, f"{count} ({kills[0]:.1f}-{kills[1]:.1f}; {duration:.1f} s)", f"{resumed}/{count}",
+            f"{worst.lost:,}", f"{worst.interval_steps:,.0f}", f"{sum(t.passed for t in trials)}/{count}",
+        ])  # fmt: skip
+        per_agent.append(
+            {"agent": agent, "trials": len(trials), "resumed": resumed, "largest_loss": worst.lost}
+        )
+    worst = max(done, key=lambda t: t.lost)
+    summary = {
+        "trials": len(done),
+        "resumed": sum(t.finished and t.verdict is not None for t in done),
+        "passed": sum(t.passed for t in done),
+        "largest_loss": worst.lost,
+        "largest_loss_interval": worst.interval_steps,
+        "largest_loss_agent": worst.agent,
+        "agents": per_agent,
+    }
+    columns = [
+        "agent", "kills (at, s after start; whole run)", "resumed to a verdict", "largest loss, env steps",
+        "one checkpoint interval, env steps", "passed",
+    ]  # fmt: skip
+    return Table(columns, rows, summary=summary, results=[asdict(t) | {"lost": t.lost} for t in done])
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--trials", type=int, default=5 * len(AGENTS), help="kills, spread over --agents")
@@ -196,7 +235,9 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=0, help="seeds the kill times")
     parser.add_argument("--device", default=None, help="passed to `cartpole train` (default: its own)")
     parser.add_argument("--json", metavar="FILE", help="also write every trial as JSON")
+    add_table_arguments(parser)
     args = parser.parse_args()
+    measurement = Measurement(args)
 
     agents = args.agents.split(",")
     durations = {agent: measure_duration(agent, args.device) for agent in agents}
@@ -231,8 +272,11 @@ def main() -> int:
         f"{worst.interval_steps:.0f}); resumed to a verdict: {verdicts}/{len(done)}; "
         f"passed: {passed}/{len(done)}"
     )
+    table = table_of(done, durations)
     if args.json:
-        Path(args.json).write_text(json.dumps([asdict(t) | {"lost": t.lost} for t in done], indent=2))
+        Path(args.json).write_text(json.dumps(table.results, indent=2))
+    print(table.markdown())
+    measurement.finish(table)
     return 0 if passed == len(done) else 1
 
 

@@ -38,6 +38,7 @@ from types import FrameType
 from typing import Any
 
 from cpu import describe_cpu
+from table_file import Measurement, Table, add_table_arguments
 
 PHASES = ("evaluations", "env stepping", "learning", "acting", "bookkeeping")
 
@@ -128,14 +129,13 @@ def profile_run(agent: str, seeds: list[int], population: bool, interval: float)
             "seeds": len(seeds), "cpu": cpu, "env_steps": env_steps, "samples": dict(counts)}  # fmt: skip
 
 
-def row(result: dict[str, Any]) -> str:
+def row(result: dict[str, Any]) -> list[str]:
     samples = sum(result["samples"].values()) or 1
     shares = {phase: result["samples"].get(phase, 0) / samples for phase in PHASES}
     cpu_per_step = result["cpu"] / max(result["env_steps"], 1) * 1e6
     per_step = {phase: share * cpu_per_step for phase, share in shares.items()}
     cells = [f"{shares[p]:.0%} ({per_step[p]:.0f})" for p in PHASES]
-    return (f"| {result['agent']} | {result['mode']} | {result['cpu']:.1f} | {result['env_steps']:,} | "
-            + " | ".join(cells) + " |")  # fmt: skip
+    return [result["agent"], result["mode"], f"{result['cpu']:.1f}", f"{result['env_steps']:,}", *cells]
 
 
 def main() -> None:
@@ -145,16 +145,16 @@ def main() -> None:
     parser.add_argument("--population", type=int, default=0, help="also seeds 0..N-1 as one population")
     parser.add_argument("--interval", type=float, default=1.0, help="sampling interval, ms (default 1)")
     parser.add_argument("--one", help=argparse.SUPPRESS)
+    add_table_arguments(parser)
     args = parser.parse_args()
     if args.one:  # a child: one (agent, mode), its result as JSON on the last line
         agent, mode, count = args.one.split(":")
         result = profile_run(agent, list(range(int(count))), mode == "population", args.interval / 1000)
         print(json.dumps(result))
         return
-    print(f"# phases: {describe_cpu()}, python {sys.version.split()[0]}; one torch thread; "
-          f"CPU microseconds per env step in brackets")  # fmt: skip
-    print("| agent | mode | CPU s | env steps | " + " | ".join(PHASES) + " |")
-    print("|---|---|---|---|" + "---|" * len(PHASES))
+    measurement = Measurement(args)
+    print(f"# phases: {describe_cpu()}, python {sys.version.split()[0]}; one torch thread")
+    rows, results = [], []
     for agent in args.agents.split(","):
         modes = [("single", args.seeds)] + ([("population", args.population)] if args.population else [])
         for mode, count in modes:
@@ -162,7 +162,14 @@ def main() -> None:
             child = subprocess.run(
                 [*command, "--interval", str(args.interval)], capture_output=True, text=True, check=True
             )
-            print(row(json.loads(child.stdout.strip().splitlines()[-1])), flush=True)
+            results.append(json.loads(child.stdout.strip().splitlines()[-1]))
+            rows.append(row(results[-1]))
+            print(" | ".join(rows[-1]), flush=True)
+    columns = ["agent", "mode", "CPU s", "env steps", *PHASES]
+    notes = ["Each phase's share of the CPU samples, and in brackets its CPU microseconds per env step."]
+    table = Table(columns, rows, results=results, notes=notes)
+    print(table.markdown())
+    measurement.finish(table)
 
 
 if __name__ == "__main__":

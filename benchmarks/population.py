@@ -1,25 +1,25 @@
-"""Population training vs single runs: 100 PPO seeds in one process against 20 ordinary runs.
+"""Population training vs single runs: 100 seeds in one process against ordinary runs, a row per agent.
 
-    python benchmarks/population.py                   # 100 population seeds, 20 single runs
-    python benchmarks/population.py --seeds 20 --singles 5
+    python benchmarks/population.py                   # PPO: 100 population seeds, 20 single runs
+    python benchmarks/population.py --agent ppo,dqn --seeds 100 --singles 0 --processes 10
     python benchmarks/population.py --agent a2c       # also reinforce, cem, random-search, hill-climbing
-    python benchmarks/population.py --population-threads 1
     python benchmarks/population.py --seeds 400 --device cuda --singles 0 --processes 0   # on a GPU
 
 Each part runs in its own child process (so peak RSS and CPU are that part's alone), with the torch
 threads ``cartpole train`` uses by default: one, for the population (``--seeds``) and single runs alike.
-Printed:
+A row per agent:
 
 - population: verified solves (each seed's kept best on 100 fresh episodes of Gymnasium's env), wall
   time from start to the last verdict, CPU seconds (user + system, the whole child: imports, training,
-  verdicts) per seed, peak RSS, env steps/s, seeds/min (all, and verified);
-- single runs: the same verdicts, and the training CPU seconds per run (``cartpole.training.train``,
-  one after the other in one process, so imports are paid once and left out);
-- single runs as a person runs them without ``--seeds``: one ``cartpole train AGENT --seed S`` process
-  per seed, CPU seconds of the whole process (imports, training, verdict, files), as the population's;
-- both CPU ratios, and the solve-step distributions (first verified solve in training, env steps) of
-  the population and the in-process single runs: medians (and the population's mean) and a two-sample
-  Mann-Whitney U test's p-value (scipy).
+  verdicts) per seed, peak RSS, env steps/s, verified seeds/min, median env steps to the first verified
+  solve in training;
+- ``--processes N``: single runs as a person runs them without ``--seeds``, one ``cartpole train AGENT
+  --seed S`` process per seed, CPU seconds of the whole process (imports, training, verdict, files),
+  as the population's, and how many times the population's CPU per seed that is;
+- ``--singles N``: single runs one after the other in one process (``cartpole.training.train``, so
+  imports are paid once and left out): their verdicts, training CPU seconds per run, median solve
+  step, and a two-sample Mann-Whitney U test's p-value (scipy) between the population's and their
+  solve steps (a high p: the population learns as single runs do).
 """
 
 from __future__ import annotations
@@ -32,8 +32,10 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 from cpu import describe_cpu
+from table_file import Measurement, Table, add_table_arguments
 
 
 def cpu_seconds() -> float:
@@ -117,19 +119,19 @@ def child(
     out: Path,
     device: str = "cpu",
     first: int = 0,
-) -> dict[str, object]:
-    """Run one part in its own process; its result is also kept as ``out/<part>.json``."""
+) -> dict[str, Any]:
+    """Run one part in its own process; its result is also kept as ``out/<agent>-<part>.json``."""
     with tempfile.TemporaryDirectory() as tmp:
         command = [sys.executable, __file__, "--part", part, "--agent", agent, "--n", str(seeds)]
         command += ["--preset", preset, "--population-threads", str(threads), "--device", device]
         command += ["--first-seed", str(first)]
         done = subprocess.run([*command, "--dir", tmp], stdout=subprocess.PIPE, text=True, check=True)
     result = json.loads(done.stdout.strip().splitlines()[-1])
-    (out / f"{part}.json").write_text(json.dumps(result))
+    (out / f"{agent}-{part}.json").write_text(json.dumps(result))
     return result
 
 
-def median(values: list[int]) -> float:
+def median(values: list[Any]) -> float:
     import numpy as np
 
     return float(np.median(values)) if values else float("nan")
@@ -139,63 +141,91 @@ def mean(values: list[int]) -> float:
     return sum(values) / len(values) if values else float("nan")
 
 
-def report(
-    population: dict[str, object],
-    singles: dict[str, object] | None,
-    processes: dict[str, object] | None,
-    seeds: int,
-    runs: int,
-) -> None:
+def summarize(
+    agent: str, population: dict[str, Any], singles: dict[str, Any] | None, processes: dict[str, Any] | None
+) -> dict[str, Any]:
+    """One agent's figures: the population's, and its single runs' and processes' where measured."""
     from scipy.stats import mannwhitneyu
 
-    pop_cpu = float(population["cpu"]) / seeds  # type: ignore[arg-type]
-    wall = float(population["wall"])  # type: ignore[arg-type]
-    pop_steps = [s for s in population["solved_at"] if s is not None]  # type: ignore[attr-defined]
-    print(f"cpu: {population.get('machine', 'not recorded')}")
-    device = population.get("device", "cpu")
-    rows = [
-        ("population seeds", f"{seeds} ({population.get('threads', 1)} torch threads; single runs: 1)"),
-        ("population device", f"{device}"),
-        ("verified solves (population)", f"{population['verified']}/{seeds}"),
-        ("wall, start to last verdict", f"{wall:.1f} s"),
-        ("CPU per seed, population (whole process)", f"{pop_cpu:.2f} s"),
-    ]
-    single_steps: list[int] = []
-    if singles is not None:
-        single_cpu = median(singles["cpu_per_run"])  # type: ignore[arg-type]
-        single_steps = [s for s in singles["solved_at"] if s is not None]  # type: ignore[attr-defined]
-        rows += [
-            ("CPU per run, single runs (median of training)", f"{single_cpu:.2f} s"),
-            ("CPU ratio single / population", f"{single_cpu / pop_cpu:.1f}x"),
-        ]
+    seeds = len(population["solved_at"])
+    wall = float(population["wall"])
+    solved_at = [s for s in population["solved_at"] if s is not None]
+    found: dict[str, Any] = {
+        "agent": agent,
+        "seeds": seeds,
+        "device": population.get("device", "cpu"),
+        "threads": population.get("threads", 1),
+        "verified": population["verified"],
+        "wall": wall,
+        "cpu_per_seed": float(population["cpu"]) / seeds,
+        "rss_mb": population["rss_mb"],
+        "env_steps_per_s": float(population["steps"]) / wall,
+        "verified_per_min": population["verified"] / wall * 60,
+        "median_solve_step": median(solved_at),
+        "mean_solve_step": mean(solved_at),
+        "solved_in_training": len(solved_at),
+    }
     if processes is not None:
-        process_cpu = median(processes["cpu_per_process"])  # type: ignore[arg-type]
-        count = len(processes["cpu_per_process"])  # type: ignore[arg-type]
-        rows += [
-            (f"CPU per run, {count} `cartpole train` processes (median)", f"{process_cpu:.2f} s"),
-            ("CPU ratio process / population", f"{process_cpu / pop_cpu:.1f}x"),
-        ]
-    rows += [
-        ("peak RSS, population process", f"{population['rss_mb']:.0f} MB"),
-        ("env steps/s (all seeds)", f"{float(population['steps']) / wall:,.0f}"),  # type: ignore[arg-type]
-        ("seeds/min", f"{seeds / wall * 60:.1f}"),
-        ("verified seeds/min", f"{float(population['verified']) / wall * 60:.1f}"),  # type: ignore[arg-type]
-        ("median solve step, population", f"{median(pop_steps):,.0f} ({len(pop_steps)} solved in training)"),
-        ("mean solve step, population", f"{mean(pop_steps):,.0f} (the seeds solved in training)"),
-    ]
+        found["processes"] = len(processes["cpu_per_process"])
+        found["process_cpu"] = median(processes["cpu_per_process"])
     if singles is not None:
-        p_value = mannwhitneyu(pop_steps, single_steps).pvalue if pop_steps and single_steps else float("nan")
-        rows += [
-            ("verified solves (single runs)", f"{singles['verified']}/{runs}"),
-            (
-                "median solve step, single runs",
-                f"{median(single_steps):,.0f} ({len(single_steps)} solved in training)",
-            ),
-            ("Mann-Whitney U p-value (solve steps)", f"{p_value:.3f}"),
-        ]
-    width = max(len(name) for name, _ in rows)
-    for name, value in rows:
-        print(f"{name:<{width}}  {value}")
+        single_steps = [s for s in singles["solved_at"] if s is not None]
+        found["singles"] = len(singles["solved_at"])
+        found["singles_verified"] = singles["verified"]
+        found["single_cpu"] = median(singles["cpu_per_run"])
+        found["single_median_solve_step"] = median(single_steps)
+        both = solved_at and single_steps
+        found["mann_whitney_p"] = mannwhitneyu(solved_at, single_steps).pvalue if both else float("nan")
+    return found
+
+
+def population_cells(s: dict[str, Any]) -> list[str]:
+    return [
+        s["agent"],
+        f"{s['device']}, {s['threads']}",
+        f"{s['verified']}/{s['seeds']}",
+        f"{s['wall']:.1f} s",
+        f"{s['cpu_per_seed']:.2f}",
+        f"{s['rss_mb']:,.0f} MB",
+        f"{s['env_steps_per_s']:,.0f}",
+        f"{s['verified_per_min']:,.1f}",
+        f"{s['median_solve_step']:,.0f} ({s['solved_in_training']})",
+    ]
+
+
+def process_cells(s: dict[str, Any]) -> list[str]:
+    return [f"{s['process_cpu']:.2f} (of {s['processes']})", f"{s['process_cpu'] / s['cpu_per_seed']:.1f}x"]
+
+
+def single_cells(s: dict[str, Any]) -> list[str]:
+    runs = (
+        f"{s['singles_verified']}/{s['singles']}, {s['single_cpu']:.2f}, {s['single_median_solve_step']:,.0f}"
+    )
+    return [runs, f"{s['mann_whitney_p']:.3f}"]
+
+
+def table_of(summaries: list[dict[str, Any]]) -> Table:
+    """A row per agent; the columns of single runs and processes where they were measured."""
+    columns = [
+        "agent", "device, torch threads", "verified", "wall, start to last verdict",
+        "CPU s per seed (whole process)", "peak RSS", "env steps/s", "verified seeds/min",
+        "median solve step (solved in training)",
+    ]  # fmt: skip
+    processes = any("process_cpu" in s for s in summaries)
+    singles = any("single_cpu" in s for s in summaries)
+    if processes:
+        columns += ["CPU s per `cartpole train` process (median)", "less CPU than processes"]
+    if singles:
+        columns += ["single runs: verified, training CPU s (median), median solve step", "Mann-Whitney p"]
+    rows = []
+    for s in summaries:
+        row = population_cells(s)
+        if processes:
+            row += process_cells(s) if "process_cpu" in s else ["-", "-"]
+        if singles:
+            row += single_cells(s) if "single_cpu" in s else ["-", "-"]
+        rows.append(row)
+    return Table(columns, rows, summary={"agents": summaries})
 
 
 def main() -> None:
@@ -211,7 +241,8 @@ def main() -> None:
     parser.add_argument(
         "--agent",
         default="ppo",
-        help="any agent: ppo, a2c, reinforce, dqn, cem, random-search, hill-climbing",
+        help="any agent, or several comma-separated (a row each): ppo, a2c, reinforce, dqn, cem, "
+        "random-search, hill-climbing",
     )
     parser.add_argument("--preset", default="default")
     parser.add_argument("--first-seed", type=int, default=0, help="seeds FIRST..FIRST+N-1 (default 0)")
@@ -228,10 +259,10 @@ def main() -> None:
         help="where the population trains: cpu (default) or cuda (single runs stay on the CPU)",
     )
     parser.add_argument("--out", default="runs/population-benchmark", help="where each part's JSON is kept")
-    parser.add_argument("--report-only", action="store_true", help="print the table from --out's JSON files")
     parser.add_argument("--part", choices=["population", "singles", "processes"], help=argparse.SUPPRESS)
     parser.add_argument("--n", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--dir", help=argparse.SUPPRESS)
+    add_table_arguments(parser)
     args = parser.parse_args()
     if args.part:
         import torch
@@ -247,26 +278,26 @@ def main() -> None:
             result = run(args.agent, args.n, args.preset, Path(args.dir), args.first_seed)
         print(json.dumps(result))
         return
+    measurement = Measurement(args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    if args.report_only:
-        population = json.loads((out / "population.json").read_text())
-        kept_singles, kept_processes = out / "singles.json", out / "processes.json"
-        singles = json.loads(kept_singles.read_text()) if kept_singles.exists() else None
-        processes = json.loads(kept_processes.read_text()) if kept_processes.exists() else None
-        runs = len(singles["solved_at"]) if singles else 0
-        report(population, singles, processes, len(population["solved_at"]), runs)
-        return
-    threads = args.population_threads
-    first = args.first_seed
-    population = child("population", args.agent, args.seeds, args.preset, threads, out, args.device, first)
-    singles = None
-    if args.singles:
-        singles = child("singles", args.agent, args.singles, args.preset, threads, out, first=first)
-    processes = None
-    if args.processes:
-        processes = child("processes", args.agent, args.processes, args.preset, threads, out, first=first)
-    report(population, singles, processes, args.seeds, args.singles)
+    threads, first = args.population_threads, args.first_seed
+    summaries, parts = [], {}
+    for agent in [a.strip() for a in args.agent.split(",") if a.strip()]:
+        population = child("population", agent, args.seeds, args.preset, threads, out, args.device, first)
+        singles = None
+        if args.singles:
+            singles = child("singles", agent, args.singles, args.preset, threads, out, first=first)
+        processes = None
+        if args.processes:
+            processes = child("processes", agent, args.processes, args.preset, threads, out, first=first)
+        summaries.append(summarize(agent, population, singles, processes))
+        parts[agent] = {"population": population, "singles": singles, "processes": processes}
+    table = table_of(summaries)
+    table.results = parts
+    print(f"cpu: {describe_cpu()}")
+    print(table.markdown())
+    measurement.finish(table)
 
 
 if __name__ == "__main__":

@@ -42,6 +42,7 @@ os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
 import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
 from cpu import describe_cpu, pin_to_one_cpu  # noqa: E402
+from table_file import Measurement, Table, add_table_arguments  # noqa: E402
 
 from cartpole.envs.fast import CartPoleVectorEnv  # noqa: E402
 from cartpole.envs.pixels import (  # noqa: E402
@@ -131,39 +132,40 @@ def parse_size(text: str) -> tuple[int, int]:
     return int(height), int(width)
 
 
-def table(args: argparse.Namespace) -> None:
+def table(args: argparse.Namespace) -> Table:
     sizes = [parse_size(s) for s in args.sizes.split(",")]
     envs = [int(n) for n in args.envs.split(",")]
-    print(
-        "| frame size | N envs | renderer frames/s | pixel vector env steps/s (stack 4) | "
-        "state simulator steps/s |"
-    )
-    print("|---|---|---|---|---|")
+    rows, rates = [], []
     best_default = 0.0
     for size in sizes:
         for n in envs:
             r = measure(size, n, args.seconds, args.repeats)
+            rates.append({"size": list(size), "envs": n, **r})
             if size == DEFAULT_FRAME_SIZE:
                 best_default = max(best_default, r["render"])
-            print(
-                f"| {size[0]}x{size[1]} | {n:,} | {r['render']:.3g} | {r['pixel env']:.3g} | "
-                f"{r['state env']:.3g} |",
-                flush=True,
+            label = f"{size[0]}x{size[1]}" + (" (default)" if size == DEFAULT_FRAME_SIZE else "")
+            rows.append(
+                [label, f"{n:,}", f"{r['render']:.3g}", f"{r['pixel env']:.3g}", f"{r['state env']:.3g}"]
             )
+            print(" | ".join(rows[-1]), flush=True)
     size = sizes[0]
-    print(
-        f"\nGymnasium's CartPole-v1 render() + preprocess_frames at {size[0]}x{size[1]}, one frame at a "
-        f"time: {gymnasium_rate(size, args.seconds, args.repeats):.3g} frames/s"
-    )
+    gymnasium = gymnasium_rate(size, args.seconds, args.repeats)
+    notes = [
+        f"Gymnasium's CartPole-v1 `render()` + `preprocess_frames` at {size[0]}x{size[1]}, one frame at a "
+        f"time: {gymnasium:.3g} frames/s."
+    ]
     if best_default:
         verdict = "met" if best_default >= TARGET_FRAMES_PER_S else "NOT met"
-        print(
-            f"target >= {TARGET_FRAMES_PER_S:.0e} frames/s per core at {DEFAULT_FRAME_SIZE[0]}x"
-            f"{DEFAULT_FRAME_SIZE[1]}: {best_default:.3g} ({verdict})"
+        notes.append(
+            f"Target >= {TARGET_FRAMES_PER_S:.0e} frames/s per core at {DEFAULT_FRAME_SIZE[0]}x"
+            f"{DEFAULT_FRAME_SIZE[1]}: {best_default:.3g} ({verdict})."
         )
+    columns = ["frame size", "N envs", "renderer frames/s", "pixel vector env steps/s (stack 4)",
+               "state simulator steps/s"]  # fmt: skip
+    return Table(columns, rows, summary={"rates": rates, "gymnasium_frames_per_s": gymnasium}, notes=notes)
 
 
-def probe(args: argparse.Namespace) -> None:
+def probe(args: argparse.Namespace) -> Table:
     """Train one small CNN per frame size to read the state from two stacked frames."""
     import torch
     from torch import nn
@@ -192,12 +194,11 @@ def probe(args: argparse.Namespace) -> None:
     scale = np.array([2.4, 1.5, 0.21, 1.5])
     targets = torch.tensor(after / scale, dtype=torch.float32)
     n_val = len(after) // 5
-    print(
+    notes = [
         f"{len(after)} state pairs ({n_val} held out); a CNN per size, Adam on batches of 64 for "
-        f"{args.probe_seconds:g} CPU s; validation R^2 of x, x_dot, theta, theta_dot"
-    )
-    print("| frame size | pixels | Adam steps | R^2 x | R^2 x_dot | R^2 theta | R^2 theta_dot |")
-    print("|---|---|---|---|---|---|---|")
+        f"{args.probe_seconds:g} CPU s; validation R^2 of x, x_dot, theta, theta_dot."
+    ]
+    rows = []
     for size in sizes:
         renderer = PixelRenderer(size)
         frames = np.stack([renderer.render(before), renderer.render(after)], axis=1)
@@ -231,8 +232,11 @@ def probe(args: argparse.Namespace) -> None:
             predicted = net(inputs[:n_val])
         truth = targets[:n_val]
         r2 = 1 - ((predicted - truth) ** 2).mean(0) / truth.var(0)
-        cells = " | ".join(f"{v:.3f}" for v in r2.tolist())
-        print(f"| {size[0]}x{size[1]} | {size[0] * size[1]:,} | {steps:,} | {cells} |", flush=True)
+        rows.append([f"{size[0]}x{size[1]}", f"{size[0] * size[1]:,}", f"{steps:,}"])
+        rows[-1] += [f"{v:.3f}" for v in r2.tolist()]
+        print(" | ".join(rows[-1]), flush=True)
+    columns = ["frame size", "pixels", "Adam steps", "R^2 x", "R^2 x_dot", "R^2 theta", "R^2 theta_dot"]
+    return Table(columns, rows, notes=notes)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -246,7 +250,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--probe-sizes", default="30x100,24x80,20x80,40x60,48x72")
     parser.add_argument("--probe-samples", type=int, default=20000)
     parser.add_argument("--probe-seconds", type=float, default=60.0, help="CPU seconds per size")
+    add_table_arguments(parser)
     args = parser.parse_args(argv)
+    measurement = Measurement(args, [__file__, *(sys.argv[1:] if argv is None else argv)])
 
     pinned = pin_to_one_cpu(args.cpu)
     import numba
@@ -257,10 +263,9 @@ def main(argv: list[str] | None = None) -> int:
         f"python {platform.python_version()}, numpy {np.__version__}, numba {numba.__version__}, "
         f"gymnasium {gym.__version__}; best of {args.repeats} x {args.seconds} s of CPU time\n"
     )
-    if args.probe:
-        probe(args)
-    else:
-        table(args)
+    result = probe(args) if args.probe else table(args)
+    print(result.markdown())
+    measurement.finish(result)
     return 0
 
 

@@ -7,6 +7,7 @@ Usage (from the repository root)::
         --seeds 10 --sb3 dqn --max-seconds-per-run 600
     python benchmarks/time_to_solve.py --agents ppo,a2c,reinforce --seeds 10 --sb3 ppo,a2c
     python benchmarks/time_to_solve.py --agents ppo,dqn --seeds 3 --sb3 ppo,dqn --tianshou ppo,dqn
+    python benchmarks/time_to_solve.py --env Acrobot-v1 --agents cem,ppo:acrobot --seeds 5
 
 Each run is one fresh subprocess (so torch thread settings and imports of one run cannot speed up or
 slow down another) that calls :func:`cartpole.training.train` with the preset's own budget. Per run we
@@ -33,6 +34,9 @@ import tempfile
 import time
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
+
+from cpu import describe_cpu
+from table_file import Measurement, Table, add_table_arguments
 
 ALL_AGENTS = ("random-search", "hill-climbing", "cem", "dqn", "reinforce", "a2c", "ppo")
 SB3_AGENTS = ("dqn", "ppo", "a2c")
@@ -574,7 +578,16 @@ def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
     }  # fmt: skip
 
 
-def print_table(groups: dict[tuple[str, str], list[dict[str, Any]]], file: Any = sys.stdout) -> None:
+COLUMNS = [
+    "agent", "preset", "verified solves (final)", "solved in training", "median CPU s to solve",
+    "worst CPU s", "median wall s", "median env steps to solve", "worst env steps",
+    "final eval mean: min / median", "env steps/s", "gradient steps/s",
+]  # fmt: skip
+
+
+def table_of(groups: dict[tuple[str, str], list[dict[str, Any]]], env_id: str, jobs: int) -> Table:
+    """A row per (agent, preset); the summary keeps each group's figures for the README."""
+
     def num(value: float, spec: str) -> str:
         if value == float("inf"):
             return "never"
@@ -582,20 +595,20 @@ def print_table(groups: dict[tuple[str, str], list[dict[str, Any]]], file: Any =
             spec = ".2f"
         return format(value, spec)
 
-    header = ("| agent | preset | verified solves (final) | solved in training | median CPU s to solve "
-              "| worst CPU s | median wall s | median env steps to solve | worst env steps "
-              "| final eval mean: min / median | env steps/s | gradient steps/s |")  # fmt: skip
-    print(header, file=file)
-    print("|" + "---|" * (header.count("|") - 1), file=file)
-    for (agent, preset), rows in groups.items():
-        s = summarize(rows)
-        cells = [
+    rows, summaries = [], []
+    for (agent, preset), runs in groups.items():
+        s = summarize(runs)
+        summaries.append({"agent": agent, "preset": preset, **s})
+        rows.append([
             agent, preset, f"{s['final_solved']}/{s['seeds']}", f"{s['train_solved']}/{s['seeds']}",
             num(s["median_cpu"], ".1f"), num(s["worst_cpu"], ".1f"), num(s["median_wall"], ".1f"),
             num(s["median_steps"], ",.0f"), num(s["worst_steps"], ",.0f"),
             f"{s['final_min']:.2f} / {s['final_median']:.2f}", f"{s['sps']:,.0f}", _fmt(s["gps"], ",.0f"),
-        ]  # fmt: skip
-        print("| " + " | ".join(cells) + " |", file=file)
+        ])  # fmt: skip
+    notes = []
+    if jobs > 1:
+        notes.append(f"{jobs} runs at once, one torch thread each: CPU seconds include their contention.")
+    return Table(COLUMNS, rows, summary={"env": env_id, "groups": summaries}, notes=notes)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -654,7 +667,8 @@ def tianshou_tasks(
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--agents", default=",".join(ALL_AGENTS), help="comma-separated agent names")
+    parser.add_argument("--agents", default=",".join(ALL_AGENTS),
+                        help="comma-separated agent names; AGENT:PRESET runs that preset only")  # fmt: skip
     parser.add_argument("--presets", default="default",
                         help="comma-separated presets; each agent runs those it has (a .toml preset "
                              "file runs for every agent)")  # fmt: skip
@@ -682,6 +696,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", default=None,
                         help="also write every run's measurements here (after each run)")  # fmt: skip
     parser.add_argument("--one", default=None, help=argparse.SUPPRESS)
+    add_table_arguments(parser)
     args = parser.parse_args(argv)
 
     if args.one:  # child process: one measurement, printed as JSON
@@ -707,12 +722,18 @@ def main(argv: list[str] | None = None) -> int:
     from cartpole.agents.registry import get_agent
     from cartpole.training.config import resolve_config
 
+    measurement = Measurement(args, [__file__, *(sys.argv[1:] if argv is None else argv)])
     tasks: list[dict[str, Any]] = []
     seeds = range(args.first_seed, args.first_seed + args.seeds)
-    for agent in [a.strip() for a in args.agents.split(",") if a.strip()]:
+    for entry in [a.strip() for a in args.agents.split(",") if a.strip()]:
+        agent, _, own_preset = entry.partition(":")  # AGENT:PRESET runs that preset alone
         get_agent(agent)
-        for preset in [p.strip() for p in args.presets.split(",") if p.strip()]:
+        for preset in (
+            [own_preset] if own_preset else [p.strip() for p in args.presets.split(",") if p.strip()]
+        ):
             if not is_preset_file(preset) and preset not in preset_names(agent):
+                if own_preset:
+                    parser.error(f"{agent} has no preset {preset!r} (cartpole presets lists them)")
                 continue
             tasks += [{"agent": agent, "preset": preset, "seed": s, "max_seconds": args.max_seconds_per_run,
                        "env": args.env, "budget": args.budget} for s in seeds]  # fmt: skip
@@ -734,11 +755,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.tianshou:
         tasks += tianshou_tasks(parser, args, seeds)
 
-    print(f"# time_to_solve: {args.env}, {len(tasks)} runs, {platform.processor() or platform.machine()}, "
-          f"{os.cpu_count()} CPUs, python {platform.python_version()}", file=sys.stderr)  # fmt: skip
-    if args.jobs > 1:
-        print(f"# {args.jobs} runs at once, one torch thread each: CPU seconds include their contention",
-              file=sys.stderr)  # fmt: skip
+    print(f"# time_to_solve: {args.env}, {len(tasks)} runs, {describe_cpu()}, python "
+          f"{platform.python_version()}", file=sys.stderr)  # fmt: skip
     groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
     results = []
     with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
@@ -751,7 +769,10 @@ def main(argv: list[str] | None = None) -> int:
             if args.json:
                 with open(args.json, "w") as handle:
                     json.dump(results, handle, indent=1)
-    print_table(groups)
+    table = table_of(groups, args.env, args.jobs)
+    table.results = results
+    print(table.markdown())
+    measurement.finish(table)
     return 0
 
 

@@ -21,8 +21,6 @@ import argparse
 import asyncio
 import contextlib
 import json
-import os
-import platform
 import socket
 import statistics
 import subprocess
@@ -34,6 +32,8 @@ from pathlib import Path
 import httpx
 import numpy as np
 import websockets
+from cpu import describe_cpu
+from table_file import Measurement, Table, add_table_arguments
 
 from cartpole.runs import RunDir
 from cartpole.training import train
@@ -180,8 +180,9 @@ def main() -> None:
         default=10.0,
         help="ms between a session's steps: 20 is real time, 10 (default) is 2x, 0 is back to back",
     )
+    add_table_arguments(parser)
     args = parser.parse_args()
-    load_before = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
+    measurement = Measurement(args)
 
     with tempfile.TemporaryDirectory() as tmp:
         runs_dir = Path(tmp)
@@ -209,26 +210,24 @@ def main() -> None:
         finally:
             server.terminate()
             server.wait(timeout=10)
-    print_table(rows, args.pace_ms, load_before)
+    table = table_of(rows, args.pace_ms)
+    print(f"cartpole web latency on {describe_cpu()}, localhost")
+    print(table.markdown())
+    measurement.finish(table)
 
 
-def print_table(
-    rows: list[tuple[str, int, list[float], float | None]], pace_ms: float, load_before: float | None
-) -> None:
-    machine = platform.processor() or platform.machine()
-    load = ""
-    if load_before is not None:
-        load = f", load average {load_before:.2f} before, {os.getloadavg()[0]:.2f} after"
-    print(f"cartpole web latency on {platform.node()} ({machine}, {os.cpu_count()} CPUs{load}), localhost")
-    header = f"{'measure':<38} {'n':>6} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} {'target':>10}"
-    print(header)
-    print("-" * len(header))
+def table_of(rows: list[tuple[str, int, list[float], float | None]], pace_ms: float) -> Table:
+    """A row per measure: count, p50, p99 and max milliseconds, and the target where there is one."""
+    cells, summary = [], []
     for name, n, times, target in rows:
         p50, p99 = percentile(times, 50), percentile(times, 99)
-        verdict = "" if target is None else f"{'ok' if p99 <= target else 'MISS'} <={target:g}"
-        print(f"{name:<38} {n:>6} {p50:>8.2f} {p99:>8.2f} {max(times):>8.2f} {verdict:>10}")
+        verdict = "" if target is None else f"p99 <= {target:g}: {'ok' if p99 <= target else 'MISSED'}"
+        cells.append([name.strip(), f"{n:,}", f"{p50:.2f}", f"{p99:.2f}", f"{max(times):.2f}", verdict])
+        summary.append({"measure": name.strip(), "n": n, "p50_ms": p50, "p99_ms": p99, "target_ms": target})
     pace = f"one step every {pace_ms:g} ms per session" if pace_ms else "steps sent back to back"
-    print(f"(play: {pace}; mean round-trip of 1 session {statistics.mean(rows[0][2]):.2f} ms)")
+    notes = [f"Play: {pace}; the mean round-trip of 1 session {statistics.mean(rows[0][2]):.2f} ms."]
+    columns = ["measure", "n", "p50 ms", "p99 ms", "max ms", "target"]
+    return Table(columns, cells, summary={"rows": summary}, notes=notes)
 
 
 if __name__ == "__main__":

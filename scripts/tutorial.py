@@ -22,7 +22,10 @@ NOTEBOOK = Path(__file__).resolve().parents[1] / "docs" / "tutorial.ipynb"
 REPLAY = NOTEBOOK.parent / "images" / "tutorial-replay.gif"
 GIF_IN_HTML = re.compile(r"data:image/gif;base64,([A-Za-z0-9+/=]+)")
 TIMEOUT_S = 600
-"""The most one cell may take (the whole notebook takes about three minutes on two cores)."""
+"""The most one cell may take."""
+MAX_SECONDS = 300
+"""The most the whole notebook may take, top to bottom in a fresh kernel: what the README and the
+notebook promise ("in under five minutes"), and what ``tests/test_tutorial.py`` checks."""
 
 
 def execute(path: Path = NOTEBOOK, workdir: Path | None = None) -> Any:
@@ -60,7 +63,8 @@ def main() -> int:
 
     start = time.perf_counter()
     notebook = execute()
-    print(f"{NOTEBOOK.name}: ran top to bottom in {time.perf_counter() - start:.0f} s")
+    wall = time.perf_counter() - start
+    print(f"{NOTEBOOK.name}: ran top to bottom in {wall:.0f} s (promised: at most {MAX_SECONDS} s)")
     if args.write:
         nbformat.write(notebook, NOTEBOOK)
         print(f"wrote its outputs into {NOTEBOOK}")

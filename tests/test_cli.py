@@ -112,8 +112,8 @@ def test_help_prints_its_text_as_written(command, capsys):
 
 
 def test_the_parser_imports_no_database_or_web_library():
-    """Every command builds the whole parser first: SQLAlchemy (0.2 s), Optuna and FastAPI wait for the
-    commands that use them."""
+    """Every command builds the whole parser first: SQLAlchemy, Optuna and FastAPI (slow imports) wait
+    for the commands that use them."""
     code = (
         "import sys\nfrom cartpole.cli.main import build_parser\nbuild_parser()\n"
         "print(sorted(m for m in ('sqlalchemy', 'optuna', 'fastapi', 'matplotlib') if m in sys.modules))"

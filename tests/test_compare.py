@@ -100,11 +100,12 @@ def test_compare_reports_resumes_and_adds_seeds(tmp_path):
 
 @pytest.mark.slow
 def test_ctrl_c_stops_every_worker_and_a_rerun_resumes(tmp_path):
-    # Hill climbing with a tiny step keeps training to its 6-second budget; latest.pt every generation.
+    # Hill climbing with a tiny step keeps training to its 15-second budget; latest.pt every generation.
+    # (The budget leaves a loaded machine time to start both workers before either run ends.)
     preset = tmp_path / "slow.toml"
     preset.write_text("noise = 0.0001\nstop_when_solved = false\ncheckpoint_every = 1\n")
     runs_dir = tmp_path / "runs"
-    args = ["compare", f"hill-climbing:{preset}", "--seeds", "2", "--jobs", "2", "--budget", "6s",
+    args = ["compare", f"hill-climbing:{preset}", "--seeds", "2", "--jobs", "2", "--budget", "15s",
             "--name", "c", "--runs-dir", str(runs_dir)]  # fmt: skip
     process = subprocess.Popen(
         [sys.executable, "-m", "cartpole", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
@@ -217,3 +218,26 @@ def test_help_is_complete(command, capsys):
         main([command, "--help"])
     assert exit_info.value.code == 0
     assert f"usage: cartpole {command}" in capsys.readouterr().out
+
+
+def test_a_worker_trains_on_the_clis_torch_thread_count(tmp_path, monkeypatch):
+    """A compare worker is a process of its own: it trains on `cartpole train`'s default thread count
+    (one on state observations), not on torch's one per core, which with --jobs 2 would oversubscribe."""
+    import torch
+
+    from cartpole.experiments import processes, worker
+
+    seen: list[int] = []
+
+    def spy(task: worker.Task) -> dict:
+        seen.append(torch.get_num_threads())
+        return {"state": worker.FINISHED}
+
+    monkeypatch.setattr(worker, "run_task", spy)
+    monkeypatch.setattr(processes, "stop_when_orphaned", lambda: None)
+    record = str(tmp_path / "record.json")
+    task = worker.Task("cem", "default", 0, "CartPole-v1", "2gen", str(tmp_path), record, [])
+    (tmp_path / "task.json").write_text(json.dumps(task.__dict__))
+    torch.set_num_threads(3)
+    assert worker.main([str(tmp_path / "task.json")]) == 0
+    assert seen == [1] and torch.get_num_threads() == 3

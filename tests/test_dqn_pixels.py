@@ -53,6 +53,7 @@ VARIANTS = [
 ]
 
 
+@pytest.mark.independence
 @pytest.mark.parametrize("changes", VARIANTS)
 def test_a_pixel_seed_alone_is_bit_identical_to_the_seed_in_a_population(changes):
     alone, among = population([4], **changes), population([9, 4], **changes)

@@ -138,8 +138,8 @@ def test_resume_mid_episode_continues_the_episodes_in_progress(
 
 
 def test_a_checkpoint_of_the_earlier_layout_resumes_the_same_episodes() -> None:
-    """Until 2026-11-27 a DQN checkpoint kept its envs' state at the top level of its metadata and
-    its observations as ``envs.observations``; such a checkpoint resumes as one of today's does."""
+    """A DQN checkpoint of the earlier layout kept its envs' state at the top level of its metadata
+    and its observations as ``envs.observations``; such a checkpoint resumes as one of today's does."""
     config, env = small_config(num_envs=2, learning_starts=50), env_info("CartPole-v1")
     first = one_seed(DQN, config, env, 2, "cpu")
     episodes_of(first, 75)

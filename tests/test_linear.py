@@ -14,19 +14,6 @@ from cartpole.training import train
 AGENTS = ["random-search", "hill-climbing", "cem"]
 
 
-@pytest.mark.learning
-@pytest.mark.parametrize("agent", AGENTS)
-def test_each_linear_agent_solves_cartpole_on_most_seeds(agent, tmp_path):
-    """A verified solve (100 fresh episodes, mean >= 475) within 40 generations on 2 of 3 seeds:
-    a statistic over seeds, not one seed's path (float sums differ between CPUs)."""
-    solved = []
-    for seed in (0, 1, 2):
-        outcome = train(agent, "CartPole-v1", seed=seed, runs_dir=tmp_path, budget="40gen")
-        assert outcome.report is not None
-        solved.append(outcome.report.solved and outcome.state.solved)
-    assert sum(solved) >= 2, solved
-
-
 @pytest.mark.parametrize("agent", AGENTS)
 def test_same_seed_same_result(agent, tmp_path):
     first = train(agent, seed=11, runs_dir=tmp_path / "a", budget="2gen", stop_when_solved=False)

@@ -10,8 +10,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 import cartpole
+import cartpole.training
 from cartpole.evaluation import EvalReport, evaluate
 from cartpole.notebook import Animation, Plot, Run
 from cartpole.notebook.animation import ShowError
@@ -48,6 +50,47 @@ def player_data(animation: Animation) -> dict:
 
 
 # -- a run -----------------------------------------------------------------------------------------
+
+
+class StopHere(Exception):
+    pass
+
+
+def spy_on_training(monkeypatch: pytest.MonkeyPatch, *, fail: bool) -> list[int]:
+    """The torch thread count each training of ``cartpole.train`` starts with (and, with ``fail``, a
+    training that raises at once)."""
+    seen: list[int] = []
+    real = cartpole.training.train
+
+    def spy(*args, **kwargs):
+        seen.append(torch.get_num_threads())
+        if fail:
+            raise StopHere
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(cartpole.training, "train", spy)
+    return seen
+
+
+def test_train_computes_on_one_torch_thread_and_gives_the_callers_count_back(monkeypatch, tmp_path):
+    """As `cartpole train` does on state observations: one thread while training (a busy core
+    stalls no other thread), and the notebook's own setting again after."""
+    seen = spy_on_training(monkeypatch, fail=False)
+    torch.set_num_threads(3)
+    run = cartpole.train("cem", seed=0, runs_dir=tmp_path, progress=False, budget="2gen")
+    assert seen == [1] and torch.get_num_threads() == 3
+    assert run.report is not None
+
+
+@pytest.mark.parametrize(("env_id", "during"), [("CartPole-v1", 1), ("cartpole/CartPolePixels-v1", 3)])
+def test_train_gives_the_callers_thread_count_back_when_training_fails(env_id, during, monkeypatch, tmp_path):
+    """On images the count is left as it is (a conv net keeps every core busy), as the CLI leaves it;
+    either way the caller's count is back after an exception."""
+    seen = spy_on_training(monkeypatch, fail=True)
+    torch.set_num_threads(3)
+    with pytest.raises(StopHere):
+        cartpole.train("dqn", env_id, runs_dir=tmp_path, progress=False)
+    assert seen == [during] and torch.get_num_threads() == 3
 
 
 def test_train_returns_a_run_that_shows_its_verdict(tmp_path: Path) -> None:

@@ -105,6 +105,7 @@ TINY_CONFIGS = {
 }
 
 
+@pytest.mark.independence
 @pytest.mark.parametrize("agent", sorted(TINY_CONFIGS))
 def test_a_pixel_seed_alone_is_bit_identical_to_the_seed_in_a_population(agent):
     spec, env = get_agent(agent), env_info(PIXELS)
@@ -309,5 +310,5 @@ def test_pictures_are_drawn_by_as_many_processes_as_torch_threads_at_most_four()
     assert MAX_PICTURE_WORKERS == 4
     torch.set_num_threads(3)
     assert picture_workers() == 3
-    torch.set_num_threads(16)  # each worker holds ~170 MB of imports: a big machine gets 4, not 16
+    torch.set_num_threads(16)  # each worker holds its own imports: a big machine gets 4, not 16
     assert picture_workers() == 4

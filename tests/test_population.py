@@ -118,6 +118,7 @@ def test_parse_seeds_refuses_bad_input(text):
 # -- independence -----------------------------------------------------------------------------------
 
 
+@pytest.mark.independence
 @pytest.mark.parametrize("agent", ACTOR_CRITICS)
 def test_a_seed_does_not_depend_on_its_neighbours(agent):
     with_5 = small_population(agent, [3, 5])
@@ -131,6 +132,7 @@ def test_a_seed_does_not_depend_on_its_neighbours(agent):
     )
 
 
+@pytest.mark.independence
 @pytest.mark.parametrize("agent", ACTOR_CRITICS)
 def test_with_two_threads_a_seed_still_does_not_depend_on_its_neighbours(agent):
     """``cartpole train --seeds`` uses every core; torch then splits the batched work between threads,
@@ -147,6 +149,7 @@ def test_with_two_threads_a_seed_still_does_not_depend_on_its_neighbours(agent):
         torch.set_num_threads(threads)
 
 
+@pytest.mark.independence
 @pytest.mark.parametrize("agent", ACTOR_CRITICS)
 def test_removing_a_stopped_seed_leaves_the_others_unchanged(agent):
     three = small_population(agent, [3, 5, 7])
@@ -301,6 +304,7 @@ def test_networks_that_autograd_differentiates():
     assert not small_population("ppo", [1], activation="elu").model.by_hand
 
 
+@pytest.mark.independence
 def test_reinforce_batches_start_where_the_seed_alone_starts_them():
     config = ReinforceConfig(**REINFORCE_SMALL)  # type: ignore[arg-type]
     population, alone = small_population("reinforce", [2, 5]), small_population("reinforce", [5])
@@ -320,17 +324,6 @@ def test_reinforce_batches_are_one_whole_episode_per_env():
         for result in results.values():
             assert len(result.episode_lengths) == REINFORCE_SMALL["num_envs"]
             assert result.env_steps == sum(result.episode_lengths)
-
-
-@pytest.mark.slow
-@pytest.mark.learning
-@pytest.mark.parametrize(("agent", "needed"), [("ppo", 5), ("a2c", 5), ("reinforce", 4), ("cem", 5)])
-def test_a_population_verifiably_solves_as_its_single_runs_do(agent, needed, tmp_path):
-    """Seeds 100-105 of the default preset in one population: as the single runs of these agents
-    (10/10 seeds in benchmarks/time_to_solve.py), most verifiably solve within their budgets."""
-    outcome = train_population(agent, list(range(100, 106)), runs_dir=tmp_path)
-    solved = sum(report.solved for report in outcome.reports.values())
-    assert solved >= needed, f"{agent}: {solved}/6 verified solves"
 
 
 @pytest.mark.parametrize(
@@ -384,6 +377,7 @@ def test_each_seed_leaves_an_ordinary_run_folder(population_runs):
     assert load_policy(run).act(torch.zeros(3, 4).numpy()).shape == (3,)
 
 
+@pytest.mark.independence
 def test_seed_3_has_the_same_run_beside_5_or_7(population_runs):
     a, b = population_runs["a"][3], population_runs["b"][3]
     assert metric_rows(a) == metric_rows(b)
@@ -419,6 +413,7 @@ def test_tensorboard_gives_each_seed_its_own_events(tmp_path):
 # -- evaluations played together --------------------------------------------------------------------
 
 
+@pytest.mark.independence
 def test_evaluations_played_together_are_each_seeds_own():
     """The due seeds' screens (and full evaluations where the screen passes) played in one batch give
     each seed the report its own screened evaluation gives."""
@@ -550,14 +545,20 @@ def test_sigint_saves_every_seed_and_resume_continues_them_all(tmp_path):
         assert (run / "eval.json").exists()
 
 
-@pytest.mark.parametrize(("agent", "budget", "rollout"), [("ppo", 200_000, 8 * 16), ("dqn", 60_000, 8)])
+SMALL_DQN = ["--set", "hidden_sizes=16,16", "--set", "batch_size=32"]
+"""A DQN whose gradient steps cost little: what these tests check is the crash safety, not learning."""
+
+
+@pytest.mark.parametrize(
+    ("agent", "budget", "rollout", "settings"), [("ppo", 200_000, 8 * 16, []), ("dqn", 60_000, 8, SMALL_DQN)]
+)
 def test_kill_9_loses_at_most_one_checkpoint_interval_and_resume_finishes_every_seed(
-    agent, budget, rollout, tmp_path
+    agent, budget, rollout, settings, tmp_path
 ):
     """Budgets that keep the population training when its rows first show (5 s); ``rollout``: the
     env steps of one learning step, by which a save can land past its interval."""
     runs_dir = tmp_path / "runs"
-    args = ["train", agent, "--seeds", "0-2", "--budget", str(budget), "--no-stop-when-solved"]
+    args = ["train", agent, "--seeds", "0-2", "--budget", str(budget), "--no-stop-when-solved", *settings]
     process = subprocess.Popen(
         [sys.executable, "-m", "cartpole", *args, "--runs-dir", str(runs_dir), "--quiet"],
         stdout=subprocess.PIPE,

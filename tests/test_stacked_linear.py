@@ -54,6 +54,29 @@ def test_a_seed_s_gradients_do_not_depend_on_the_others() -> None:
         assert torch.equal(ours, theirs)
 
 
+@pytest.mark.parametrize(("inputs", "outputs"), [(6, 16), (4, 16), (16, 64), (64, 16), (64, 2), (64, 1)])
+def test_on_two_threads_a_lone_seed_gets_the_bits_it_gets_among_others(inputs: int, outputs: int) -> None:
+    """A batch of one goes to a threaded single matrix product, several to a batched one: a first
+    layer's weight gradient with 6 inputs differs between the two on any CPU, with 4 under MKL's
+    AVX2 code (``MKL_CBWR=AVX2``), unless the lone seed is multiplied as one of a batch."""
+    torch.set_num_threads(2)  # conftest's autouse fixture sets one thread again for the next test
+    generator = torch.Generator().manual_seed(inputs * 100 + outputs)
+    seeds, batch = 3, 128
+    shapes = ((seeds, batch, inputs), (seeds, outputs, inputs), (seeds, outputs), (seeds, batch, outputs))
+    x, weight, bias, upstream = (torch.randn(*shape, generator=generator) for shape in shapes)
+
+    def seed_0(rows: int) -> list[torch.Tensor]:
+        leaves = [t[:rows].clone().requires_grad_(True) for t in (x, weight, bias)]
+        out = stacked_linear(*leaves)
+        (out * upstream[:rows]).sum().backward()
+        return [out.detach()[0], *[leaf.grad[0] for leaf in leaves if leaf.grad is not None]]
+
+    alone, among = seed_0(1), seed_0(seeds)
+    assert len(alone) == 4
+    for ours, theirs in zip(alone, among, strict=True):
+        assert torch.equal(ours, theirs)
+
+
 def test_inputs_that_need_no_gradient_get_none() -> None:
     x = torch.randn(2, 3, 4)  # observations: no gradient wanted
     weight = torch.randn(2, 5, 4, requires_grad=True)

@@ -196,11 +196,12 @@ def test_ctrl_c_leaves_the_study_consistent_and_a_rerun_finishes_it(tmp_path):
     import signal
     import time
 
+    # 15 s of training each: time for a loaded machine to start both workers before either trial ends.
     preset = write(tmp_path / "slow.toml", "stop_when_solved = false\ncheckpoint_every = 1\n")
     space = write(tmp_path / "space.toml", "[noise]\nlow = 0.0001\nhigh = 0.0002\n")
     runs_dir = tmp_path / "runs"
     args = ["sweep", "hill-climbing", "--preset", preset, "--space", space, "--trials", "2",
-            "--workers", "2", "--seeds-per-trial", "1", "--study", "c", "--budget", "5s",
+            "--workers", "2", "--seeds-per-trial", "1", "--study", "c", "--budget", "15s",
             "--runs-dir", str(runs_dir)]  # fmt: skip
     process = subprocess.Popen(
         [sys.executable, "-m", "cartpole", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
@@ -222,3 +223,25 @@ def test_ctrl_c_leaves_the_study_consistent_and_a_rerun_finishes_it(tmp_path):
     again = run_cli(*args)
     assert again.returncode == 0, again.stderr
     assert len(finished(load(folder, "c"))) == 2
+
+
+def test_a_worker_trains_on_the_clis_torch_thread_count(tmp_path, monkeypatch):
+    """A sweep worker is a process of its own: it trains on `cartpole train`'s default thread count
+    (one on state observations), not on torch's one per core."""
+    import torch
+
+    from cartpole.experiments import processes, sweep
+
+    seen: list[int] = []
+
+    def spy(spec: sweep.SweepSpec) -> int:
+        seen.append(torch.get_num_threads())
+        return 0
+
+    monkeypatch.setattr(sweep, "run_worker", spy)
+    monkeypatch.setattr(processes, "stop_when_orphaned", lambda: None)
+    spec = sweep.SweepSpec("s", "cem", "default", "CartPole-v1", "2gen", 1, 1, "", None, str(tmp_path))
+    (tmp_path / "spec.json").write_text(json.dumps(spec.__dict__))
+    torch.set_num_threads(3)
+    assert sweep.main([str(tmp_path / "spec.json")]) == 0
+    assert seen == [1] and torch.get_num_threads() == 3

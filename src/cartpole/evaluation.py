@@ -25,7 +25,7 @@ MIN_EPISODES_FOR_SOLVED = 100
 
 MAX_EPISODES = 1_000_000
 """The most episodes one evaluation plays: its report keeps every episode's seed, return and length
-(about 100 MB at this count), and CartPole's 500 steps each make it minutes of play already."""
+(three numbers an episode), and CartPole's 500 steps each make it minutes of play already."""
 
 MAX_ENVS_PER_BATCH = 1000
 
@@ -211,8 +211,9 @@ def play_greedy_blocks(
     episodes, ``act`` is asked only for the blocks still playing, so a policy whose episodes end
     early costs no more forward passes than it would alone. The returns and lengths ``[n]``.
 
-    ``workers`` > 1: Gymnasium's pictures (a pixel env on ``"gymnasium"``, ~3 ms a step) are drawn
-    by that many processes (:func:`~cartpole.envs.make_eval_envs`); the episodes are the same."""
+    ``workers`` > 1: Gymnasium's pictures (a pixel env on ``"gymnasium"``, slow to draw: see
+    benchmarks/README.md#renderer) are drawn by that many processes
+    (:func:`~cartpole.envs.make_eval_envs`); the episodes are the same."""
     n = len(seeds)
     if n % block_size:
         raise ValueError(f"{n} episodes do not split into blocks of {block_size}")

@@ -146,20 +146,20 @@ def configure_process(torch_threads: int, seed: int) -> None:
     torch.manual_seed(seed)
 
 
-def default_torch_threads(args: argparse.Namespace) -> int:
-    """1 (one thread: the least CPU for small networks), or 0 (one per core) where the run's agent
-    sees images: the env asked for, or the one recorded in the run folder being resumed."""
+def torch_threads_for(args: argparse.Namespace) -> int:
+    """Training's default thread count (:func:`cartpole.training.threads.default_torch_threads`) for
+    the env asked for, or the one recorded in the run folder being resumed."""
     from pathlib import Path
 
     from cartpole.core.errors import InputError
-    from cartpole.envs import env_info
     from cartpole.runs import RunDir
+    from cartpole.training.threads import default_torch_threads
 
     try:
         env_id = RunDir.open(Path(args.resume)).config()["env_id"] if args.resume else args.env
-        return 0 if env_info(env_id).is_image else 1
-    except InputError:  # a bad run folder or env id is reported, in one line, when the run starts
+    except InputError:  # a bad run folder is reported, in one line, when the run starts
         return 1
+    return default_torch_threads(env_id)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -172,7 +172,7 @@ def run(args: argparse.Namespace) -> int:
     if args.from_scratch and not args.resume:
         raise UsageError("--from-scratch goes with --resume RUN_DIR (a new run always starts from scratch)")
     population = args.seeds is not None or bool(args.resume and is_population_run(args.resume))
-    threads = default_torch_threads(args) if args.torch_threads is None else args.torch_threads
+    threads = torch_threads_for(args) if args.torch_threads is None else args.torch_threads
     configure_process(threads, args.seed)
     console = Console(soft_wrap=True)
     if population:

@@ -25,9 +25,8 @@ degree, and one step's motion of cart or pole tip (0.2-2 screen pixels at typica
 gray levels. The full screen at a similar pixel count (40x60, 48x72) spends 55% of its pixels on
 rows that are always white and draws the pole 1 pixel wide (40x60). ``python
 benchmarks/renderer.py --probe`` trains one small CNN per size, for the same CPU time, to read the
-state from two stacked frames: the cropped sizes (30x100, 24x80, 20x80) read the angle best
-(R^2 0.981-0.986, against 0.976 for 40x60 and 0.982 for 48x72), 30x100 at least as well as the
-smaller crops (one seed: the differences among crops are within noise). 30x100 also has a whole
+state from two stacked frames: the crops around the scene read the angle at least as well as the
+whole screen, and among the crops the differences are within one seed's noise. 30x100 also has a whole
 number of screen pixels per output pixel, so its box average is Pillow's too. Four frames give
 velocities (differences) and accelerations (second differences), as in DQN's Atari stack.
 
@@ -39,8 +38,8 @@ width/height between 1.5 (the whole screen) and 4 (150 rows around the scene); `
 
 :class:`PixelRenderer` draws states ``[N, 4]`` straight at the small size, without drawing the
 600x400 picture: each output pixel gets the areas of the cart, pole, axle and line that fall in it
-(see :mod:`cartpole.envs._pixel_kernels`; numba, compiled on first use and cached on disk), about
-3 microseconds a frame at 30x100 on one core (``benchmarks/renderer.py``). Against Gymnasium's own
+(see :mod:`cartpole.envs._pixel_kernels`; numba, compiled on first use and cached on disk), far
+faster than Gymnasium's drawing (benchmarks/README.md#renderer). Against Gymnasium's own
 pictures through :func:`preprocess_frames`, at 30x100 on random states: 0.02 gray levels apart on
 average (0.25 over the pixels that are not plain background), at most 9 levels within the
 termination bounds and 12 beyond them, on edges: pygame's anti-aliased outlines are modelled, not

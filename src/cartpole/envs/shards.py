@@ -73,7 +73,7 @@ def _answer(envs: list[gym.Env[Any, Any]], command: str, payload: Any) -> Any:
 def step_playing(envs: Sequence[gym.Env[Any, Any]], actions: np.ndarray, playing: np.ndarray) -> Steps:
     """Step only the envs that are ``playing``, one at a time (as ``SyncVectorEnv.step`` steps them,
     without its autoreset): those that ended stand still, which saves what their steps would cost
-    (Gymnasium's pictures: ~3 ms a step)."""
+    (Gymnasium's pictures are slow to draw: benchmarks/README.md#renderer)."""
     steps = {i: envs[i].step(actions[i]) for i in map(int, np.flatnonzero(playing))}
     return {
         i: (observation, float(reward), bool(ended), bool(cut))

@@ -426,13 +426,16 @@ class SweepFailed(Exception):
 
 
 def main(argv: list[str]) -> int:
-    """Worker entry: ``python -m cartpole.experiments.sweep SWEEP.json``."""
+    """Worker entry: ``python -m cartpole.experiments.sweep SWEEP.json``, training on ``cartpole
+    train``'s default torch thread count."""
     from cartpole.experiments.processes import stop_when_orphaned
+    from cartpole.training.threads import default_torch_threads, torch_threads
 
     stop_when_orphaned()
-    data = json.loads(Path(argv[0]).read_text(encoding="utf-8"))
+    spec = SweepSpec(**json.loads(Path(argv[0]).read_text(encoding="utf-8")))
     try:
-        return run_worker(SweepSpec(**data))
+        with torch_threads(default_torch_threads(spec.env_id)):
+            return run_worker(spec)
     except ExperimentError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

@@ -234,13 +234,17 @@ def make_population_record(
 
 
 def main(argv: list[str]) -> int:
-    """Run the task in ``argv[0]``; exit 0 when finished, 130 when interrupted."""
+    """Run the task in ``argv[0]`` on ``cartpole train``'s default torch thread count; exit 0 when
+    finished, 130 when interrupted."""
     from cartpole.core.errors import InputError
     from cartpole.experiments.processes import stop_when_orphaned
+    from cartpole.training.threads import default_torch_threads, torch_threads
 
     stop_when_orphaned()
+    task = Task.load(Path(argv[0]))
     try:
-        record = run_task(Task.load(Path(argv[0])))
+        with torch_threads(default_torch_threads(task.env_id)):
+            record = run_task(task)
     except InputError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

@@ -35,7 +35,8 @@ MAX_EPISODES = 20
 """The most episodes one animation holds (each is kept in the notebook)."""
 
 GIF_WIDTH = 300
-"""Pixels across of a GIF's frames (Gymnasium renders 600): a 500-step episode stays near 1 MB."""
+"""Pixels across of a GIF's frames (Gymnasium renders 600): small enough that a 500-step episode
+embeds in a notebook."""
 
 GIF_MAX_FPS = 25
 """A GIF keeps at most this many frames a second of play (every other frame of CartPole's 50)."""

@@ -140,21 +140,24 @@ def train(
 
     ``settings`` override the preset's, as ``--set`` does (``train("dqn", lr=1e-3)``); ``budget`` as
     ``--budget`` ("50k" env steps, "300ep", "20gen", "90s"). ``progress``: a progress bar in a
-    notebook, plain lines elsewhere.
+    notebook, plain lines elsewhere. torch computes with ``cartpole train``'s default thread count
+    while it trains (one thread on state observations), and with the caller's again after.
     """
     from cartpole.training import train as train_run
+    from cartpole.training.threads import default_torch_threads, torch_threads
 
-    outcome = train_run(
-        agent,
-        env,
-        seed=seed,
-        preset=preset,
-        overrides=settings or None,
-        budget=budget,
-        runs_dir=runs_dir,
-        device=device,
-        quiet=not progress,
-    )
+    with torch_threads(default_torch_threads(env)):
+        outcome = train_run(
+            agent,
+            env,
+            seed=seed,
+            preset=preset,
+            overrides=settings or None,
+            budget=budget,
+            runs_dir=runs_dir,
+            device=device,
+            quiet=not progress,
+        )
     return Run(outcome.run.path)
 
 

@@ -67,7 +67,7 @@ class Checkpoint:
 
 def save_checkpoint(path: Path, checkpoint: Checkpoint) -> None:
     """Write ``checkpoint`` to ``path`` atomically, stamping format and package version."""
-    import torch  # imported here: torch takes ~1.5 s to import and most commands never need it
+    import torch  # imported here: torch's import takes seconds and most commands never need it
 
     meta = {"format": FORMAT, "format_version": FORMAT_VERSION, "package_version": __version__}
     meta.update(checkpoint.meta)

@@ -354,9 +354,8 @@ def final_verdicts(members: list[Member]) -> tuple[dict[int, EvalReport], dict[i
 
 
 MAX_PICTURE_WORKERS = 4
-"""The most processes that draw Gymnasium's pictures in one evaluation: each holds about 170 MB of
-imports (numba's compiler among them) and 2 MB an env, and four already draw a 100-episode verdict
-in well under a minute."""
+"""The most processes that draw Gymnasium's pictures in one evaluation: each holds its own imports
+(numba's compiler among them) and envs, so more would cost memory that a few already save little of."""
 
 
 def picture_workers() -> int:

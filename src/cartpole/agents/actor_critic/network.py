@@ -55,9 +55,9 @@ CONV_LAYERS: tuple[tuple[int, int, int], ...] = ((16, 8, 4), (32, 3, 1))
 """(filters, kernel size, stride) of the convolutional layers of an image trunk, each followed by a
 ReLU, no padding. Small on purpose: a 4x30x100 frame stack becomes 16x6x24 then 32x4x22 (2,816
 features), about 1.2 M multiply-adds a frame with the first hidden layer, cheap enough to train on
-a CPU (a 256-row forward and backward pass: ~45 ms on one core, against ~110 ms for 5x5 stride 2
-then 3x3 stride 2). The 8x8 windows overlap by half, so the pole's edges (1.7 pixels wide) and
-their motion across the stacked frames still show in every window's gray levels."""
+a CPU (``benchmarks/kernels.py --pixels`` times the trunk). The 8x8 windows overlap by half, so the
+pole's edges (1.7 pixels wide) and their motion across the stacked frames still show in every
+window's gray levels."""
 
 
 def conv_output_size(obs_shape: Sequence[int]) -> int:

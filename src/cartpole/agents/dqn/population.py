@@ -41,7 +41,9 @@ torch's kernels would otherwise betray a seed's position in the batch:
   parameters are padded, minibatches and acting batches have a multiple of :data:`ALIGN` rows): no
   seed's elements ever fall into the scalar tail.
 - A value head (one output) multiplies in the orientation whose bits do not depend on the number
-  of seeds (:func:`~cartpole.agents.nn.stacked_linear.linear_forward`), so a lone seed needs no company.
+  of seeds (:func:`~cartpole.agents.nn.stacked_linear.linear_forward`), so a lone seed needs no company
+  (but on several torch threads, where every product of a lone seed runs as a batch of two: see
+  :mod:`~cartpole.agents.nn.stacked_linear`).
 
 Image networks (:class:`~cartpole.agents.dqn.q_network.QNetwork` with a convolutional trunk)
 run their convolutions one ``conv2d`` per seed

@@ -8,8 +8,8 @@ small beside a frame stack's convolution.
 
 Each call takes its images channels-last (:func:`channels_last`: the channels of a pixel side by
 side in memory, ``torch.channels_last`` for each seed): on a CPU, torch's convolutions of these few
-channels run several times faster that way in the backward pass of the 8x8 stride-4 layer, and a
-pixel PPO update about a third faster (``benchmarks/kernels.py``).
+channels run faster that way, the backward pass of the 8x8 stride-4 layer most
+(``benchmarks/kernels.py --pixels`` times both layouts).
 """
 
 from __future__ import annotations

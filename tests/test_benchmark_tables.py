@@ -1,0 +1,68 @@
+"""``benchmarks/run.py``: a script writes its table and raw results, and the two READMEs are made from
+the tables (benchmarks/README.md's table blocks, the README's "How fast"), so neither can drift."""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).parents[1]
+RUN = ROOT / "benchmarks" / "run.py"
+
+
+def run(*args: str, timeout: float = 300) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, str(RUN), *args], capture_output=True, text=True, timeout=timeout)
+
+
+def how_fast(readme: str) -> str:
+    found = re.search(r"<!-- how-fast[^\n]*-->\n(.*?)<!-- end how-fast -->", readme, re.S)
+    assert found, "no how-fast block"
+    return found.group(1)
+
+
+def test_the_readmes_hold_what_the_benchmark_tables_make():
+    done = run("--check")
+    assert done.returncode == 0, done.stdout + done.stderr
+
+
+def test_a_script_writes_its_table_and_run_py_copies_it_into_the_benchmarks_readme(tmp_path):
+    done = run("kernels", "--smoke", "--results-dir", str(tmp_path), "--note", "a test")
+    assert done.returncode == 0, done.stdout + done.stderr
+    table = (tmp_path / "kernels.md").read_text()
+    first = table.splitlines()[0]
+    assert first.startswith("`python benchmarks/kernels.py --seeds 10 --repeats 5 --table kernels`")
+    assert "CPUs" in first and "AVX-512" in first and "**a test**" in first and "--note" not in first
+    record = json.loads((tmp_path / "kernels.json").read_text())
+    assert record["command"] in first and record["machine"]["cpus"] >= 1 and record["rows"]
+    readme = (tmp_path / "benchmarks-README.md").read_text()
+    assert "<!-- table: kernels -->\n" + table + "<!-- end table: kernels -->" in readme
+    assert "*Not run yet:* `python benchmarks/run.py time-to-solve`" in readme
+    assert (ROOT / "benchmarks" / "README.md").read_text() != readme  # the repository's is untouched
+
+
+def test_how_fast_puts_ours_beside_the_peer_of_the_same_run(tmp_path):
+    groups = [
+        {"agent": "ppo", "preset": "default", "seeds": 20, "final_solved": 19, "median_cpu": 0.5},
+        {"agent": "sb3-ppo", "preset": "rl-zoo", "seeds": 20, "final_solved": 20, "median_cpu": 3.5},
+        {"agent": "dqn", "preset": "default", "seeds": 20, "final_solved": 2, "median_cpu": None},
+    ]
+    record = {
+        "command": "python benchmarks/time_to_solve.py",
+        "machine": {"cpu": "Some CPU", "avx512": False, "cpus": 2},
+        "note": "",
+        "summary": {"env": "CartPole-v1", "groups": groups},
+    }
+    (tmp_path / "time-to-solve.json").write_text(json.dumps(record))
+    done = run("--assemble", "--results-dir", str(tmp_path))
+    assert done.returncode == 0, done.stdout + done.stderr
+    table = how_fast((tmp_path / "README.md").read_text())
+    ppo = next(line for line in table.splitlines() if line.startswith("| PPO"))
+    cells = [cell.strip() for cell in ppo.strip("|").split("|")]
+    assert cells[1:6] == ["0.50 s", "SB3 (RL Zoo) 3.5 s", "7.0x less CPU", "19/20 (SB3 20/20)",
+                          "Some CPU, no AVX-512, 2 CPUs"]  # fmt: skip
+    assert "(benchmarks/README.md#time-to-solve)" in cells[6]
+    assert "| DQN: the same, median of 20 unseen seeds | never | - | - | 2/20 |" in table
+    assert "not run yet: `python benchmarks/run.py population`" in table
