@@ -353,6 +353,7 @@ BAD_TRAIN_VALUES = {
         *("ppo", "--env", "cartpole/CartPolePixels-v1"),
         *("--set", "observation_mean=0"),
     ],
+    "seeds: a count of none": ["cem", "--seeds", "0"],
 }
 
 

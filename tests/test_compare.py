@@ -63,7 +63,7 @@ def test_compare_on_another_env_trains_a_population_agent_one_seed_at_a_time(tmp
     args = ["compare", "a2c", "--env", "Acrobot-v1", "--seeds", "2", "--budget", "400"]
     done = run_cli(*args, "--jobs", "2", "--runs-dir", str(runs_dir))
     assert done.returncode == 0, done.stderr
-    folder = runs_dir / "experiments" / "a2c"
+    folder = runs_dir / "experiments" / "a2c-acrobot"  # the entry takes a2c's preset for Acrobot-v1
     runs = run_folders(folder)
     assert len(runs) == 2 and all((run / "eval.json").is_file() for run in runs)
     assert not any(json.loads((run / "config.json").read_text()).get("population") for run in runs)
@@ -138,7 +138,7 @@ def test_ctrl_c_stops_every_worker_and_a_rerun_resumes(tmp_path):
         (["compare", "cem:/no/such/preset.toml"], "does not exist"),
         (["compare", "cem", "cem"], "given twice"),
         (["compare", "cem:PRESET:speed = 3\n"], "unknown setting 'speed'"),
-        (["compare", "cem", "--seeds", "0"], "--seeds must be >= 1"),
+        (["compare", "cem", "--seeds", "0"], "--seeds 0 is a count of no seeds"),
         (["compare", "cem", "--first-seed", "-1"], "--first-seed must be >= 0"),
         (["compare", "cem", "--name", "../x"], "experiment name '../x'"),
         (["compare", "cem", "--jobs", "0"], "--jobs must be >= 1"),

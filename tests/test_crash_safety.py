@@ -462,3 +462,20 @@ def test_a_population_scores_each_seeds_last_policy_as_its_single_run_does(tmp_p
         else:  # a linear search's seed is bit-identical to its single run, its last score too
             assert last is not None and last["returns"] == single.last_report.returns
     assert sum(m.last_eval_report() is not None for m in members.values()) >= 2
+
+
+# --- the output names the run at start; status keeps up with latest.pt; a resume from step 0 --------
+
+
+@pytest.mark.parametrize("seeds", [[], ["--seeds", "0-1"]], ids=["single", "population"])
+def test_the_run_is_named_as_training_starts_so_a_kill_9_leaves_it_in_the_output(seeds, tmp_path):
+    """`--resume RUN` needs the run folder: it is printed before training, not only at the end, which
+    a kill -9 (or the out-of-memory killer) never reaches. With --quiet too."""
+    runs_dir = tmp_path / "runs"
+    process = cartpole(*TRAIN, *seeds, "--runs-dir", str(runs_dir))
+    run = wait_for(lambda: the_run(runs_dir), "the run folder")
+    wait_for(lambda: run.checkpoint_path("latest").exists() and generations_logged(run) >= 2, "training")
+    process.send_signal(signal.SIGKILL)
+    out, _ = process.communicate(timeout=60)
+    first = sorted(runs_dir.iterdir())[0]
+    assert (f"run: {first}" if not seeds else f"runs: 2 in {runs_dir}/ (seeds 0-1), the first {first}") in out

@@ -60,17 +60,14 @@ class Experiment:
         runs_dir: Path,
         name: str,
         entries: list[Entry],
-        seeds: int,
-        first_seed: int = 0,
+        seeds: list[int],
         env_id: str = "CartPole-v1",
         budget: str | None = None,
         command: list[str] | None = None,
     ) -> Experiment:
         """Check the request, and that it matches what ``NAME`` was run with before."""
-        if seeds < 1:
-            raise ExperimentError(f"--seeds must be >= 1, got {seeds}")
-        if first_seed < 0:
-            raise ExperimentError(f"--first-seed must be >= 0, got {first_seed}")
+        if not seeds:
+            raise ExperimentError("an experiment needs at least one seed")
         if budget is not None:
             try:
                 parse_budget(budget)
@@ -80,7 +77,7 @@ class Experiment:
 
         env_info(env_id)  # an unsupported env is bad input before anything is written
         folder = runs_dir / "experiments" / check_name(name, "experiment")
-        experiment = cls(folder, entries, list(range(first_seed, first_seed + seeds)), env_id, budget)
+        experiment = cls(folder, entries, list(seeds), env_id, budget)
         experiment.command = command or []
         experiment.check_same_setup()
         return experiment
