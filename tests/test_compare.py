@@ -42,7 +42,7 @@ def test_compare_writes_its_report(tmp_path):
 
 def test_compare_trains_a_population_agent_in_one_process(tmp_path):
     runs_dir = tmp_path / "runs"
-    done = run_cli("compare", "ppo", "--seeds", "2", "--budget", "2gen", "--runs-dir", str(runs_dir))
+    done = run_cli("compare", "ppo", "--seeds", "2", "--budget", "256", "--runs-dir", str(runs_dir))
     assert done.returncode == 0, done.stderr
     folder = runs_dir / "experiments" / "ppo"
     (entry,) = json.loads((folder / "report.json").read_text())["entries"]
@@ -241,3 +241,10 @@ def test_a_worker_trains_on_the_clis_torch_thread_count(tmp_path, monkeypatch):
     torch.set_num_threads(3)
     assert worker.main([str(tmp_path / "task.json")]) == 0
     assert seen == [1] and torch.get_num_threads() == 3
+
+
+def test_compare_refuses_generations_for_a_gradient_agent_in_one_line(tmp_path, capsys):
+    assert main(["compare", "cem", "ppo", "--budget", "2gen", "--runs-dir", str(tmp_path / "runs")]) == 2
+    err = capsys.readouterr().err
+    assert "a budget of 2 generations means nothing to ppo" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "runs").exists()

@@ -78,7 +78,8 @@ def add_parser(sub: Any) -> None:
         "--budget",
         metavar="B",
         help="stop at this budget: env steps (50000, 50k), episodes (300ep), "
-        "generations (20gen) or time (90s, 5min); default: the preset's",
+        "generations of cem, random-search and hill-climbing (20gen) or time (90s, 5min); default: "
+        "the preset's",
     )
     parser.add_argument(
         "--runs-dir", default="runs", metavar="DIR", help="where run folders go (default: runs)"

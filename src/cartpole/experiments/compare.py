@@ -31,7 +31,7 @@ from cartpole.experiments.shared import SharedComparison, new_owner
 from cartpole.experiments.worker import FINISHED, Task, read_record
 from cartpole.runs.atomic import write_json_atomic
 from cartpole.runs.run_dir import read_json
-from cartpole.training.budget import parse_budget
+from cartpole.training.budget import check_budget_unit, parse_budget
 
 NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 WORKER = "cartpole.experiments.worker"
@@ -70,7 +70,9 @@ class Experiment:
             raise ExperimentError("an experiment needs at least one seed")
         if budget is not None:
             try:
-                parse_budget(budget)
+                parsed = parse_budget(budget)
+                for entry in entries:  # a budget in generations means nothing to a gradient agent
+                    check_budget_unit(parsed, entry.agent, get_agent(entry.agent).iteration)
             except ValueError as err:
                 raise ExperimentError(str(err)) from None
         from cartpole.envs import env_info

@@ -40,7 +40,7 @@ from cartpole.experiments.storage import describe_url, driver_url, engine_option
 from cartpole.experiments.sweep_spec import SweepSpec
 from cartpole.runs.atomic import write_json_atomic
 from cartpole.training import Callback, TrainingLoop
-from cartpole.training.budget import parse_budget
+from cartpole.training.budget import check_budget_unit, parse_budget
 
 WORKER = "cartpole.experiments.sweep"
 UNSOLVED_FACTOR = 2
@@ -65,7 +65,7 @@ def make_spec(
     sampler_seed: int = 0,
 ) -> SweepSpec:
     """Check every input (one line each if wrong) before anything is written."""
-    from cartpole.agents.registry import agent_names
+    from cartpole.agents.registry import agent_names, get_agent
     from cartpole.envs import env_info
     from cartpole.experiments.entries import parse_entry
 
@@ -78,7 +78,7 @@ def make_spec(
         raise ExperimentError("a trial needs at least one seed")
     if budget is not None:
         try:
-            parse_budget(budget)
+            check_budget_unit(parse_budget(budget), agent, get_agent(agent).iteration)
         except ValueError as err:
             raise ExperimentError(str(err)) from None
     env_info(env_id)

@@ -23,10 +23,12 @@ from cartpole.training.loop import Callback, LoopState, TrainingLoop
 
 
 class BudgetCallback(Callback):
-    """Stops training when any limit of the budget is reached."""
+    """Stops training when any limit of the budget is reached. ``whole_generations`` names an agent
+    that learns in whole generations: where one overshoots a limit, the stop says how far it went."""
 
-    def __init__(self, budget: Budget):
+    def __init__(self, budget: Budget, whole_generations: str | None = None):
         self.budget = budget
+        self.whole_generations = whole_generations
 
     def on_start(self, loop: TrainingLoop) -> None:
         """A resumed run whose budget was already spent (killed before its verdict) trains no more."""
@@ -38,9 +40,18 @@ class BudgetCallback(Callback):
     def check(self, loop: TrainingLoop) -> bool:
         for limit, value, unit in budget_limits(self.budget, loop.state):
             if value >= limit:
-                loop.state.stop(StopReason.BUDGET, f"budget reached ({limit:g} {unit})")
+                loop.state.stop(StopReason.BUDGET, self.reached(limit, value, unit))
                 return False
         return True
+
+    def reached(self, limit: float, value: float, unit: str) -> str:
+        """The stop detail: the limit, and how far past it a whole generation went."""
+        if self.whole_generations is None or value == limit or unit == "seconds":
+            return f"budget reached ({limit:g} {unit})"
+        return (
+            f"budget reached ({limit:g} {unit}; {value:,} {unit} in all: {self.whole_generations} "
+            "learns in whole generations)"
+        )
 
 
 def budget_limits(budget: Budget, state: LoopState) -> list[tuple[float, float, str]]:

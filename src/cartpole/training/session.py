@@ -36,7 +36,7 @@ from cartpole.runs import (
     displayed_state,
     load_checkpoint,
 )
-from cartpole.training.budget import Budget, parse_budget
+from cartpole.training.budget import Budget, check_budget_unit, parse_budget
 from cartpole.training.callbacks import require_tensorboard
 from cartpole.training.config import resolve_config
 from cartpole.training.engine import PopulationOutcome, SeedLearner, run_members
@@ -177,6 +177,7 @@ def start(
     if isinstance(budget, str):
         budget = parse_budget(budget)
     budget = budget or parse_budget(settings.budget)
+    check_budget_unit(budget, agent, spec.iteration)
     device = resolve_device(device, len(seeds))
     check_memory(spec, config, env, len(seeds))
     learner = build_population(spec, config, env, seeds, device)

@@ -134,7 +134,7 @@ def make_callbacks(
     """
     run, settings = setup.run, setup.settings
     callbacks: list[Callback] = [
-        BudgetCallback(setup.budget),
+        BudgetCallback(setup.budget, setup.spec.name if setup.spec.iteration == "generation" else None),
         EvalCallback(setup.env, setup.seed, settings, evaluator),
     ]
     if settings.stop_when_solved:
