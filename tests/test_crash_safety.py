@@ -479,3 +479,68 @@ def test_the_run_is_named_as_training_starts_so_a_kill_9_leaves_it_in_the_output
     out, _ = process.communicate(timeout=60)
     first = sorted(runs_dir.iterdir())[0]
     assert (f"run: {first}" if not seeds else f"runs: 2 in {runs_dir}/ (seeds 0-1), the first {first}") in out
+
+
+KILLED_AT_THE_SECOND_GENERATION = """
+import os, signal, sys
+from cartpole.training import Callback
+from cartpole.training.session import train_population
+
+class KillAfter(Callback):
+    def on_step(self, loop, result):
+        if loop.state.iterations >= 2:
+            os.kill(os.getpid(), signal.SIGKILL)
+        return True
+
+settings = {"population": "4", "checkpoint_every": "1"}
+train_population("random-search", [0, 1], runs_dir=sys.argv[1], budget="80gen", stop_when_solved=False,
+                 overrides=settings, callbacks=[KillAfter()])
+"""
+
+
+def test_a_populations_status_keeps_up_with_its_latest_checkpoint_through_a_kill_9(tmp_path):
+    """A population writes status.json every few seconds; latest.pt may be written more often (here
+    every generation). After a kill -9 no status may lag behind its latest.pt (it said env_steps 0
+    while latest.pt was at about 20k)."""
+    done = subprocess.run(
+        [sys.executable, "-c", KILLED_AT_THE_SECOND_GENERATION, str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == -signal.SIGKILL, done.stderr
+    runs = [RunDir(p) for p in sorted(tmp_path.iterdir())]
+    assert len(runs) == 2
+    for run in runs:
+        saved = load_checkpoint(run.checkpoint_path("latest")).meta["step"]
+        status = run.status()
+        assert saved > 0 and status["env_steps"] >= saved, (status, saved)
+        assert summarize_run(run.path).state == RunState.CRASHED
+
+
+KILLED_AS_TRAINING_STARTS = """
+import os, signal, sys
+from cartpole.training import Callback, train
+
+class KillAtStart(Callback):
+    def on_start(self, loop):
+        os.kill(os.getpid(), signal.SIGKILL)
+
+train("random-search", seed=0, runs_dir=sys.argv[1], budget="2gen", overrides={"population": "4"},
+      callbacks=[KillAtStart()])
+"""
+
+
+def test_a_resume_from_a_latest_written_at_step_0_says_so(tmp_path, capsys):
+    """latest.pt is written as training starts (step 0): a resume goes on from it and says so,
+    not that there was no latest.pt."""
+    done = subprocess.run(
+        [sys.executable, "-c", KILLED_AS_TRAINING_STARTS, str(tmp_path)], capture_output=True, timeout=300
+    )
+    assert done.returncode == -signal.SIGKILL
+    run = the_run(tmp_path)
+    assert run is not None and load_checkpoint(run.checkpoint_path("latest")).meta["step"] == 0
+    assert main(["train", "--resume", str(run.path)]) == 0
+    err = capsys.readouterr().err
+    assert f"resuming {run.name} from env step 0 (checkpoints/latest.pt)" in err
+    assert "no checkpoints/latest.pt" not in err

@@ -221,10 +221,14 @@ class CheckpointCallback(Callback):
         meta: dict[str, Any],
         schedule: CheckpointSchedule,
         metrics: MetricsCallback | None = None,
+        status: StatusCallback | None = None,
     ):
         self.run, self.agent, self.meta, self.schedule = run, agent, meta, schedule
         self.metrics = metrics
         """Flushed before each ``latest``, so a resume from it finds every metric row up to its step."""
+        self.status = status
+        """Written before each ``latest``, so that after a kill -9 ``status.json`` never lags behind
+        it (a population writes its status only every few seconds)."""
         self.last_save = (0, 0.0, 0.0)
         """(env steps, perf_counter time, budget progress) at the last save of ``latest``."""
         self.best: EvalReport | None = None
@@ -257,6 +261,8 @@ class CheckpointCallback(Callback):
             # Rows still pending would be lost by a kill -9 after this save, and a resume from this
             # checkpoint would not log them again: a gap. Write them first.
             self.metrics.write_pending()
+        if resume and self.status is not None:
+            self.status.write(loop)
         tensors, data = loop.learner.state_dict(resume=resume)
         meta = {
             **self.meta,

@@ -417,7 +417,7 @@ def resume_line(setups: list[RunSetup], states: dict[int, LoopState | None]) -> 
     steps = [state.env_steps if state else 0 for state in states.values()]
     if len(setups) == 1:
         name = setups[0].run.name
-        if not steps[0]:
+        if states[setups[0].seed] is None:  # a latest.pt written at step 0 is one to go on from
             return f"resuming {name} from step 0 (no checkpoints/latest.pt to go on from)"
         return f"resuming {name} from env step {steps[0]:,} (checkpoints/latest.pt)"
     where = f"{min(steps):,}" if min(steps) == max(steps) else f"{min(steps):,} to {max(steps):,}"

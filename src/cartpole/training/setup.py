@@ -143,10 +143,11 @@ def make_callbacks(
     # them first, so a resume from ``latest`` continues the rows without a gap even after a kill -9.
     metrics = MetricsCallback(run, flush_seconds)
     schedule = CheckpointSchedule.from_settings(setup.budget, settings)
+    status_writer = StatusCallback(status, flush_seconds)
     callbacks += [
         metrics,
-        CheckpointCallback(run, setup.spec, setup.meta, schedule, metrics),
-        StatusCallback(status, flush_seconds),
+        CheckpointCallback(run, setup.spec, setup.meta, schedule, metrics, status_writer),
+        status_writer,
     ]
     if setup.tensorboard:
         callbacks.append(TensorBoardCallback(run, metrics))
