@@ -35,8 +35,16 @@ def test_compare_writes_its_report(tmp_path):
     folder = runs_dir / "experiments" / "cem"
     (entry,) = json.loads((folder / "report.json").read_text())["entries"]
     assert entry["entry"] == "cem" and entry["runs"] == 2 and entry["seeds"] == [0, 1]
+    records = [json.loads((folder / "records" / f"cem__s{seed}.json").read_text()) for seed in (0, 1)]
     for key in ("env_steps_to_solve", "cpu_seconds_to_solve", "wall_seconds_to_solve"):
         assert entry[key]["median"] > 0 and entry[key]["censored"] == 2 - entry["solved"]
+        # the per-seed values each statistic summarizes, in the order of "seeds" (for rliable and others)
+        assert len(entry[key]["values"]) == 2
+        assert entry[key]["censored_runs"] == [not r["solved_in_training"] for r in records]
+    assert entry["env_steps_to_solve"]["values"] == [
+        float(r["solve_steps"] if r["solved_in_training"] else r["env_steps"]) for r in records
+    ]
+    assert entry["final_mean_return"]["values"] == [r["final_mean"] for r in records]
     assert (folder / "curves.png").is_file() and "| cem | 2 |" in (folder / "report.md").read_text()
 
 
@@ -241,6 +249,16 @@ def test_a_worker_trains_on_the_clis_torch_thread_count(tmp_path, monkeypatch):
     torch.set_num_threads(3)
     assert worker.main([str(tmp_path / "task.json")]) == 0
     assert seen == [1] and torch.get_num_threads() == 3
+
+
+@pytest.mark.parametrize("command", ["compare", "sweep"])
+def test_storage_help_names_sqlite_too(command, capsys):
+    with pytest.raises(SystemExit):
+        main([command, "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert (
+        "--storage URL" in text and "postgresql://USER@HOST:PORT/DB" in text and "sqlite:///FILE.db" in text
+    )
 
 
 def test_compare_refuses_generations_for_a_gradient_agent_in_one_line(tmp_path, capsys):

@@ -55,8 +55,9 @@ def add_parser(sub: Any) -> None:
     parser.add_argument(
         "--storage",
         metavar="URL",
-        help="share the comparison through this database, e.g. postgresql://USER@HOST:PORT/DB "
-        "(needs the postgres extra); the same command on other machines joins it",
+        help="share the comparison through this database: postgresql://USER@HOST:PORT/DB (needs the "
+        "postgres extra; the same command on other machines joins it) or sqlite:///FILE.db (processes "
+        "of one machine)",
     )
     parser.add_argument(
         "--chunk",

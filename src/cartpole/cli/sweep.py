@@ -46,7 +46,12 @@ def add_parser(sub: Any) -> None:
         "--workers", type=int, default=1, metavar="J", help="local worker processes (default: 1)"
     )
     parser.add_argument("--study", required=True, metavar="NAME", help="study name (and folder name)")
-    parser.add_argument("--storage", metavar="URL", help="postgresql://USER@HOST:PORT/DB to share the study")
+    parser.add_argument(
+        "--storage",
+        metavar="URL",
+        help="share the study through this database: postgresql://USER@HOST:PORT/DB (needs the postgres "
+        "extra; the same command on other machines joins it) or sqlite:///FILE.db (one machine)",
+    )
     parser.add_argument("--budget", metavar="B", help="budget of every run (default: the preset's)")
     parser.add_argument("--space", metavar="FILE.toml", help="search space (default: the agent's own)")
     parser.add_argument("--sampler-seed", type=int, default=0, metavar="S", help="TPE seed (default: 0)")
