@@ -328,6 +328,7 @@ def test_a_figure_or_video_on_a_full_disk_is_one_line_naming_it_and_leaves_nothi
     assert main([command[0], str(cem_run), *command[1:], "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "No space left on device" in err and str(out) in err
+    assert "--resume" not in err  # nothing of a run to resume: plot and record only read one
     assert [p.name for p in full_disk.iterdir()] == ["filler"]  # no half-written file, no temp file
 
 
@@ -544,3 +545,39 @@ def test_a_resume_from_a_latest_written_at_step_0_says_so(tmp_path, capsys):
     err = capsys.readouterr().err
     assert f"resuming {run.name} from env step 0 (checkpoints/latest.pt)" in err
     assert "no checkpoints/latest.pt" not in err
+
+
+@pytest.fixture
+def filled_disk(tmp_path: Path):
+    """A 1 MiB tmpfs with no byte left."""
+    disk = tmp_path / "filled"
+    disk.mkdir()
+    mount = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(disk)], capture_output=True, text=True
+    )
+    if mount.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here (needs root): {mount.stderr.strip()}")
+    try:
+        (disk / "runs").mkdir()
+        with open(disk / "filler", "wb", buffering=0) as filler:
+            try:
+                while True:
+                    filler.write(bytes(4096))
+            except OSError as err:
+                assert err.errno == errno.ENOSPC
+        yield disk
+    finally:
+        subprocess.run(["umount", "-l", str(disk)], capture_output=True)
+
+
+def test_a_full_disk_while_the_run_folder_is_made_leaves_no_folder(filled_disk, capsys):
+    """No space for config.json: one line, exit 2, and no empty folder that `cartpole runs` would list
+    as incomplete for ever."""
+    runs_dir = filled_disk / "runs"
+    argv = ["train", "random-search", "--budget", "1gen", "--quiet", "--runs-dir", str(runs_dir)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "No space left on device" in err and "config.json" in err
+    assert list(runs_dir.iterdir()) == []
+    assert main(["runs", "--runs-dir", str(runs_dir), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out) == []

@@ -8,6 +8,7 @@ This is the library form of ``cartpole train``; benchmarks, experiments and test
 from __future__ import annotations
 
 import re
+import shutil
 import sys
 import uuid
 from collections import Counter
@@ -183,16 +184,23 @@ def start(
     learner = build_population(spec, config, env, seeds, device)
     population_record = {"population": {"id": uuid.uuid4().hex[:12], "seeds": list(seeds)}}
     with ExitStack() as stack:
-        setups = []
-        for seed in seeds:
-            run = RunDir.create(Path(runs_dir), env_id, agent, seed)
-            stack.enter_context(run.lock())
-            record = run_record(
-                agent, env_id, seed, preset, config, settings, overrides, budget, device, command
-            )
-            record |= (population_record if population else {}) | {"tensorboard": tensorboard}
-            run.write_config(record)
-            setups.append(RunSetup.from_record(run, record))
+        setups, made = [], []
+        try:
+            for seed in seeds:
+                run = RunDir.create(Path(runs_dir), env_id, agent, seed)
+                made.append(run)
+                stack.enter_context(run.lock())
+                record = run_record(
+                    agent, env_id, seed, preset, config, settings, overrides, budget, device, command
+                )
+                record |= (population_record if population else {}) | {"tensorboard": tensorboard}
+                run.write_config(record)
+                setups.append(RunSetup.from_record(run, record))
+        except BaseException:  # a full disk, say: no folder without its config, listed for ever
+            stack.close()
+            for run in made:
+                shutil.rmtree(run.path, ignore_errors=True)
+            raise
         if announce is not None:
             announce({setup.seed: setup.run for setup in setups})
         return run_members(learner, setups, {}, quiet, stream, callbacks)
