@@ -249,20 +249,11 @@ def test_the_web_api_lists_a_crashed_run(tmp_path):
 
 
 @pytest.fixture
-def small_disk(tmp_path: Path):
+def small_disk(tmpfs):
     """A 3 MiB tmpfs with about 250 KiB left: room for a run folder's first files, not for its run."""
-    disk = tmp_path / "disk"
-    disk.mkdir()
-    mount = subprocess.run(
-        ["mount", "-t", "tmpfs", "-o", "size=3m", "tmpfs", str(disk)], capture_output=True, text=True
-    )
-    if mount.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here (needs root): {mount.stderr.strip()}")
-    try:
-        (disk / "filler").write_bytes(bytes(3 * 2**20 - 250 * 2**10))
-        yield disk
-    finally:
-        subprocess.run(["umount", "-l", str(disk)], capture_output=True)
+    disk = tmpfs("disk", "size=3m")
+    (disk / "filler").write_bytes(bytes(3 * 2**20 - 250 * 2**10))
+    return disk
 
 
 @pytest.mark.parametrize(
@@ -548,26 +539,17 @@ def test_a_resume_from_a_latest_written_at_step_0_says_so(tmp_path, capsys):
 
 
 @pytest.fixture
-def filled_disk(tmp_path: Path):
+def filled_disk(tmpfs):
     """A 1 MiB tmpfs with no byte left."""
-    disk = tmp_path / "filled"
-    disk.mkdir()
-    mount = subprocess.run(
-        ["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(disk)], capture_output=True, text=True
-    )
-    if mount.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here (needs root): {mount.stderr.strip()}")
-    try:
-        (disk / "runs").mkdir()
-        with open(disk / "filler", "wb", buffering=0) as filler:
-            try:
-                while True:
-                    filler.write(bytes(4096))
-            except OSError as err:
-                assert err.errno == errno.ENOSPC
-        yield disk
-    finally:
-        subprocess.run(["umount", "-l", str(disk)], capture_output=True)
+    disk = tmpfs("filled", "size=1m")
+    (disk / "runs").mkdir()
+    with open(disk / "filler", "wb", buffering=0) as filler:
+        try:
+            while True:
+                filler.write(bytes(4096))
+        except OSError as err:
+            assert err.errno == errno.ENOSPC
+    return disk
 
 
 def test_a_full_disk_while_the_run_folder_is_made_leaves_no_folder(filled_disk, capsys):

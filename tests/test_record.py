@@ -124,24 +124,6 @@ def test_eval_render_writes_the_video_of_its_first_episodes(cem_run, tmp_path, c
     assert (tmp_path / "cwd" / "weak-seed9.gif").is_file()  # default: in the current folder
 
 
-@pytest.fixture
-def read_only_folder(tmp_path: Path):
-    """A folder no process may write in, root included: a read-only tmpfs."""
-    import subprocess
-
-    folder = tmp_path / "read-only"
-    folder.mkdir()
-    mount = subprocess.run(
-        ["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs", str(folder)], capture_output=True, text=True
-    )
-    if mount.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here (needs root): {mount.stderr.strip()}")
-    try:
-        yield folder
-    finally:
-        subprocess.run(["umount", "-l", str(folder)], capture_output=True)
-
-
 @pytest.mark.parametrize("where", ["read-only", "under-a-file", "under-a-file-deeper"])
 def test_eval_render_to_an_unwritable_file_fails_before_playing_and_names_it(
     where, cem_run, tmp_path, monkeypatch, capsys, request
@@ -150,8 +132,8 @@ def test_eval_render_to_an_unwritable_file_fails_before_playing_and_names_it(
     take minutes), in one line naming the target, not a temporary file."""
     import cartpole.evaluation
 
-    if where == "read-only":
-        target = request.getfixturevalue("read_only_folder") / "x.gif"
+    if where == "read-only":  # a folder no process may write in, root included
+        target = request.getfixturevalue("tmpfs")("read-only", "ro,size=64k") / "x.gif"
     else:
         (tmp_path / "file").write_text("not a folder")
         target = tmp_path / "file" / ("x.gif" if where == "under-a-file" else "sub/x.gif")
