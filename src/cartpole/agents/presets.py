@@ -142,5 +142,8 @@ def resolve_preset(agent: str, env: EnvInfo, preset: str | None) -> str:
 
 
 def _no_image_preset(agent: str) -> str:
-    able = [name for name in _by_env_table()["images"]]
-    return f"{agent} has no preset for images: train {' or '.join(able)} on an env of images"
+    able = list(_by_env_table()["images"])
+    return (
+        f"{agent} has no preset for images: give it a preset file (--preset FILE.toml), or train "
+        f"{' or '.join(able)} with theirs"
+    )

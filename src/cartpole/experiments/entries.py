@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 from cartpole.agents.presets import DEFAULT_PRESET, is_preset_file, resolve_preset
 from cartpole.agents.registry import agent_names, get_agent
-from cartpole.core.errors import ConfigError, InputError
+from cartpole.core.errors import InputError
 from cartpole.envs import env_info
 from cartpole.training.config import resolve_config
 
@@ -46,10 +46,12 @@ def parse_entry(text: str, env_id: str = "CartPole-v1") -> Entry:
         raise ExperimentError(
             f"unknown agent {agent!r} in entry {text!r}; choose one of: {', '.join(agent_names())}"
         )
+    env = env_info(env_id)
     try:
-        preset = resolve_preset(agent, env_info(env_id), named or None)
+        get_agent(agent).check_env(env)
+        preset = resolve_preset(agent, env, named or None)
         resolve_config(agent, get_agent(agent).config_cls, preset)
-    except ConfigError as err:
+    except InputError as err:
         raise ExperimentError(f"entry {text!r}: {err}") from None
     return Entry(agent, preset, picked=not named)
 

@@ -170,8 +170,8 @@ def start(
         require_tensorboard()  # before a run folder is made
     spec = get_agent(agent)
     env = env_info(env_id)
-    preset = resolve_preset(agent, env, preset)
     spec.check_env(env)  # before its memory estimate: that of an agent that cannot take the env is moot
+    preset = resolve_preset(agent, env, preset)
     config, settings = resolve_config(agent, spec.config_cls, preset, overrides)
     if stop_when_solved is not None:
         settings.stop_when_solved = stop_when_solved
