@@ -84,8 +84,8 @@ def measure(size: tuple[int, int], n: int, seconds: float, repeats: int) -> dict
     def render() -> None:
         renderer.render(batches[next(cycle) % len(batches)], out=out)
 
-    pixels = CartPolePixelsVectorEnv(n, frame_size=size)
-    states = CartPoleVectorEnv(n)
+    pixels = CartPolePixelsVectorEnv(n, frame_size=size, dtype=np.float32)  # as training steps them
+    states = CartPoleVectorEnv(n, dtype=np.float32)
     pixels.reset(seed=0)
     states.reset(seed=0)
     actions = list(rng.integers(0, 2, (64, n)))

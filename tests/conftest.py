@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import subprocess
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -59,6 +60,31 @@ def cem_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     outcome = train("cem", "CartPole-v1", seed=0, runs_dir=runs_dir, quiet=True)
     assert outcome.report is not None and outcome.report.solved, outcome.report
     return outcome.run.path
+
+
+@pytest.fixture
+def tmpfs(tmp_path: Path) -> Iterator[Callable[[str, str], Path]]:
+    """``tmpfs(name, options)`` mounts a tmpfs with those mount options (``size=1m``, ``ro,size=64k``)
+    at ``tmp_path/name`` and returns it; unmounted after the test. Mounting needs root: the test is
+    skipped elsewhere."""
+    mounted: list[Path] = []
+
+    def mount(name: str, options: str) -> Path:
+        folder = tmp_path / name
+        folder.mkdir()
+        done = subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(folder)], capture_output=True, text=True
+        )
+        if done.returncode != 0:
+            pytest.skip(f"cannot mount a tmpfs here (needs root): {done.stderr.strip()}")
+        mounted.append(folder)
+        return folder
+
+    try:
+        yield mount
+    finally:
+        for folder in mounted:
+            subprocess.run(["umount", "-l", str(folder)], capture_output=True)
 
 
 CHROMIUM = "/usr/bin/chromium"

@@ -353,6 +353,11 @@ BAD_TRAIN_VALUES = {
         *("ppo", "--env", "cartpole/CartPolePixels-v1"),
         *("--set", "observation_mean=0"),
     ],
+    # a unit that means nothing to the agent (DQN learns in steps of 8 env steps, not generations)
+    "budget in generations for dqn": ["dqn", "--budget", "5gen"],
+    "budget in generations for ppo": ["ppo", "--budget", "2gen"],
+    "budget in generations as a setting": ["a2c", "--set", "budget=3gen"],
+    "seeds: a count of none": ["cem", "--seeds", "0"],
 }
 
 

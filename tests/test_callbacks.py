@@ -171,6 +171,23 @@ def test_budget_in_seconds():
     assert state.elapsed >= 0.05 and "seconds" in (state.stop_detail or "")
 
 
+def test_a_budget_passed_by_whole_generations_says_how_far_it_went(tmp_path):
+    """CEM plays whole generations: a 3-episode budget plays one (8 candidates, an episode each), and
+    the stop says so instead of "budget reached (3 episodes)" alone."""
+    from cartpole.training import train
+
+    settings = {"population": "8", "episodes_per_candidate": "1"}
+    outcome = train(
+        "cem", seed=0, budget="3ep", overrides=settings, stop_when_solved=False, runs_dir=tmp_path
+    )
+    assert outcome.state.episodes == 8
+    assert outcome.state.stop_detail == (
+        "budget reached (3 episodes; 8 episodes in all: cem learns in whole generations)"
+    )
+    exact = train("cem", seed=0, budget="8ep", overrides=settings, stop_when_solved=False, runs_dir=tmp_path)
+    assert exact.state.stop_detail == "budget reached (8 episodes)"
+
+
 def test_budget_counts_sessions_before_a_resume():
     state = LoopState(env_steps=40, iterations=4)
     loop = TrainingLoop(FakeLearner(), [BudgetCallback(Budget(env_steps=50))], state)

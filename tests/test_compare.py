@@ -35,14 +35,22 @@ def test_compare_writes_its_report(tmp_path):
     folder = runs_dir / "experiments" / "cem"
     (entry,) = json.loads((folder / "report.json").read_text())["entries"]
     assert entry["entry"] == "cem" and entry["runs"] == 2 and entry["seeds"] == [0, 1]
+    records = [json.loads((folder / "records" / f"cem__s{seed}.json").read_text()) for seed in (0, 1)]
     for key in ("env_steps_to_solve", "cpu_seconds_to_solve", "wall_seconds_to_solve"):
         assert entry[key]["median"] > 0 and entry[key]["censored"] == 2 - entry["solved"]
+        # the per-seed values each statistic summarizes, in the order of "seeds" (for rliable and others)
+        assert len(entry[key]["values"]) == 2
+        assert entry[key]["censored_runs"] == [not r["solved_in_training"] for r in records]
+    assert entry["env_steps_to_solve"]["values"] == [
+        float(r["solve_steps"] if r["solved_in_training"] else r["env_steps"]) for r in records
+    ]
+    assert entry["final_mean_return"]["values"] == [r["final_mean"] for r in records]
     assert (folder / "curves.png").is_file() and "| cem | 2 |" in (folder / "report.md").read_text()
 
 
 def test_compare_trains_a_population_agent_in_one_process(tmp_path):
     runs_dir = tmp_path / "runs"
-    done = run_cli("compare", "ppo", "--seeds", "2", "--budget", "2gen", "--runs-dir", str(runs_dir))
+    done = run_cli("compare", "ppo", "--seeds", "2", "--budget", "256", "--runs-dir", str(runs_dir))
     assert done.returncode == 0, done.stderr
     folder = runs_dir / "experiments" / "ppo"
     (entry,) = json.loads((folder / "report.json").read_text())["entries"]
@@ -63,7 +71,7 @@ def test_compare_on_another_env_trains_a_population_agent_one_seed_at_a_time(tmp
     args = ["compare", "a2c", "--env", "Acrobot-v1", "--seeds", "2", "--budget", "400"]
     done = run_cli(*args, "--jobs", "2", "--runs-dir", str(runs_dir))
     assert done.returncode == 0, done.stderr
-    folder = runs_dir / "experiments" / "a2c"
+    folder = runs_dir / "experiments" / "a2c-acrobot"  # the entry takes a2c's preset for Acrobot-v1
     runs = run_folders(folder)
     assert len(runs) == 2 and all((run / "eval.json").is_file() for run in runs)
     assert not any(json.loads((run / "config.json").read_text()).get("population") for run in runs)
@@ -138,7 +146,7 @@ def test_ctrl_c_stops_every_worker_and_a_rerun_resumes(tmp_path):
         (["compare", "cem:/no/such/preset.toml"], "does not exist"),
         (["compare", "cem", "cem"], "given twice"),
         (["compare", "cem:PRESET:speed = 3\n"], "unknown setting 'speed'"),
-        (["compare", "cem", "--seeds", "0"], "--seeds must be >= 1"),
+        (["compare", "cem", "--seeds", "0"], "--seeds 0 is a count of no seeds"),
         (["compare", "cem", "--first-seed", "-1"], "--first-seed must be >= 0"),
         (["compare", "cem", "--name", "../x"], "experiment name '../x'"),
         (["compare", "cem", "--jobs", "0"], "--jobs must be >= 1"),
@@ -241,3 +249,20 @@ def test_a_worker_trains_on_the_clis_torch_thread_count(tmp_path, monkeypatch):
     torch.set_num_threads(3)
     assert worker.main([str(tmp_path / "task.json")]) == 0
     assert seen == [1] and torch.get_num_threads() == 3
+
+
+@pytest.mark.parametrize("command", ["compare", "sweep"])
+def test_storage_help_names_sqlite_too(command, capsys):
+    with pytest.raises(SystemExit):
+        main([command, "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert (
+        "--storage URL" in text and "postgresql://USER@HOST:PORT/DB" in text and "sqlite:///FILE.db" in text
+    )
+
+
+def test_compare_refuses_generations_for_a_gradient_agent_in_one_line(tmp_path, capsys):
+    assert main(["compare", "cem", "ppo", "--budget", "2gen", "--runs-dir", str(tmp_path / "runs")]) == 2
+    err = capsys.readouterr().err
+    assert "a budget of 2 generations means nothing to ppo" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "runs").exists()

@@ -249,20 +249,11 @@ def test_the_web_api_lists_a_crashed_run(tmp_path):
 
 
 @pytest.fixture
-def small_disk(tmp_path: Path):
+def small_disk(tmpfs):
     """A 3 MiB tmpfs with about 250 KiB left: room for a run folder's first files, not for its run."""
-    disk = tmp_path / "disk"
-    disk.mkdir()
-    mount = subprocess.run(
-        ["mount", "-t", "tmpfs", "-o", "size=3m", "tmpfs", str(disk)], capture_output=True, text=True
-    )
-    if mount.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here (needs root): {mount.stderr.strip()}")
-    try:
-        (disk / "filler").write_bytes(bytes(3 * 2**20 - 250 * 2**10))
-        yield disk
-    finally:
-        subprocess.run(["umount", "-l", str(disk)], capture_output=True)
+    disk = tmpfs("disk", "size=3m")
+    (disk / "filler").write_bytes(bytes(3 * 2**20 - 250 * 2**10))
+    return disk
 
 
 @pytest.mark.parametrize(
@@ -328,6 +319,7 @@ def test_a_figure_or_video_on_a_full_disk_is_one_line_naming_it_and_leaves_nothi
     assert main([command[0], str(cem_run), *command[1:], "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "No space left on device" in err and str(out) in err
+    assert "--resume" not in err  # nothing of a run to resume: plot and record only read one
     assert [p.name for p in full_disk.iterdir()] == ["filler"]  # no half-written file, no temp file
 
 
@@ -462,3 +454,112 @@ def test_a_population_scores_each_seeds_last_policy_as_its_single_run_does(tmp_p
         else:  # a linear search's seed is bit-identical to its single run, its last score too
             assert last is not None and last["returns"] == single.last_report.returns
     assert sum(m.last_eval_report() is not None for m in members.values()) >= 2
+
+
+# --- the output names the run at start; status keeps up with latest.pt; a resume from step 0 --------
+
+
+@pytest.mark.parametrize("seeds", [[], ["--seeds", "0-1"]], ids=["single", "population"])
+def test_the_run_is_named_as_training_starts_so_a_kill_9_leaves_it_in_the_output(seeds, tmp_path):
+    """`--resume RUN` needs the run folder: it is printed before training, not only at the end, which
+    a kill -9 (or the out-of-memory killer) never reaches. With --quiet too."""
+    runs_dir = tmp_path / "runs"
+    process = cartpole(*TRAIN, *seeds, "--runs-dir", str(runs_dir))
+    run = wait_for(lambda: the_run(runs_dir), "the run folder")
+    wait_for(lambda: run.checkpoint_path("latest").exists() and generations_logged(run) >= 2, "training")
+    process.send_signal(signal.SIGKILL)
+    out, _ = process.communicate(timeout=60)
+    first = sorted(runs_dir.iterdir())[0]
+    assert (f"run: {first}" if not seeds else f"runs: 2 in {runs_dir}/ (seeds 0-1), the first {first}") in out
+
+
+KILLED_AT_THE_SECOND_GENERATION = """
+import os, signal, sys
+from cartpole.training import Callback
+from cartpole.training.session import train_population
+
+class KillAfter(Callback):
+    def on_step(self, loop, result):
+        if loop.state.iterations >= 2:
+            os.kill(os.getpid(), signal.SIGKILL)
+        return True
+
+settings = {"population": "4", "checkpoint_every": "1"}
+train_population("random-search", [0, 1], runs_dir=sys.argv[1], budget="80gen", stop_when_solved=False,
+                 overrides=settings, callbacks=[KillAfter()])
+"""
+
+
+def test_a_populations_status_keeps_up_with_its_latest_checkpoint_through_a_kill_9(tmp_path):
+    """A population writes status.json every few seconds; latest.pt may be written more often (here
+    every generation). After a kill -9 no status may lag behind its latest.pt (it said env_steps 0
+    while latest.pt was at about 20k)."""
+    done = subprocess.run(
+        [sys.executable, "-c", KILLED_AT_THE_SECOND_GENERATION, str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == -signal.SIGKILL, done.stderr
+    runs = [RunDir(p) for p in sorted(tmp_path.iterdir())]
+    assert len(runs) == 2
+    for run in runs:
+        saved = load_checkpoint(run.checkpoint_path("latest")).meta["step"]
+        status = run.status()
+        assert saved > 0 and status["env_steps"] >= saved, (status, saved)
+        assert summarize_run(run.path).state == RunState.CRASHED
+
+
+KILLED_AS_TRAINING_STARTS = """
+import os, signal, sys
+from cartpole.training import Callback, train
+
+class KillAtStart(Callback):
+    def on_start(self, loop):
+        os.kill(os.getpid(), signal.SIGKILL)
+
+train("random-search", seed=0, runs_dir=sys.argv[1], budget="2gen", overrides={"population": "4"},
+      callbacks=[KillAtStart()])
+"""
+
+
+def test_a_resume_from_a_latest_written_at_step_0_says_so(tmp_path, capsys):
+    """latest.pt is written as training starts (step 0): a resume goes on from it and says so,
+    not that there was no latest.pt."""
+    done = subprocess.run(
+        [sys.executable, "-c", KILLED_AS_TRAINING_STARTS, str(tmp_path)], capture_output=True, timeout=300
+    )
+    assert done.returncode == -signal.SIGKILL
+    run = the_run(tmp_path)
+    assert run is not None and load_checkpoint(run.checkpoint_path("latest")).meta["step"] == 0
+    assert main(["train", "--resume", str(run.path)]) == 0
+    err = capsys.readouterr().err
+    assert f"resuming {run.name} from env step 0 (checkpoints/latest.pt)" in err
+    assert "no checkpoints/latest.pt" not in err
+
+
+@pytest.fixture
+def filled_disk(tmpfs):
+    """A 1 MiB tmpfs with no byte left."""
+    disk = tmpfs("filled", "size=1m")
+    (disk / "runs").mkdir()
+    with open(disk / "filler", "wb", buffering=0) as filler:
+        try:
+            while True:
+                filler.write(bytes(4096))
+        except OSError as err:
+            assert err.errno == errno.ENOSPC
+    return disk
+
+
+def test_a_full_disk_while_the_run_folder_is_made_leaves_no_folder(filled_disk, capsys):
+    """No space for config.json: one line, exit 2, and no empty folder that `cartpole runs` would list
+    as incomplete for ever."""
+    runs_dir = filled_disk / "runs"
+    argv = ["train", "random-search", "--budget", "1gen", "--quiet", "--runs-dir", str(runs_dir)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "No space left on device" in err and "config.json" in err
+    assert list(runs_dir.iterdir()) == []
+    assert main(["runs", "--runs-dir", str(runs_dir), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out) == []

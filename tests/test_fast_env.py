@@ -192,8 +192,8 @@ def test_time_limits_are_gymnasiums() -> None:
 
 def test_vector_float32_within_tolerance_from_the_same_state() -> None:
     ref = GymCartPoleVectorEnv(num_envs=N_ENVS)
-    ours = CartPoleVectorEnv(num_envs=N_ENVS)
-    assert ours.dtype == np.float32  # the vector env's default: fast
+    ours = CartPoleVectorEnv(num_envs=N_ENVS, dtype=np.float32)
+    assert CartPoleVectorEnv(num_envs=N_ENVS).dtype == np.float64  # the default, as the single env's
     policy = make_policy("mixed", seed=3)
     obs_ref, _ = ref.reset(seed=5)
     obs, _ = ours.reset(seed=5)
@@ -404,7 +404,7 @@ def test_set_params_on_a_live_env_applies_from_the_next_step() -> None:
     obs_b = b.step(actions)[0]
     assert not np.array_equal(obs_a, obs_b)
     expected, _ = step_cartpole(before, actions, heavy)
-    np.testing.assert_array_equal(obs_b, expected)
+    np.testing.assert_array_equal(obs_b, expected.astype(np.float32))  # observations are float32
 
     single = CartPoleEnv()
     single.reset(seed=0)

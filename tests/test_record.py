@@ -124,6 +124,32 @@ def test_eval_render_writes_the_video_of_its_first_episodes(cem_run, tmp_path, c
     assert (tmp_path / "cwd" / "weak-seed9.gif").is_file()  # default: in the current folder
 
 
+@pytest.mark.parametrize("where", ["read-only", "under-a-file", "under-a-file-deeper"])
+def test_eval_render_to_an_unwritable_file_fails_before_playing_and_names_it(
+    where, cem_run, tmp_path, monkeypatch, capsys, request
+):
+    """`cartpole eval RUN --render /unwritable/x.gif` fails before the episodes are played (they can
+    take minutes), in one line naming the target, not a temporary file."""
+    import cartpole.evaluation
+
+    if where == "read-only":  # a folder no process may write in, root included
+        target = request.getfixturevalue("tmpfs")("read-only", "ro,size=64k") / "x.gif"
+    else:
+        (tmp_path / "file").write_text("not a folder")
+        target = tmp_path / "file" / ("x.gif" if where == "under-a-file" else "sub/x.gif")
+
+    def must_not_play(*args, **kwargs):
+        raise AssertionError("episodes were played before the video's file was checked")
+
+    monkeypatch.setattr(cartpole.evaluation, "evaluate", must_not_play)
+    assert main(["eval", str(cem_run), "--episodes", "100", "--render", str(target)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    assert err.startswith(f"cartpole eval: error: {target}: ") and ".x.gif." not in err, err
+    assert main(["record", str(cem_run), "--out", str(target)]) == 2  # record checks it first too
+    assert str(target) in capsys.readouterr().err
+
+
 class PixelLeft:
     """A pixel agent's stand-in: pushes left, and keeps what it was shown."""
 

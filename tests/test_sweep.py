@@ -178,7 +178,7 @@ def test_a_study_cannot_change_its_agent_or_space(tmp_path, capsys):
     from cartpole.experiments.sweep import make_spec, open_storage, open_study
 
     runs_dir = tmp_path / "runs"
-    spec = make_spec(runs_dir, "s", "cem", "default", 2, 2, budget="3gen")
+    spec = make_spec(runs_dir, "s", "cem", "default", 2, [0, 1], budget="3gen")
     open_study(spec, open_storage(spec))
     journal = runs_dir / "sweeps" / "s" / "journal.log"
     before = journal.read_bytes()

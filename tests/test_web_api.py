@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import signal
 import socket
@@ -632,3 +633,32 @@ def test_the_episode_worker_ends_with_the_server(tmp_path, stop):
     while any(alive(pid) for pid in workers) and time.monotonic() < deadline:
         time.sleep(0.2)
     assert not any(alive(pid) for pid in workers)
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads processes from /proc")
+@pytest.mark.parametrize("stop", [signal.SIGTERM, signal.SIGINT], ids=["sigterm", "ctrl-c"])
+def test_serve_stopped_through_its_process_group_ends_without_a_word_from_its_workers(tmp_path, stop):
+    """A service manager's SIGTERM, or a terminal's Ctrl+C, reaches the whole process group: server,
+    episode worker and multiprocessing's resource tracker. They end without a leaked-semaphore warning
+    and without a worker's traceback."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    command = [sys.executable, "-m", "cartpole", "serve", "--runs-dir", str(tmp_path), "--port", str(port)]
+    server = subprocess.Popen(
+        command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True
+    )
+    try:
+        deadline = time.monotonic() + 60
+        workers: set[int] = set()
+        while len(workers) < 2 and time.monotonic() < deadline:  # the resource tracker and a worker
+            time.sleep(0.2)
+            with suppress(httpx.TransportError):
+                httpx.get(f"http://127.0.0.1:{port}/api/info", timeout=5).raise_for_status()
+                workers = children_of(server.pid)
+        assert len(workers) >= 2, "the server started no worker"
+        time.sleep(1.0)  # the worker warms up (imports) meanwhile
+    finally:
+        os.killpg(server.pid, stop)
+        _, err = server.communicate(timeout=60)
+    assert "leaked semaphore" not in err and "Traceback" not in err, err

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import functools
 import os
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -182,6 +183,23 @@ def check_video_path(path: Path) -> None:
             raise RecordingError(
                 f"writing MP4 needs imageio and imageio-ffmpeg: {VIDEO_EXTRA} (or write a .gif)"
             ) from None
+    check_writable(path)
+
+
+def check_writable(path: Path) -> None:
+    """RecordingError naming ``path`` unless a file can be written there: its nearest existing folder
+    must be a folder we may write in (a file is written there and removed, which also finds a
+    read-only disk). Its missing folders are made only when the video is written."""
+    folder = next(p for p in [path.parent, *path.parent.parents] if p.exists() or p == p.parent)
+    if not folder.is_dir():
+        raise RecordingError(f"{path}: {folder} is a file, not a folder; choose another file name")
+    try:
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as err:
+        raise RecordingError(
+            f"{path}: cannot write in {folder} ({err.strerror or err}); choose another file name"
+        ) from None
 
 
 def write_video(frames: list[np.ndarray], path: Path | str, fps: int = DEFAULT_FPS) -> Path:

@@ -1,7 +1,9 @@
 """Presets: named settings of each agent, kept as data in ``presets/<agent>.toml``, or preset files.
 
 A preset file is a ``.toml`` file anywhere (for example the ``best.toml`` a sweep writes) holding one
-table of settings, or exactly one named table of them.
+table of settings, or exactly one named table of them. Which named preset an agent takes on an env
+when none is named is data too: ``presets/by_env.toml`` (:func:`resolve_preset`), which also says
+which presets are made for image observations.
 """
 
 from __future__ import annotations
@@ -9,9 +11,15 @@ from __future__ import annotations
 import tomllib
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from cartpole.core.errors import ConfigError
+
+if TYPE_CHECKING:
+    from cartpole.envs import EnvInfo
+
+DEFAULT_PRESET = "default"
+BY_ENV = "by_env.toml"
 
 
 def preset_table(agent: str) -> dict[str, dict[str, Any]]:
@@ -67,3 +75,75 @@ def preset_values(agent: str, preset: str) -> dict[str, Any]:
             )
         values = table[preset]
     return {k: v for k, v in values.items() if k != "description"}
+
+
+# --- which preset on which env: presets/by_env.toml ------------------------------------------
+
+
+def presets_by_env() -> dict[str, dict[str, str]]:
+    """Env id -> {agent: the preset it takes there when none is named}, as ``by_env.toml`` lists them."""
+    env_table: dict[str, dict[str, str]] = _by_env_table()["env"]
+    return env_table
+
+
+def by_env_source() -> str:
+    """Where the table of presets by env is read from (a file path, for ``cartpole presets``)."""
+    return str(resources.files("cartpole.agents").joinpath("presets", BY_ENV))
+
+
+def _by_env_table() -> dict[str, Any]:
+    return tomllib.loads(resources.files("cartpole.agents").joinpath("presets", BY_ENV).read_text())
+
+
+def image_presets(agent: str) -> list[str]:
+    """The named presets of ``agent`` made for image observations (every other one is for state vectors)."""
+    images: dict[str, list[str]] = _by_env_table()["images"]
+    return list(images.get(agent, []))
+
+
+def env_preset(agent: str, env_id: str) -> str:
+    """The preset ``agent`` takes on ``env_id`` when none is named: by_env.toml's, else "default"."""
+    return presets_by_env().get(env_id, {}).get(agent, DEFAULT_PRESET)
+
+
+def picked_preset_line(agent: str, env_id: str) -> str | None:
+    """The line saying which preset ``agent`` takes on ``env_id`` when none is named; None when it is
+    the agent's "default" (nothing to say)."""
+    preset = env_preset(agent, env_id)
+    if preset == DEFAULT_PRESET:
+        return None
+    return f"preset: {preset} ({agent}'s preset for {env_id}, {BY_ENV}; --preset NAME for another)"
+
+
+def resolve_preset(agent: str, env: EnvInfo, preset: str | None) -> str:
+    """The preset ``agent`` trains with on ``env``: ``preset``, or when None the env's own
+    (:func:`env_preset`). ConfigError, in one line, for a named preset made for another kind of
+    observation than ``env`` gives (a preset file is taken as it is)."""
+    chosen = env_preset(agent, env.env_id) if preset is None else preset
+    if is_preset_file(chosen):
+        return chosen
+    for_images = image_presets(agent)
+    if env.is_image == (chosen in for_images):
+        return chosen
+    if env.is_image:
+        kind = f"images {list(env.obs_shape)}"
+        fix = f"use --preset {' or '.join(for_images)}" if for_images else _no_image_preset(agent)
+        if preset is None:
+            raise ConfigError(f"{_no_image_preset(agent)} ({env.env_id}'s observations are {kind})")
+        raise ConfigError(
+            f"preset {chosen!r} of {agent} is made for state vectors, but {env.env_id}'s observations "
+            f"are {kind}; {fix}"
+        )
+    raise ConfigError(
+        f"preset {chosen!r} of {agent} is made for image observations, but {env.env_id}'s observations "
+        f"are state vectors {list(env.obs_shape)}; use --preset {env_preset(agent, env.env_id)} or "
+        "another of its presets for state vectors"
+    )
+
+
+def _no_image_preset(agent: str) -> str:
+    able = list(_by_env_table()["images"])
+    return (
+        f"{agent} has no preset for images: give it a preset file (--preset FILE.toml), or train "
+        f"{' or '.join(able)} with theirs"
+    )

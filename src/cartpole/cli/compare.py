@@ -30,10 +30,19 @@ def add_parser(sub: Any) -> None:
         "entries",
         nargs="*",
         metavar="ENTRY",
-        help="agent, agent:preset or agent:FILE.toml (not with --report)",
+        help="agent, agent:preset or agent:FILE.toml (not with --report); an agent alone takes its "
+        "preset for --env (`cartpole presets`)",
     )
-    parser.add_argument("--seeds", type=int, default=5, metavar="N", help="seeds per entry (default: 5)")
-    parser.add_argument("--first-seed", type=int, default=0, metavar="S", help="seeds S..S+N-1 (default: 0)")
+    parser.add_argument(
+        "--seeds",
+        default="5",
+        metavar="SEEDS",
+        help="the seeds of every entry, as in train and sweep: a count (5: seeds 0-4), a range (0-99), "
+        "a list (3,5,8) or both (default: 5)",
+    )
+    parser.add_argument(
+        "--first-seed", type=int, default=0, metavar="S", help="with a count N: seeds S..S+N-1 (default: 0)"
+    )
     parser.add_argument("--jobs", type=int, default=1, metavar="J", help="runs at a time (default: 1)")
     parser.add_argument(
         "--env", default="CartPole-v1", metavar="ID", help="Gymnasium env id (default: CartPole-v1)"
@@ -46,8 +55,9 @@ def add_parser(sub: Any) -> None:
     parser.add_argument(
         "--storage",
         metavar="URL",
-        help="share the comparison through this database, e.g. postgresql://USER@HOST:PORT/DB "
-        "(needs the postgres extra); the same command on other machines joins it",
+        help="share the comparison through this database: postgresql://USER@HOST:PORT/DB (needs the "
+        "postgres extra; the same command on other machines joins it) or sqlite:///FILE.db (processes "
+        "of one machine)",
     )
     parser.add_argument(
         "--chunk",
@@ -89,6 +99,8 @@ def run(args: argparse.Namespace) -> int:
         raise ExperimentError(f"--jobs must be >= 1, got {args.jobs}")
     if args.chunk < 1:
         raise ExperimentError(f"--chunk must be >= 1, got {args.chunk}")
+    if args.first_seed < 0:
+        raise ExperimentError(f"--first-seed must be >= 0, got {args.first_seed}")
     return train_and_report(args)
 
 
@@ -131,18 +143,20 @@ def train_and_report(args: argparse.Namespace) -> int:
     """Train the pending runs (this machine's share, with --storage), then write the report."""
     from rich.console import Console
 
+    from cartpole.agents.presets import BY_ENV, DEFAULT_PRESET
     from cartpole.experiments.compare import Experiment
     from cartpole.experiments.entries import parse_entries
     from cartpole.experiments.report import Results, write_report
     from cartpole.experiments.shared import SharedComparison
+    from cartpole.training.session import parse_seeds
 
-    entries = parse_entries(args.entries)
+    seeds = parse_seeds(args.seeds, args.first_seed)
+    entries = parse_entries(args.entries, args.env)
     experiment = Experiment.open(
         Path(args.runs_dir),
         args.name or default_name(entries),
         entries,
-        args.seeds,
-        args.first_seed,
+        seeds,
         args.env,
         args.budget,
         command=["cartpole", *sys.argv[1:]],
@@ -159,6 +173,13 @@ def train_and_report(args: argparse.Namespace) -> int:
         )
     console = Console(soft_wrap=True, stderr=True)
     console.print(f"experiment: {experiment.folder}", highlight=False)
+    for entry in entries:
+        if entry.picked and entry.preset != DEFAULT_PRESET:
+            console.print(
+                f"entry {entry.label}: {entry.agent}'s preset for {args.env} ({BY_ENV}; "
+                f"write {entry.agent}:PRESET for another)",
+                highlight=False,
+            )
     interrupted = False
     with ExperimentProgress(console) as progress:
         try:

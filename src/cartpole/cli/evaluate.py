@@ -51,7 +51,8 @@ def run(args: argparse.Namespace) -> int:
 
     from cartpole.agents.registry import open_policy
     from cartpole.cli.errors import UsageError
-    from cartpole.cli.record import tell_skipped
+    from cartpole.cli.record import eval_video_path, tell_skipped, write_eval_video
+    from cartpole.core.seeding import fresh_eval_seed
     from cartpole.evaluation import MAX_EPISODES, evaluate
     from cartpole.training.engine import picture_workers
 
@@ -66,15 +67,14 @@ def run(args: argparse.Namespace) -> int:
     path, checkpoint, policy = opened.path, opened.checkpoint, opened.policy
     tell_skipped(opened.skipped, path)
     env_id = args.env or checkpoint.env_id
+    seed = fresh_eval_seed() if args.seed is None else args.seed
+    out = None if args.render is None else eval_video_path(path, seed, args.render)  # checked before playing
     report = evaluate(
-        policy, env_id, args.episodes, seed=args.seed, simulator=args.simulator, workers=picture_workers()
+        policy, env_id, args.episodes, seed=seed, simulator=args.simulator, workers=picture_workers()
     )
     video: dict[str, str] = {}
-    if args.render is not None:  # --render (issue 5)
-        from cartpole.cli.record import write_eval_video
-
-        out = write_eval_video(policy, path, env_id, report.seeds[0], report.episodes, args.render)
-        video = {"video": str(out)}
+    if out is not None:  # --render (issue 5)
+        video = {"video": str(write_eval_video(policy, env_id, seed, report.episodes, out))}
     if args.json:
         print(json.dumps(report.to_dict() | {"checkpoint": str(path)} | video, indent=2))
         return 0

@@ -69,7 +69,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BrokenPipeError:
         raise  # stdout was closed by its reader: run_main ends quietly
     except OSError as err:  # a full disk, a read-only folder, a file where a folder should be
-        print(f"cartpole {args.command}: error: {one_line(describe_os_error(err))}", file=sys.stderr)
+        print(
+            f"cartpole {args.command}: error: {one_line(describe_os_error(err, args.command))}",
+            file=sys.stderr,
+        )
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print(f"cartpole {args.command}: interrupted", file=sys.stderr)
@@ -93,7 +96,7 @@ def one_line(message: str) -> str:
 
 
 OS_ERROR_HINTS = {
-    errno.ENOSPC: "free some disk space, then try again (a run continues with `cartpole train --resume RUN`)",
+    errno.ENOSPC: "free some disk space, then try again",
     errno.EDQUOT: "free some space in your quota, then try again",
     errno.EROFS: "the file system is read-only: choose a writable folder (e.g. --runs-dir)",
     errno.EACCES: "you may not write there: choose another folder (e.g. --runs-dir) or fix its permissions",
@@ -102,15 +105,24 @@ OS_ERROR_HINTS = {
     errno.EISDIR: "this is a folder, not a file: give a file path",
     errno.ELOOP: "the path is a symbolic link loop: fix the link or choose another path",
     errno.EEXIST: "something is already there: choose another path",
-    errno.EIO: "the disk failed to read or write: check it, then try again (runs resume from latest.pt)",
+    errno.EIO: "the disk failed to read or write: check it, then try again",
 }
+RESUME_HINTS = {
+    "train": "a run continues with `cartpole train --resume RUN`",
+    "compare": "the same command again resumes the experiment",
+    "sweep": "the same command again resumes the study",
+}
+"""How the commands that train go on after a full disk or a failed disk; the others (plot, record,
+eval, ...) only read runs and have nothing to resume."""
 
 
-def describe_os_error(err: OSError) -> str:
-    """One line for an OS error: the file, what went wrong, and what to do about it."""
+def describe_os_error(err: OSError, command: str) -> str:
+    """One line for an OS error of ``command``: the file, what went wrong, and what to do about it."""
     what = err.strerror or str(err)
     where = f"{err.filename}: " if err.filename else ""
     hint = OS_ERROR_HINTS.get(err.errno or 0)
+    if hint and err.errno in (errno.ENOSPC, errno.EIO) and command in RESUME_HINTS:
+        hint += f"; {RESUME_HINTS[command]}"
     return f"{where}{what}" + (f" ({hint})" if hint else "")
 
 

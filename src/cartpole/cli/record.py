@@ -98,16 +98,26 @@ EVAL_VIDEO_EPISODES = 3
 """`cartpole eval --render` films the first few episodes of the evaluation, not all of them."""
 
 
-def write_eval_video(
-    policy: Any, checkpoint: Path, env_id: str, seed: int, episodes: int, out_text: str
-) -> Path:
-    """The video of ``cartpole eval --render``: its first episodes, from the report's own seeds."""
+def eval_video_path(checkpoint: Path, seed: int, out_text: str) -> Path:
+    """Where ``cartpole eval --render`` writes its video, checked before any episode is played
+    (UsageError naming it if it cannot be written)."""
     from cartpole.cli.errors import UsageError
-    from cartpole.recording import RecordingError, check_video_path, render_episodes, write_video
+    from cartpole.recording import RecordingError, check_video_path
 
     out = Path(out_text) if out_text else default_eval_video_path(checkpoint, seed)
     try:
         check_video_path(out)
+    except RecordingError as err:
+        raise UsageError(str(err)) from None
+    return out
+
+
+def write_eval_video(policy: Any, env_id: str, seed: int, episodes: int, out: Path) -> Path:
+    """The video of ``cartpole eval --render``: its first episodes, from the report's own seeds."""
+    from cartpole.cli.errors import UsageError
+    from cartpole.recording import RecordingError, render_episodes, write_video
+
+    try:
         recording = render_episodes(policy, env_id, min(episodes, EVAL_VIDEO_EPISODES), seed)
         return write_video(recording.frames, out, recording.fps)
     except RecordingError as err:

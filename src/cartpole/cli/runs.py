@@ -25,7 +25,8 @@ def add_parser(sub: Any) -> None:
         "presets",
         help="list agents and their presets",
         description=(
-            "Every agent, its presets, what each preset sets and the file it comes from; then the "
+            "Every agent, its presets, what each preset sets and the file it comes from; which preset "
+            "each agent takes on which env when --preset is not given (presets by env); then the "
             "presets that sweeps under --runs-dir wrote (sweeps/NAME/best.toml). Any .toml preset file "
             "can be given to `cartpole train AGENT --preset FILE.toml`."
         ),
@@ -108,7 +109,7 @@ def run_as_json(summary: RunSummary, runs_dir: Path) -> dict[str, Any]:
 def presets_command(args: argparse.Namespace) -> int:
     from rich.console import Console
 
-    from cartpole.agents.presets import preset_source, preset_table
+    from cartpole.agents.presets import by_env_source, preset_source, preset_table, presets_by_env
     from cartpole.agents.registry import agent_names, get_agent
     from cartpole.cli.errors import UsageError
     from cartpole.experiments.best import sweep_presets
@@ -123,6 +124,11 @@ def presets_command(args: argparse.Namespace) -> int:
         console.print(f"  from {preset_source(name)}", highlight=False)
         for preset, values in preset_table(name).items():
             _print_preset(console, preset, values)
+    console.print(f"[bold]presets by env[/] without --preset (from {by_env_source()}; elsewhere: default):")
+    for env_id, picks in presets_by_env().items():
+        listed = [f"{agent} {preset}" for agent, preset in picks.items() if agent in shown]
+        if listed:
+            console.print(f"  {env_id}: {', '.join(listed)}", highlight=False)
     found = [p for p in sweep_presets(Path(args.runs_dir)) if p.agent in shown]
     if found:
         console.print(f"[bold]sweep presets[/] in {args.runs_dir}/ (use --preset FILE.toml):")

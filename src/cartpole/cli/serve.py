@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import socket
 from pathlib import Path
 from typing import Any
@@ -56,11 +57,22 @@ def serve(args: argparse.Namespace) -> int:
     print(f"cartpole web app for {runs_dir.resolve()}/ at http://{host}:{args.port}/  (Ctrl+C to stop)")
     if args.host not in ("127.0.0.1", "localhost", "::1"):
         print(f"warning: bound to {args.host}: other machines can reach this app")
+    previous = signal.signal(signal.SIGTERM, exit_on_sigterm)
     try:
         uvicorn.run(app, host=args.host, port=args.port, log_level="warning", **SERVER_OPTIONS)
     except OSError as err:
         raise UsageError(f"cannot listen on {args.host}:{args.port}: {err}") from err
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     return 0
+
+
+def exit_on_sigterm(signum: int, frame: Any) -> None:
+    """After its graceful shutdown uvicorn raises a SIGTERM it caught again, under the handler it
+    found: exit through Python's own exit then (status 128 + 15, as a SIGTERM's), which shuts the
+    episode workers' pool down and lets multiprocessing release its semaphores, instead of dying at
+    once and leaving them to the resource tracker's "leaked semaphore" warning."""
+    raise SystemExit(128 + signum)
 
 
 def check_can_listen(host: str, port: int) -> None:

@@ -13,8 +13,9 @@ def add_parser(sub: Any) -> None:
         help="tune an agent's settings with Optuna",
         description=(
             "Search AGENT's settings with Optuna (seeded TPE, pruning on the evaluations during training). "
-            "Each trial trains seeds 0..K-1; its objective is the median env steps to the first verified "
-            "solve, a seed that does not solve counting twice the env steps it used. The study lives in "
+            "Each trial trains the same seeds (--seeds, default 2: seeds 0-1); its objective is the "
+            "median env steps to the first verified solve, a seed that does not solve counting twice "
+            "the env steps it used. The study lives in "
             "RUNS_DIR/sweeps/NAME/journal.log, shared by the --workers processes, or in --storage "
             "postgresql://USER@HOST:PORT/DB, which the same command on several machines joins. --trials is "
             "the number of finished trials the study should hold; re-running adds trials or resumes. The "
@@ -25,19 +26,32 @@ def add_parser(sub: Any) -> None:
     )
     parser.add_argument("agent", metavar="AGENT", help="the agent to tune")
     parser.add_argument(
-        "--preset", default="default", metavar="P", help="settings not searched (default: default)"
+        "--preset",
+        metavar="P",
+        help="settings not searched (default: the agent's preset for --env, `cartpole presets`)",
     )
     parser.add_argument(
         "--trials", type=int, required=True, metavar="N", help="finished trials the study should hold"
     )
     parser.add_argument(
-        "--seeds-per-trial", type=int, default=2, metavar="K", help="seeds per trial (default: 2)"
+        "--seeds",
+        metavar="SEEDS",
+        help="the seeds every trial trains, as in train and compare: a count (2: seeds 0-1), a range "
+        "(0-99), a list (3,5,8) or both (default: 2)",
+    )
+    parser.add_argument(
+        "--seeds-per-trial", type=int, metavar="K", help="seeds 0..K-1 per trial (the same as --seeds K)"
     )
     parser.add_argument(
         "--workers", type=int, default=1, metavar="J", help="local worker processes (default: 1)"
     )
     parser.add_argument("--study", required=True, metavar="NAME", help="study name (and folder name)")
-    parser.add_argument("--storage", metavar="URL", help="postgresql://USER@HOST:PORT/DB to share the study")
+    parser.add_argument(
+        "--storage",
+        metavar="URL",
+        help="share the study through this database: postgresql://USER@HOST:PORT/DB (needs the postgres "
+        "extra; the same command on other machines joins it) or sqlite:///FILE.db (one machine)",
+    )
     parser.add_argument("--budget", metavar="B", help="budget of every run (default: the preset's)")
     parser.add_argument("--space", metavar="FILE.toml", help="search space (default: the agent's own)")
     parser.add_argument("--sampler-seed", type=int, default=0, metavar="S", help="TPE seed (default: 0)")
@@ -57,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
         args.agent,
         args.preset,
         args.trials,
-        args.seeds_per_trial,
+        trial_seeds(args),
         env_id=args.env,
         budget=args.budget,
         space_file=args.space,
@@ -83,6 +97,21 @@ def run(args: argparse.Namespace) -> int:
         )
         return 130
     return 0
+
+
+def trial_seeds(args: argparse.Namespace) -> list[int]:
+    """The seeds of every trial: ``--seeds`` (train's and compare's syntax), or the earlier
+    ``--seeds-per-trial K`` (seeds 0..K-1); 2 seeds when neither is given."""
+    from cartpole.experiments.entries import ExperimentError
+    from cartpole.training.session import parse_seeds
+
+    if args.seeds is not None and args.seeds_per_trial is not None:
+        raise ExperimentError("give --seeds or --seeds-per-trial, not both (--seeds K is K seeds per trial)")
+    if args.seeds_per_trial is not None:
+        if args.seeds_per_trial < 1:
+            raise ExperimentError(f"--seeds-per-trial must be >= 1, got {args.seeds_per_trial}")
+        return list(range(args.seeds_per_trial))
+    return parse_seeds(args.seeds or "2")
 
 
 class SweepProgress:

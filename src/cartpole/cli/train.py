@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from functools import partial
 from typing import TYPE_CHECKING, Any
 
 from rich.console import Console
@@ -60,10 +61,10 @@ def add_parser(sub: Any) -> None:
     parser.add_argument("--seed", type=int, default=0, metavar="N", help="training seed (default: 0)")
     parser.add_argument(
         "--preset",
-        default="default",
         metavar="NAME|FILE.toml",
         help="hyperparameter preset of the agent, by name or as a .toml preset file such as a sweep's "
-        "best.toml (default: default)",
+        "best.toml (default: the agent's preset for the env, `cartpole presets` lists them: e.g. pixels "
+        "on cartpole/CartPolePixels-v1; default elsewhere)",
     )
     parser.add_argument(
         "--set",
@@ -77,7 +78,8 @@ def add_parser(sub: Any) -> None:
         "--budget",
         metavar="B",
         help="stop at this budget: env steps (50000, 50k), episodes (300ep), "
-        "generations (20gen) or time (90s, 5min); default: the preset's",
+        "generations of cem, random-search and hill-climbing (20gen) or time (90s, 5min); default: "
+        "the preset's",
     )
     parser.add_argument(
         "--runs-dir", default="runs", metavar="DIR", help="where run folders go (default: runs)"
@@ -122,9 +124,9 @@ def add_parser(sub: Any) -> None:
     parser.add_argument(
         "--seeds",
         metavar="SEEDS",
-        help="train these seeds in one process, a run folder each: a range (0-99), a list (3,5,8) or "
-        "both; every agent on every env, batched (each seed bit for bit its run alone). --resume of any "
-        "of them continues them all",
+        help="train these seeds in one process, a run folder each, as compare and sweep name seeds: a "
+        "count (10: seeds 0-9), a range (0-99), a list (3,5,8) or both (0-9,20); every agent on every "
+        "env, batched (each seed bit for bit its run alone). --resume of any of them continues them all",
     )
     parser.set_defaults(run=run)
 
@@ -175,6 +177,8 @@ def run(args: argparse.Namespace) -> int:
     threads = torch_threads_for(args) if args.torch_threads is None else args.torch_threads
     configure_process(threads, args.seed)
     console = Console(soft_wrap=True)
+    if not args.resume:
+        say_picked_preset(args, console)
     if population:
         return run_population(args)
     if args.resume:
@@ -183,6 +187,7 @@ def run(args: argparse.Namespace) -> int:
         outcome = resume_unless_finished(resume, args, console)
         if outcome is None:
             return 0
+        console.print(f"run: {outcome.run.path}")
     else:
         try:
             budget = None if args.budget is None else parse_budget(args.budget)
@@ -201,9 +206,9 @@ def run(args: argparse.Namespace) -> int:
             quiet=args.quiet,
             command=["cartpole", *sys.argv[1:]],
             tensorboard=args.tensorboard,  # issue 5: --tensorboard
+            announce=partial(name_runs, console, population=False),
         )
     state = outcome.state
-    console.print(f"run: {outcome.run.path}")
     console.print(
         f"trained {state.env_steps:,} env steps, {state.episodes:,} episodes in {state.elapsed:.1f} s "
         f"({state.stop_detail})"
@@ -231,6 +236,31 @@ def run(args: argparse.Namespace) -> int:
                 highlight=False,
             )
     return 0
+
+
+def name_runs(console: Console, runs: dict[int, RunDir], population: bool) -> None:
+    """Name the new run folder(s) as training starts, flushed at once: a kill -9 or the out-of-memory
+    killer never reaches the end, and ``--resume`` needs the RUN."""
+    from cartpole.core.seeding import describe_seeds
+
+    first = runs[min(runs)].path
+    if population:
+        console.print(
+            f"runs: {len(runs)} in {first.parent}/ (seeds {describe_seeds(list(runs))}), the first {first}",
+            highlight=False,
+        )
+    else:
+        console.print(f"run: {first}", highlight=False)
+    console.file.flush()
+
+
+def say_picked_preset(args: argparse.Namespace, console: Console) -> None:
+    """Without --preset, say which preset the env's agent takes (when it is not "default")."""
+    from cartpole.agents.presets import picked_preset_line
+
+    line = None if args.preset else picked_preset_line(args.agent or DEFAULT_AGENT, args.env)
+    if line:
+        console.print(line, highlight=False)
 
 
 def resume_unless_finished(resume_run: Any, args: argparse.Namespace, console: Console) -> Any:
@@ -297,6 +327,7 @@ def run_population(args: argparse.Namespace) -> int:
             quiet=args.quiet,
             command=["cartpole", *sys.argv[1:]],
             tensorboard=args.tensorboard,
+            announce=partial(name_runs, console, population=True),
         )
     for line in population_summary(outcome):
         console.print(line, highlight=False)

@@ -39,3 +39,16 @@ def derived_seed(seed: int, stream: str) -> int:
     of the run seed's other uses."""
     words = np.random.SeedSequence([seed, *stream.encode()]).generate_state(2, dtype=np.uint32)
     return int(words[0]) << 32 | int(words[1])
+
+
+def describe_seeds(seeds: list[int]) -> str:
+    """``seeds`` as ``--seeds`` names them, runs of consecutive seeds as ranges: ``0-9,20``."""
+    parts: list[str] = []
+    ordered = sorted(seeds)
+    start = 0
+    for i, seed in enumerate(ordered):
+        if i + 1 == len(ordered) or ordered[i + 1] != seed + 1:
+            low = ordered[start]
+            parts.append(str(low) if low == seed else f"{low}-{seed}")
+            start = i + 1
+    return ",".join(parts)

@@ -11,6 +11,8 @@ physics kernel (:func:`step_cartpole`, compiled with numba on first use and cach
   Gymnasium's next-step autoreset, for training;
 - :class:`CartPoleEnv`, a ``gymnasium.Env``, for interactive use (playing by hand, rendering).
 
+Both render as Gymnasium's do (``render_mode="rgb_array"``: its own 600x400 pictures, one per env).
+
 A caller that keeps its own float64 state (the web app's simulator) can step it with
 :class:`CartPoleStepper`: the single env's kernel call, without the env around it.
 
@@ -18,9 +20,10 @@ A caller that keeps its own float64 state (the web app's simulator) can step it 
 
 ```python
 >>> import gymnasium as gym
+>>> import numpy as np
 >>> from cartpole.envs.fast import register_fast_envs
 >>> register_fast_envs()
->>> envs = gym.make_vec("cartpole/CartPole-v1", num_envs=4096, vectorization_mode="vector_entry_point")
+>>> envs = gym.make_vec("cartpole/CartPole-v1", num_envs=4096, dtype=np.float32)  # fast, for training
 >>> env = gym.make("cartpole/CartPole-v1", render_mode="rgb_array")  # rendering needs pygame
 
 ```
@@ -102,11 +105,17 @@ exactly.
   for |angle| < 1e3 rad). Trajectories drift apart from Gymnasium's over long episodes, as any two
   implementations of a chaotic system do, but the dynamics, the flags and the seeds mean the same.
 
-The vector env defaults to float32: it exists for training throughput, its observations are float32
-anyway, and float64 runs several times slower at large ``num_envs``. The single env defaults to
-float64: at one env the cost is Python's, not the arithmetic's, so it reproduces Gymnasium exactly for
-free, which is what the web app's "same start state" replays want. ``step_cartpole`` keeps the dtype of
-the state it is given.
+Both forms default to float64, so that ``gym.make`` and ``gym.make_vec`` of one id agree step for
+step (as Gymnasium's own two forms do) and reproduce Gymnasium exactly; given the same ``dtype`` they
+agree in float32 too. Training asks for float32 (``cartpole.envs.make_vec_env``): at large
+``num_envs`` float64 runs several times slower, and the observations are float32 anyway.
+``step_cartpole`` keeps the dtype of the state it is given.
+
+## Copies
+
+Both forms (and the pixel envs built on them) can be pickled and deep-copied, as Gymnasium's can; the
+copy continues the same episode bit for bit (states, step counters, pending autoresets, the random
+generator). A renderer is not copied: the copy opens its own when it first renders.
 
 ## Throughput and start-up
 
@@ -223,7 +232,26 @@ def step_cartpole_columns(columns: NDArray[np.floating[Any]], action: NDArray[np
     return terminated
 
 
-class CartPoleStepper:
+class _KernelsAtHand:
+    """Keeps the numba kernels module at hand (``self._kernels``: one attribute lookup a step), and
+    out of copies: a module cannot be pickled, nor can a pygame renderer. ``pickle`` and
+    ``copy.deepcopy`` leave both out; the copy takes the kernels again, and opens its own renderer
+    when it first renders, so it continues exactly where the original stands."""
+
+    _kernels: ModuleType
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = {k: v for k, v in self.__dict__.items() if k != "_kernels"}
+        if "_renderer" in state:
+            state["_renderer"] = None
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._kernels = _kernels()
+
+
+class CartPoleStepper(_KernelsAtHand):
     """Steps one float64 state at a time: Gymnasium's equations, through the same kernel, and nothing else.
 
     No spaces, time limit, rewards or copies: the caller keeps the state (and any step counter), e.g.
@@ -279,13 +307,12 @@ def _is_single_state(array: Any) -> bool:
     return isinstance(array, np.ndarray) and array.dtype == _FLOAT64 and array.shape == (4,)
 
 
-class _Physics:
+class _Physics(_KernelsAtHand):
     """What both env forms share: the float type and the physics parameters, changeable live."""
 
     _dtype: np.dtype[Any]
     _params: CartPoleParams
     _packed: Any
-    _kernels: Any
 
     def _init_physics(self, params: CartPoleParams | None, dtype: DTypeLike) -> None:
         self._dtype = _check_dtype(dtype)
@@ -315,11 +342,15 @@ class CartPoleVectorEnv(_Physics, VectorEnv[NDArray[np.float32], NDArray[np.int6
     """``num_envs`` cart-poles stepped together; a drop-in for Gymnasium's CartPoleVectorEnv.
 
     Next-step autoreset, ``terminated`` and ``truncated`` kept apart, float32 observations; see the
-    module docstring for spaces, rewards, parameters and the choice of ``dtype``.
+    module docstring for spaces, rewards, parameters and the choice of ``dtype``. As Gymnasium's:
+    ``state`` is the live ``(4, num_envs)`` array (None before ``reset``), ``prev_done`` says which
+    envs autoreset on the next step, and ``render_mode="rgb_array"`` makes ``render()`` return one
+    600x400 picture per env (Gymnasium's own drawing; needs pygame).
     """
 
     metadata: dict[str, Any] = {  # noqa: RUF012  (Gymnasium's convention: a class attribute)
-        "render_modes": [],
+        "render_modes": ["rgb_array"],
+        "render_fps": 50,
         "autoreset_mode": AutoresetMode.NEXT_STEP,
     }
 
@@ -331,7 +362,7 @@ class CartPoleVectorEnv(_Physics, VectorEnv[NDArray[np.float32], NDArray[np.int6
         sutton_barto_reward: bool = False,
         *,
         params: CartPoleParams | None = None,
-        dtype: DTypeLike = np.float32,
+        dtype: DTypeLike = np.float64,
     ) -> None:
         """``max_episode_steps`` defaults to CartPole-v1's (``gymnasium.make_vec`` passes the id's)."""
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
@@ -344,14 +375,14 @@ class CartPoleVectorEnv(_Physics, VectorEnv[NDArray[np.float32], NDArray[np.int6
             or max_episode_steps < 1
         ):
             raise ValueError(f"max_episode_steps must be an integer >= 1, got {max_episode_steps!r}")
-        if render_mode is not None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
-                f"render_mode={render_mode!r} is not supported by the vector form; "
-                "render a single CartPoleEnv(render_mode='rgb_array') instead"
+                f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}"
             )
         self.num_envs = int(num_envs)
         self.max_episode_steps = int(max_episode_steps)
-        self.render_mode = None
+        self.render_mode = render_mode
+        self._renderer: Any = None
         self._sutton_barto_reward = bool(sutton_barto_reward)
         self._init_physics(params, dtype)
 
@@ -374,6 +405,20 @@ class CartPoleVectorEnv(_Physics, VectorEnv[NDArray[np.float32], NDArray[np.int6
     def sutton_barto_reward(self) -> bool:
         """True for the 0 / -1 reward of Sutton and Barto, False for Gymnasium's +1 per step."""
         return self._sutton_barto_reward
+
+    @property
+    def state(self) -> NDArray[np.floating[Any]] | None:
+        """The live states ``(4, num_envs)`` in the simulation dtype (None before ``reset``), as
+        Gymnasium's vector env holds them: ``state[:, i]`` is env ``i``'s (x, x_dot, theta,
+        theta_dot). Edits in place apply to the next step; :meth:`set_state` checks what it gets."""
+        return self._state
+
+    @property
+    def prev_done(self) -> NDArray[np.bool_]:
+        """Which envs ended on the last step and so autoreset on the next (a new array)."""
+        done = np.zeros(self.num_envs, dtype=np.bool_)
+        done[self._done_idx[: self._n_done]] = True
+        return done
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -491,8 +536,34 @@ class CartPoleVectorEnv(_Physics, VectorEnv[NDArray[np.float32], NDArray[np.int6
         self._low, self._high = (float(b) for b in snapshot["reset_bounds"])
         self.np_random.bit_generator.state = snapshot["np_random"]
 
+    # A list, as Gymnasium's CartPoleVectorEnv returns and its vector HumanRendering asserts
+    # (VectorEnv.render is typed as a tuple).
+    def render(self) -> list[NDArray[np.uint8]] | None:  # type: ignore[override]
+        """One picture per env (``render_mode="rgb_array"``), drawn by Gymnasium's own vector
+        renderer (pygame), fed our states, pole length and track width."""
+        if self.render_mode is None:
+            logger.warn("render() needs render_mode='rgb_array' at construction")
+            return None
+        if self._state is None:
+            raise ResetNeeded("call reset() before render()")
+        if self._renderer is None:
+            from gymnasium.envs.classic_control.cartpole import (
+                CartPoleVectorEnv as GymnasiumCartPoleVector,
+            )
+
+            self._renderer = GymnasiumCartPoleVector(self.num_envs, render_mode=self.render_mode)
+        renderer = self._renderer
+        renderer.length = self._params.length
+        renderer.x_threshold = self._params.x_threshold
+        renderer.state = self._state.astype(np.float64)
+        pictures: list[NDArray[np.uint8]] = renderer.render()
+        return pictures
+
     def close_extras(self, **kwargs: Any) -> None:
-        """Nothing to release: no renderer, no subprocesses."""
+        """Close the renderer, if one was opened."""
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
 
     def __repr__(self) -> str:
         spec_id = self.spec.id if self.spec is not None else "CartPole"

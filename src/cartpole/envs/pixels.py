@@ -282,8 +282,11 @@ def _box_average(
     return np.diff(before + cut, axis=axis) / pixel
 
 
+@functools.cache
 def _kernels() -> ModuleType:
-    """The numba kernel, imported on first use so that importing this module stays cheap."""
+    """The numba kernel, imported on first use so that importing this module stays cheap (asked for
+    at each use, never kept on a renderer: envs can be pickled and copied, compiled functions not
+    cheaply)."""
     from cartpole.envs import _pixel_kernels
 
     return _pixel_kernels
@@ -363,7 +366,6 @@ class PixelRenderer:
         self._background = _to_uint8(
             np.broadcast_to((255.0 * (1.0 - self._line_rows))[:, None], (height, width))
         )
-        self._render = k.render_frames
 
     def render(self, states: ArrayLike, out: NDArray[np.uint8] | None = None) -> NDArray[np.uint8]:
         """Frames ``[N, height, width]`` uint8 of ``states`` ``[N, 4]`` (x, x_dot, theta, theta_dot).
@@ -381,7 +383,7 @@ class PixelRenderer:
             out = np.empty(shape, dtype=np.uint8)
         elif out.shape != shape or out.dtype != np.uint8:
             raise ValueError(f"out must be uint8 of shape {shape}, got {out.dtype} {out.shape}")
-        self._render(
+        _kernels().render_frames(
             s,
             self._geometry,
             self._cart_rows,
@@ -444,7 +446,8 @@ class CartPolePixelsVectorEnv(VectorEnv[NDArray[np.uint8], NDArray[np.int64], ND
     """
 
     metadata: dict[str, Any] = {  # noqa: RUF012  (Gymnasium's convention: a class attribute)
-        "render_modes": [],
+        "render_modes": ["rgb_array"],
+        "render_fps": 50,
         "autoreset_mode": AutoresetMode.NEXT_STEP,
     }
 
@@ -458,7 +461,7 @@ class CartPolePixelsVectorEnv(VectorEnv[NDArray[np.uint8], NDArray[np.int64], ND
         frame_size: tuple[int, int] = DEFAULT_FRAME_SIZE,
         stack: int = DEFAULT_STACK,
         params: CartPoleParams | None = None,
-        dtype: DTypeLike = np.float32,
+        dtype: DTypeLike = np.float64,
     ) -> None:
         self.frame_size = check_frame_size(frame_size)
         self.stack = check_stack(stack)
@@ -468,7 +471,7 @@ class CartPolePixelsVectorEnv(VectorEnv[NDArray[np.uint8], NDArray[np.int64], ND
         self._renderer = PixelRenderer(self.frame_size, self._sim.params)
         self.num_envs = self._sim.num_envs
         self.max_episode_steps = self._sim.max_episode_steps
-        self.render_mode = None
+        self.render_mode = render_mode
         self.single_action_space = self._sim.single_action_space
         self.action_space = self._sim.action_space
         self.single_observation_space = _frame_space(self.frame_size, self.stack)
@@ -488,6 +491,16 @@ class CartPolePixelsVectorEnv(VectorEnv[NDArray[np.uint8], NDArray[np.int64], ND
     def states(self) -> NDArray[np.floating[Any]]:
         """A copy of the current states ``[num_envs, 4]`` (x, x_dot, theta, theta_dot)."""
         return self._sim.get_state()
+
+    @property
+    def state(self) -> NDArray[np.floating[Any]] | None:
+        """The simulator's live states ``(4, num_envs)`` (:attr:`CartPoleVectorEnv.state`)."""
+        return self._sim.state
+
+    @property
+    def prev_done(self) -> NDArray[np.bool_]:
+        """Which envs autoreset on the next step (:attr:`CartPoleVectorEnv.prev_done`)."""
+        return self._sim.prev_done
 
     @property
     def params(self) -> CartPoleParams:
@@ -555,6 +568,12 @@ class CartPolePixelsVectorEnv(VectorEnv[NDArray[np.uint8], NDArray[np.int64], ND
         for slot in range(self.stack):
             observations[:, slot] = self._frames[(self._head + 1 + slot) % self.stack]
         return observations
+
+    # A list, as Gymnasium's CartPoleVectorEnv returns and its vector HumanRendering asserts
+    # (VectorEnv.render is typed as a tuple).
+    def render(self) -> list[NDArray[np.uint8]] | None:  # type: ignore[override]
+        """Gymnasium's picture of each env's state (``render_mode="rgb_array"``), through the simulator."""
+        return self._sim.render()
 
     def close_extras(self, **kwargs: Any) -> None:
         """Close the simulator."""

@@ -25,6 +25,7 @@ def best_preset(spec: SweepSpec, trial: Any) -> dict[str, Any]:
     from cartpole.agents.presets import preset_values
     from cartpole.agents.registry import get_agent
     from cartpole.core.config import config_to_dict
+    from cartpole.core.seeding import describe_seeds
     from cartpole.training.config import resolve_config
 
     config, settings = resolve_config(spec.agent, get_agent(spec.agent).config_cls, spec.preset, trial.params)
@@ -33,10 +34,10 @@ def best_preset(spec: SweepSpec, trial: Any) -> dict[str, Any]:
     if spec.budget:
         values["budget"] = spec.budget
     values = {k: "none" if v is None else v for k, v in values.items()}
-    seeds = spec.seeds_per_trial
     description = (
         f"cartpole sweep {spec.name} ({spec.agent}, from preset {Path(spec.preset).name}): trial "
-        f"{trial.number}, median {trial.value:,.0f} env steps to a verified solve over seeds 0-{seeds - 1}"
+        f"{trial.number}, median {trial.value:,.0f} env steps to a verified solve over seeds "
+        f"{describe_seeds(spec.trial_seeds)}"
     )
     return {"description": description, **values}
 

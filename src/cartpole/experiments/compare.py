@@ -31,7 +31,7 @@ from cartpole.experiments.shared import SharedComparison, new_owner
 from cartpole.experiments.worker import FINISHED, Task, read_record
 from cartpole.runs.atomic import write_json_atomic
 from cartpole.runs.run_dir import read_json
-from cartpole.training.budget import parse_budget
+from cartpole.training.budget import check_budget_unit, parse_budget
 
 NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 WORKER = "cartpole.experiments.worker"
@@ -60,27 +60,26 @@ class Experiment:
         runs_dir: Path,
         name: str,
         entries: list[Entry],
-        seeds: int,
-        first_seed: int = 0,
+        seeds: list[int],
         env_id: str = "CartPole-v1",
         budget: str | None = None,
         command: list[str] | None = None,
     ) -> Experiment:
         """Check the request, and that it matches what ``NAME`` was run with before."""
-        if seeds < 1:
-            raise ExperimentError(f"--seeds must be >= 1, got {seeds}")
-        if first_seed < 0:
-            raise ExperimentError(f"--first-seed must be >= 0, got {first_seed}")
+        if not seeds:
+            raise ExperimentError("an experiment needs at least one seed")
         if budget is not None:
             try:
-                parse_budget(budget)
+                parsed = parse_budget(budget)
+                for entry in entries:  # a budget in generations means nothing to a gradient agent
+                    check_budget_unit(parsed, entry.agent, get_agent(entry.agent).iteration)
             except ValueError as err:
                 raise ExperimentError(str(err)) from None
         from cartpole.envs import env_info
 
         env_info(env_id)  # an unsupported env is bad input before anything is written
         folder = runs_dir / "experiments" / check_name(name, "experiment")
-        experiment = cls(folder, entries, list(range(first_seed, first_seed + seeds)), env_id, budget)
+        experiment = cls(folder, entries, list(seeds), env_id, budget)
         experiment.command = command or []
         experiment.check_same_setup()
         return experiment

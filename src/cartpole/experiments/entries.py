@@ -1,16 +1,16 @@
-"""What an experiment compares: entries ``agent``, ``agent:preset`` or ``agent:path/to/preset.toml``."""
+"""What an experiment compares: entries ``agent``, ``agent:preset`` or ``agent:path/to/preset.toml``.
+An entry that names no preset takes the agent's preset for the env, as ``cartpole train`` does."""
 
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
-from cartpole.agents.presets import is_preset_file
+from cartpole.agents.presets import DEFAULT_PRESET, is_preset_file, resolve_preset
 from cartpole.agents.registry import agent_names, get_agent
-from cartpole.core.errors import ConfigError, InputError
+from cartpole.core.errors import InputError
+from cartpole.envs import env_info
 from cartpole.training.config import resolve_config
-
-DEFAULT_PRESET = "default"
 
 
 class ExperimentError(InputError):
@@ -23,6 +23,8 @@ class Entry:
 
     agent: str
     preset: str = DEFAULT_PRESET
+    picked: bool = field(default=False, compare=False)
+    """Whether the preset is the env's (``presets/by_env.toml``), none being named in the entry."""
 
     @property
     def label(self) -> str:
@@ -35,24 +37,28 @@ class Entry:
         return re.sub(r"[^A-Za-z0-9._-]+", "-", self.label).strip("-")
 
 
-def parse_entry(text: str) -> Entry:
-    """``agent``, ``agent:preset`` or ``agent:FILE.toml``, checked: the agent exists, the preset resolves."""
-    agent, _, preset = text.partition(":")
+def parse_entry(text: str, env_id: str = "CartPole-v1") -> Entry:
+    """``agent``, ``agent:preset`` or ``agent:FILE.toml``, checked: the agent exists, the preset
+    resolves and is made for ``env_id``'s kind of observations. ``agent`` alone takes its preset
+    for ``env_id`` (:func:`~cartpole.agents.presets.resolve_preset`)."""
+    agent, _, named = text.partition(":")
     if agent not in agent_names():
         raise ExperimentError(
             f"unknown agent {agent!r} in entry {text!r}; choose one of: {', '.join(agent_names())}"
         )
-    entry = Entry(agent, preset or DEFAULT_PRESET)
+    env = env_info(env_id)
     try:
-        resolve_config(agent, get_agent(agent).config_cls, entry.preset)
-    except ConfigError as err:
+        get_agent(agent).check_env(env)
+        preset = resolve_preset(agent, env, named or None)
+        resolve_config(agent, get_agent(agent).config_cls, preset)
+    except InputError as err:
         raise ExperimentError(f"entry {text!r}: {err}") from None
-    return entry
+    return Entry(agent, preset, picked=not named)
 
 
-def parse_entries(texts: list[str]) -> list[Entry]:
-    """Entries in the order given; the same entry twice is an error."""
-    entries = [parse_entry(t) for t in texts]
+def parse_entries(texts: list[str], env_id: str = "CartPole-v1") -> list[Entry]:
+    """Entries in the order given, for ``env_id``; the same entry twice is an error."""
+    entries = [parse_entry(t, env_id) for t in texts]
     labels = [e.label for e in entries]
     twice = sorted({label for label in labels if labels.count(label) > 1})
     if twice:

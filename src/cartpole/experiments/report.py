@@ -32,10 +32,13 @@ def entry_summary(entry: Entry, records: list[dict[str, Any]]) -> dict[str, Any]
         "solved": sum(solved),
         "final_solved": sum(bool(r.get("final_solved")) for r in records),
     }
+    censored = [not ok for ok in solved]
     for key, at_solve, used in TIMES:
         values = [float(r[at_solve] if ok else r[used]) for r, ok in zip(records, solved, strict=True)]
-        summary[key] = censored_summary(values, [not ok for ok in solved])
-    summary["final_mean_return"] = iqm_summary([float(r["final_mean"]) for r in records])
+        # with the per-seed values it summarizes (in the order of "seeds"), for rliable and other tools
+        summary[key] = censored_summary(values, censored) | {"values": values, "censored_runs": censored}
+    finals = [float(r["final_mean"]) for r in records]
+    summary["final_mean_return"] = iqm_summary(finals) | {"values": finals}
     summary["seeds"] = [r["seed"] for r in records]
     summary["run_folders"] = [r["run"] for r in records]
     return summary

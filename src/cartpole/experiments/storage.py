@@ -27,7 +27,9 @@ def describe_url(url: str) -> tuple[str, str]:
         ) from None
     backend = parsed.get_backend_name()
     if backend not in SUPPORTED:
-        raise ExperimentError(f"--storage {backend}:// is not supported; use postgresql://USER@HOST:PORT/DB")
+        raise ExperimentError(
+            f"--storage {backend}:// is not supported; use postgresql://USER@HOST:PORT/DB or sqlite:///FILE.db"
+        )
     if backend == "sqlite":
         return backend, parsed.database or ":memory:"
     if not parsed.host:

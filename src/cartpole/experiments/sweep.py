@@ -1,6 +1,6 @@
 """``cartpole sweep``: tune an agent with Optuna, K seeds per trial, from one process to many machines.
 
-Objective (minimized): the median over the trial's K seeds (seeds 0..K-1, the same for every trial) of
+Objective (minimized): the median over the trial's K seeds (``--seeds``, the same for every trial) of
 the env steps to the first verified solve; a seed that does not solve within its budget counts as twice
 the env steps it used. The K seeds train together, as one population (``--seeds``: batched, each seed
 bit for bit its run alone). After every evaluation of any seed the trial reports a lower bound of that
@@ -40,7 +40,7 @@ from cartpole.experiments.storage import describe_url, driver_url, engine_option
 from cartpole.experiments.sweep_spec import SweepSpec
 from cartpole.runs.atomic import write_json_atomic
 from cartpole.training import Callback, TrainingLoop
-from cartpole.training.budget import parse_budget
+from cartpole.training.budget import check_budget_unit, parse_budget
 
 WORKER = "cartpole.experiments.sweep"
 UNSOLVED_FACTOR = 2
@@ -55,9 +55,9 @@ def make_spec(
     runs_dir: Path,
     name: str,
     agent: str,
-    preset: str,
+    preset: str | None,
     trials: int,
-    seeds_per_trial: int,
+    seeds: list[int],
     env_id: str = "CartPole-v1",
     budget: str | None = None,
     space_file: str | None = None,
@@ -65,7 +65,7 @@ def make_spec(
     sampler_seed: int = 0,
 ) -> SweepSpec:
     """Check every input (one line each if wrong) before anything is written."""
-    from cartpole.agents.registry import agent_names
+    from cartpole.agents.registry import agent_names, get_agent
     from cartpole.envs import env_info
     from cartpole.experiments.entries import parse_entry
 
@@ -74,15 +74,15 @@ def make_spec(
         raise ExperimentError(f"unknown agent {agent!r}; choose one of: {', '.join(agent_names())}")
     if trials < 1:
         raise ExperimentError(f"--trials must be >= 1, got {trials}")
-    if seeds_per_trial < 1:
-        raise ExperimentError(f"--seeds-per-trial must be >= 1, got {seeds_per_trial}")
+    if not seeds:
+        raise ExperimentError("a trial needs at least one seed")
     if budget is not None:
         try:
-            parse_budget(budget)
+            check_budget_unit(parse_budget(budget), agent, get_agent(agent).iteration)
         except ValueError as err:
             raise ExperimentError(str(err)) from None
     env_info(env_id)
-    entry = parse_entry(f"{agent}:{preset}")
+    entry = parse_entry(f"{agent}:{preset or ''}", env_id)
     preset = str(Path(entry.preset).resolve()) if entry.preset.endswith(".toml") else entry.preset
     space, text = load_space(agent, preset, space_file)
     return SweepSpec(
@@ -91,7 +91,8 @@ def make_spec(
         preset=preset,
         env_id=env_id,
         budget=budget,
-        seeds_per_trial=seeds_per_trial,
+        seeds_per_trial=len(seeds),
+        seeds=list(seeds),
         trials=trials,
         space_text=text,
         storage=storage,
@@ -285,7 +286,7 @@ def trial_cost(spec: SweepSpec, trial: Any, params: dict[str, Any], stop: list[i
     reporter = PruneReporter(trial, spec.seeds_per_trial)
     outcome = train_population(
         spec.agent,
-        list(range(spec.seeds_per_trial)),
+        spec.trial_seeds,
         spec.env_id,
         preset=spec.preset,
         overrides=params,

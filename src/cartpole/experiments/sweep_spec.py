@@ -27,6 +27,13 @@ class SweepSpec:
     folder: str
     sampler_seed: int = 0
     space: dict[str, Any] = field(default_factory=dict)
+    seeds: list[int] = field(default_factory=list)
+    """The seeds every trial trains (``--seeds``); none recorded (sweeps before it): 0..K-1."""
+
+    @property
+    def trial_seeds(self) -> list[int]:
+        """The seeds every trial trains: ``seeds``, else 0..``seeds_per_trial``-1."""
+        return list(self.seeds) or list(range(self.seeds_per_trial))
 
     @property
     def path(self) -> Path:
@@ -34,7 +41,9 @@ class SweepSpec:
 
     @property
     def identity(self) -> dict[str, Any]:
-        """What a study records about the sweep; a sweep that differs must not join it."""
+        """What a study records about the sweep; a sweep that differs must not join it. (Its seeds
+        only where they are not 0..K-1, so studies made before ``--seeds`` are joined as before.)"""
+        named = {} if self.trial_seeds == list(range(self.seeds_per_trial)) else {"seeds": self.trial_seeds}
         return {
             "agent": self.agent,
             "preset": self.preset,
@@ -42,7 +51,7 @@ class SweepSpec:
             "budget": self.budget,
             "seeds_per_trial": self.seeds_per_trial,
             "space": self.space,
-        }
+        } | named
 
     def params(self) -> dict[str, Param]:
         from cartpole.experiments.space import parse_space

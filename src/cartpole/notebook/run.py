@@ -128,7 +128,7 @@ def train(
     env: str = "CartPole-v1",
     *,
     seed: int = 0,
-    preset: str = "default",
+    preset: str | None = None,
     budget: str | None = None,
     runs_dir: str | Path = "runs",
     device: str = "auto",
@@ -138,8 +138,10 @@ def train(
     """Train ``agent`` on ``env`` as ``cartpole train`` does (a new run folder under ``runs_dir``,
     checkpoints, the final verdict on 100 fresh episodes of Gymnasium's env) and return the run.
 
-    ``settings`` override the preset's, as ``--set`` does (``train("dqn", lr=1e-3)``); ``budget`` as
-    ``--budget`` ("50k" env steps, "300ep", "20gen", "90s"). ``progress``: a progress bar in a
+    ``preset`` None takes the agent's preset for ``env`` (``cartpole presets`` lists them), as
+    ``cartpole train`` without ``--preset`` does. ``settings`` override the preset's, as ``--set``
+    does (``train("dqn", lr=1e-3)``); ``budget`` as ``--budget`` ("50k" env steps, "300ep", "20gen",
+    "90s"). ``progress``: a progress bar in a
     notebook, plain lines elsewhere. torch computes with ``cartpole train``'s default thread count
     while it trains (one thread on state observations), and with the caller's again after.
     """

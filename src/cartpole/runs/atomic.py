@@ -34,8 +34,11 @@ def write_atomic(path: Path, write: Callable[[IO[bytes]], None], durable: bool =
 def replace_atomically(path: Path, write_file: Callable[[Path], None], suffix: str = ".tmp") -> None:
     """Call ``write_file`` on a fresh temp path beside ``path`` (ending in ``suffix``, for writers that
     choose a format by extension), then move it over ``path``; on any error the temp file goes."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    except OSError as err:  # named for the file being written, not its folder or temp file
+        raise OSError(err.errno, err.strerror or str(err), str(path)) from err
     os.close(fd)
     try:
         write_file(Path(tmp))

@@ -81,6 +81,16 @@ def _check_limit(name: str, value: Any) -> None:
         )
 
 
+def check_budget_unit(budget: Budget, agent: str, iteration: str) -> None:
+    """BudgetError unless ``agent``, whose ``learn()`` is one ``iteration`` ("generation" or "step"),
+    can spend ``budget``: generations mean something only to an agent that learns in generations."""
+    if budget.iterations is not None and iteration != "generation":
+        raise BudgetError(
+            f"a budget of {budget.iterations} generations means nothing to {agent}, which learns in "
+            "gradient steps, not generations; give env steps (50k), episodes (300ep) or time (90s)"
+        )
+
+
 def parse_budget(text: str) -> Budget:
     """Parse ``50000``, ``50k``, ``1e5`` (env steps), ``300ep``, ``20gen``/``20it``, ``90s``, ``5min``.
 

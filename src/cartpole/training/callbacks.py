@@ -23,10 +23,12 @@ from cartpole.training.loop import Callback, LoopState, TrainingLoop
 
 
 class BudgetCallback(Callback):
-    """Stops training when any limit of the budget is reached."""
+    """Stops training when any limit of the budget is reached. ``whole_generations`` names an agent
+    that learns in whole generations: where one overshoots a limit, the stop says how far it went."""
 
-    def __init__(self, budget: Budget):
+    def __init__(self, budget: Budget, whole_generations: str | None = None):
         self.budget = budget
+        self.whole_generations = whole_generations
 
     def on_start(self, loop: TrainingLoop) -> None:
         """A resumed run whose budget was already spent (killed before its verdict) trains no more."""
@@ -38,9 +40,18 @@ class BudgetCallback(Callback):
     def check(self, loop: TrainingLoop) -> bool:
         for limit, value, unit in budget_limits(self.budget, loop.state):
             if value >= limit:
-                loop.state.stop(StopReason.BUDGET, f"budget reached ({limit:g} {unit})")
+                loop.state.stop(StopReason.BUDGET, self.reached(limit, value, unit))
                 return False
         return True
+
+    def reached(self, limit: float, value: float, unit: str) -> str:
+        """The stop detail: the limit, and how far past it a whole generation went."""
+        if self.whole_generations is None or value == limit or unit == "seconds":
+            return f"budget reached ({limit:g} {unit})"
+        return (
+            f"budget reached ({limit:g} {unit}; {value:,} {unit} in all: {self.whole_generations} "
+            "learns in whole generations)"
+        )
 
 
 def budget_limits(budget: Budget, state: LoopState) -> list[tuple[float, float, str]]:
@@ -210,10 +221,14 @@ class CheckpointCallback(Callback):
         meta: dict[str, Any],
         schedule: CheckpointSchedule,
         metrics: MetricsCallback | None = None,
+        status: StatusCallback | None = None,
     ):
         self.run, self.agent, self.meta, self.schedule = run, agent, meta, schedule
         self.metrics = metrics
         """Flushed before each ``latest``, so a resume from it finds every metric row up to its step."""
+        self.status = status
+        """Written before each ``latest``, so that after a kill -9 ``status.json`` never lags behind
+        it (a population writes its status only every few seconds)."""
         self.last_save = (0, 0.0, 0.0)
         """(env steps, perf_counter time, budget progress) at the last save of ``latest``."""
         self.best: EvalReport | None = None
@@ -246,6 +261,8 @@ class CheckpointCallback(Callback):
             # Rows still pending would be lost by a kill -9 after this save, and a resume from this
             # checkpoint would not log them again: a gap. Write them first.
             self.metrics.write_pending()
+        if resume and self.status is not None:
+            self.status.write(loop)
         tensors, data = loop.learner.state_dict(resume=resume)
         meta = {
             **self.meta,

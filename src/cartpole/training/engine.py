@@ -25,7 +25,7 @@ import numpy as np
 from cartpole.agents.learner import LearnResult
 from cartpole.agents.population import Population
 from cartpole.core.names import CheckpointName, RunState, StopReason
-from cartpole.core.seeding import final_eval_seed
+from cartpole.core.seeding import describe_seeds, final_eval_seed
 from cartpole.envs import EnvInfo, Simulator, check_simulator
 from cartpole.evaluation import MIN_EPISODES_FOR_SOLVED, EvalReport, Policy, play_greedy_blocks
 from cartpole.runs import LiveStatus, RunDir, load_checkpoint
@@ -443,7 +443,7 @@ def population_summary(outcome: PopulationOutcome) -> list[str]:
     """Lines for the CLI: where the runs are, how many solved, the solve steps."""
     seeds = sorted(outcome.runs)
     folder = outcome.runs[seeds[0]].path.parent
-    lines = [f"{len(seeds)} runs in {folder}/ (seeds {seeds[0]}..{seeds[-1]}), {outcome.seconds:.1f} s"]
+    lines = [f"{len(seeds)} runs in {folder}/ (seeds {describe_seeds(seeds)}), {outcome.seconds:.1f} s"]
     solved_at = [s.solved_at_step for s in outcome.states.values() if s.solved_at_step is not None]
     if solved_at:
         lines.append(

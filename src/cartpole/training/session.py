@@ -8,10 +8,11 @@ This is the library form of ``cartpole train``; benchmarks, experiments and test
 from __future__ import annotations
 
 import re
+import shutil
 import sys
 import uuid
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +21,7 @@ from typing import Any, TextIO
 import numpy as np
 
 from cartpole.agents.population import Population
+from cartpole.agents.presets import resolve_preset
 from cartpole.agents.registry import AgentSpec, build_population, get_agent
 from cartpole.core.errors import ConfigError, InputError
 from cartpole.core.memory import SHARE, describe_bytes, fits_in_memory
@@ -35,7 +37,7 @@ from cartpole.runs import (
     displayed_state,
     load_checkpoint,
 )
-from cartpole.training.budget import Budget, parse_budget
+from cartpole.training.budget import Budget, check_budget_unit, parse_budget
 from cartpole.training.callbacks import require_tensorboard
 from cartpole.training.config import resolve_config
 from cartpole.training.engine import PopulationOutcome, SeedLearner, run_members
@@ -80,7 +82,7 @@ def train(
     env_id: str = "CartPole-v1",
     *,
     seed: int = 0,
-    preset: str = "default",
+    preset: str | None = None,
     overrides: dict[str, Any] | None = None,
     budget: Budget | str | None = None,
     runs_dir: Path | str = "runs",
@@ -90,18 +92,23 @@ def train(
     command: list[str] | None = None,
     tensorboard: bool = False,
     callbacks: Sequence[Callback] = (),
+    announce: Callable[[dict[int, RunDir]], None] | None = None,
 ) -> TrainOutcome:
     """Train ``agent`` on ``env_id`` in a new run folder and return the outcome: a population of one.
 
+    ``preset`` None takes the agent's preset for the env (``presets/by_env.toml``, else "default").
+
     With ``tensorboard`` the metrics also go to ``<run>/tensorboard/`` (needs the tensorboard extra).
     ``callbacks`` see every event after the standard ones (experiments time solves, sweeps prune).
+    ``announce`` is given the run folder (by seed) as soon as it is made, before training (the CLI
+    names it, so that a kill -9 leaves in the output the RUN that ``--resume`` needs).
     """
     if not 0 <= seed <= MAX_TRAIN_SEED:
         raise ConfigError(f"seed must be between 0 and {MAX_TRAIN_SEED}, got {seed}")
     outcome = start(
         agent, [seed], env_id, preset=preset, overrides=overrides, budget=budget, runs_dir=runs_dir,
         device=device, stop_when_solved=stop_when_solved, quiet=quiet, command=command, stream=None,
-        tensorboard=tensorboard, callbacks=callbacks, population=False,
+        tensorboard=tensorboard, callbacks=callbacks, announce=announce, population=False,
     )  # fmt: skip
     return TrainOutcome.of_seed(outcome, seed)
 
@@ -111,7 +118,7 @@ def train_population(
     seeds: list[int],
     env_id: str = "CartPole-v1",
     *,
-    preset: str = "default",
+    preset: str | None = None,
     overrides: dict[str, Any] | None = None,
     budget: Budget | str | None = None,
     runs_dir: Path | str = "runs",
@@ -122,11 +129,12 @@ def train_population(
     stream: TextIO | None = None,
     tensorboard: bool = False,
     callbacks: Sequence[Callback] = (),
+    announce: Callable[[dict[int, RunDir]], None] | None = None,
 ) -> PopulationOutcome:
     """Train ``agent`` with every seed of ``seeds`` in one process; a run folder per seed. Their
     configs record the population (an id and the seeds): ``--resume`` of any member continues
     every unfinished member. ``callbacks`` (one list for all seeds) see every seed's events after
-    the standard ones."""
+    the standard ones; ``announce`` is given the run folders, by seed, as soon as they are made."""
     if not seeds:
         raise InputError("no seeds to train")
     if len(set(seeds)) != len(seeds):
@@ -134,7 +142,7 @@ def train_population(
     return start(
         agent, seeds, env_id, preset=preset, overrides=overrides, budget=budget, runs_dir=runs_dir,
         device=device, stop_when_solved=stop_when_solved, quiet=quiet, command=command, stream=stream,
-        tensorboard=tensorboard, callbacks=callbacks, population=True,
+        tensorboard=tensorboard, callbacks=callbacks, announce=announce, population=True,
     )  # fmt: skip
 
 
@@ -143,7 +151,7 @@ def start(
     seeds: list[int],
     env_id: str,
     *,
-    preset: str,
+    preset: str | None,
     overrides: dict[str, Any] | None,
     budget: Budget | str | None,
     runs_dir: Path | str,
@@ -154,6 +162,7 @@ def start(
     stream: TextIO | None,
     tensorboard: bool,
     callbacks: Sequence[Callback],
+    announce: Callable[[dict[int, RunDir]], None] | None,
     population: bool,
 ) -> PopulationOutcome:
     """Check everything, build the agent (spec, config) and the seeds' population once, make their run
@@ -164,27 +173,38 @@ def start(
     spec = get_agent(agent)
     env = env_info(env_id)
     spec.check_env(env)  # before its memory estimate: that of an agent that cannot take the env is moot
+    preset = resolve_preset(agent, env, preset)
     config, settings = resolve_config(agent, spec.config_cls, preset, overrides)
     if stop_when_solved is not None:
         settings.stop_when_solved = stop_when_solved
     if isinstance(budget, str):
         budget = parse_budget(budget)
     budget = budget or parse_budget(settings.budget)
+    check_budget_unit(budget, agent, spec.iteration)
     device = resolve_device(device, len(seeds))
     check_memory(spec, config, env, len(seeds))
     learner = build_population(spec, config, env, seeds, device)
     population_record = {"population": {"id": uuid.uuid4().hex[:12], "seeds": list(seeds)}}
     with ExitStack() as stack:
-        setups = []
-        for seed in seeds:
-            run = RunDir.create(Path(runs_dir), env_id, agent, seed)
-            stack.enter_context(run.lock())
-            record = run_record(
-                agent, env_id, seed, preset, config, settings, overrides, budget, device, command
-            )
-            record |= (population_record if population else {}) | {"tensorboard": tensorboard}
-            run.write_config(record)
-            setups.append(RunSetup.of(run, record, spec, env, config, settings, budget))
+        setups, made = [], []
+        try:
+            for seed in seeds:
+                run = RunDir.create(Path(runs_dir), env_id, agent, seed)
+                made.append(run)
+                stack.enter_context(run.lock())
+                record = run_record(
+                    agent, env_id, seed, preset, config, settings, overrides, budget, device, command
+                )
+                record |= (population_record if population else {}) | {"tensorboard": tensorboard}
+                run.write_config(record)
+                setups.append(RunSetup.of(run, record, spec, env, config, settings, budget))
+        except BaseException:  # a full disk, say: no folder without its config, listed for ever
+            stack.close()
+            for run in made:
+                shutil.rmtree(run.path, ignore_errors=True)
+            raise
+        if announce is not None:
+            announce({setup.seed: setup.run for setup in setups})
         return run_members(learner, setups, {}, quiet, stream, callbacks)
 
 
@@ -204,14 +224,33 @@ def check_memory(spec: AgentSpec, config: Any, env: EnvInfo, seeds: int) -> None
 
 
 _RANGE = re.compile(r"^(\d+)-(\d+)$")
+SEEDS_HINT = "give a count (5: seeds 0-4), a range (0-99), a list (3,5,8) or both (0-9,20)"
 
 
-def parse_seeds(text: str) -> list[int]:
-    """``0-99`` (inclusive range) or ``3,5,8`` or a mix (``0-9,20``); InputError on anything else:
-    empty, malformed, reversed ranges, duplicates, seeds out of range."""
-    hint = "use a range (0-99), a list (3,5,8) or both (0-9,20)"
+def is_seed_count(text: str) -> bool:
+    """Whether ``--seeds`` text is a count (a number alone) rather than seeds named by range or list."""
+    return text.strip().isdigit()
+
+
+def parse_seeds(text: str, first: int = 0) -> list[int]:
+    """The seeds ``--seeds`` names, with one meaning in train, compare and sweep: a number alone is a
+    count (``10``: seeds ``first`` to ``first + 9``); a range (``0-99``, inclusive), a list
+    (``3,5,8``) or both (``0-9,20``) name the seeds. InputError on anything else: empty, malformed,
+    a count of none, reversed ranges, duplicates, seeds out of range, ``first`` with named seeds."""
     if not text.strip():
-        raise InputError(f"--seeds is empty; {hint}")
+        raise InputError(f"--seeds is empty; {SEEDS_HINT}")
+    if is_seed_count(text):
+        count = int(text)
+        if count < 1:
+            raise InputError(f"--seeds {count} is a count of no seeds; {SEEDS_HINT} (one seed: N-N)")
+        if count > MAX_SEEDS:
+            raise InputError(f"--seeds asks for more than {MAX_SEEDS} seeds; split them into several runs")
+        return check_seed_range(list(range(first, first + count)))
+    if first:
+        raise InputError(
+            f"--first-seed shifts a count of seeds (--seeds N), but --seeds {text.strip()} names its "
+            "seeds already; drop --first-seed"
+        )
     seeds: list[int] = []
     for part in text.split(","):
         part = part.strip()
@@ -228,15 +267,20 @@ def parse_seeds(text: str) -> list[int]:
         elif part.isdigit():
             seeds.append(int(part))
         else:
-            raise InputError(f"--seeds {text!r}: {part!r} is not a seed or a range; {hint}")
+            raise InputError(f"--seeds {text!r}: {part!r} is not a seed or a range; {SEEDS_HINT}")
         if len(seeds) > MAX_SEEDS:
             raise InputError(f"--seeds asks for more than {MAX_SEEDS} seeds; split them into several runs")
     duplicates = sorted(seed for seed, count in Counter(seeds).items() if count > 1)
     if duplicates:
         raise InputError(f"--seeds lists seed {duplicates[0]} more than once; each seed trains once")
-    too_big = [s for s in seeds if s > MAX_TRAIN_SEED]
-    if too_big:
-        raise InputError(f"seed {too_big[0]} is out of range; seeds are 0 to {MAX_TRAIN_SEED}")
+    return check_seed_range(seeds)
+
+
+def check_seed_range(seeds: list[int]) -> list[int]:
+    """``seeds``, or InputError naming the first out of training's range."""
+    out_of_range = [s for s in seeds if not 0 <= s <= MAX_TRAIN_SEED]
+    if out_of_range:
+        raise InputError(f"seed {out_of_range[0]} is out of range; seeds are 0 to {MAX_TRAIN_SEED}")
     return seeds
 
 
@@ -383,7 +427,7 @@ def resume_line(setups: list[RunSetup], states: dict[int, LoopState | None]) -> 
     steps = [state.env_steps if state else 0 for state in states.values()]
     if len(setups) == 1:
         name = setups[0].run.name
-        if not steps[0]:
+        if states[setups[0].seed] is None:  # a latest.pt written at step 0 is one to go on from
             return f"resuming {name} from step 0 (no checkpoints/latest.pt to go on from)"
         return f"resuming {name} from env step {steps[0]:,} (checkpoints/latest.pt)"
     where = f"{min(steps):,}" if min(steps) == max(steps) else f"{min(steps):,} to {max(steps):,}"
@@ -462,6 +506,7 @@ __all__ = [
     "LostProgress",
     "TrainOutcome",
     "is_population_run",
+    "is_seed_count",
     "parse_seeds",
     "resume",
     "resume_population",

@@ -160,7 +160,7 @@ def make_callbacks(
     """
     run, settings = setup.run, setup.settings
     callbacks: list[Callback] = [
-        BudgetCallback(setup.budget),
+        BudgetCallback(setup.budget, setup.spec.name if setup.spec.iteration == "generation" else None),
         EvalCallback(setup.env, setup.seed, settings, evaluator),
     ]
     if settings.stop_when_solved:
@@ -169,10 +169,11 @@ def make_callbacks(
     # them first, so a resume from ``latest`` continues the rows without a gap even after a kill -9.
     metrics = MetricsCallback(run, flush_seconds)
     schedule = CheckpointSchedule.from_settings(setup.budget, settings)
+    status_writer = StatusCallback(status, flush_seconds)
     callbacks += [
         metrics,
-        CheckpointCallback(run, setup.spec, setup.meta, schedule, metrics),
-        StatusCallback(status, flush_seconds),
+        CheckpointCallback(run, setup.spec, setup.meta, schedule, metrics, status_writer),
+        status_writer,
     ]
     if setup.tensorboard:
         callbacks.append(TensorBoardCallback(run, metrics))

@@ -17,13 +17,14 @@ import asyncio
 import json
 import multiprocessing
 import os
+import signal
 import threading
 import time
 from collections import OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
-from contextlib import suppress
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -312,6 +313,29 @@ def _warm_worker() -> None:
     sim.step(0)
 
 
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+@contextmanager
+def stop_signals_ignored() -> Iterator[None]:
+    """SIGINT and SIGTERM ignored meanwhile, so that the worker processes spawned meanwhile start
+    ignoring them (an ignored signal stays ignored through exec, and Python keeps it so), as
+    multiprocessing's resource tracker does: a Ctrl+C or a service manager's SIGTERM to the whole
+    process group then stops the server alone, whose exit ends its workers (their pool's shutdown,
+    or :func:`_exit_with`), and no worker dies mid-import with a traceback or leaves its pool's
+    semaphores to the tracker's warning. Signal handlers belong to the main thread: elsewhere (an
+    app under a test client) nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {signum: signal.signal(signum, signal.SIG_IGN) for signum in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
 class EpisodeWorkers:
     """A bounded pool of worker processes that compute episodes for the Watch page.
 
@@ -339,9 +363,10 @@ class EpisodeWorkers:
 
     def start(self) -> None:
         """Start the workers now and warm them up (in the background: this does not wait)."""
-        pool = self._executor()
-        for _ in range(self.processes):
-            pool.submit(_warm_worker)
+        with stop_signals_ignored():  # submit spawns the workers
+            pool = self._executor()
+            for _ in range(self.processes):
+                pool.submit(_warm_worker)
 
     def close(self) -> None:
         with self._lock:
@@ -364,11 +389,12 @@ class EpisodeWorkers:
             raise EpisodesBusy(f"{self._pending} episodes are being computed; try again in a moment")
         self._pending += 1
         try:
-            pool = self._executor()
-            loop = asyncio.get_running_loop()
             args = (str(checkpoint), env_id, seed, physics, nudges, score_label, header)
             try:
-                return await loop.run_in_executor(pool, episode_body, *args)
+                with stop_signals_ignored():  # a new pool spawns its workers in submit
+                    pool = self._executor()
+                    future = pool.submit(episode_body, *args)
+                return await asyncio.wrap_future(future)
             except BrokenProcessPool as err:
                 with self._lock:
                     if self._pool is pool:
