@@ -133,7 +133,8 @@ def latest_steps(run: Path) -> tuple[int, dict[str, Any]]:
 
 
 def checkpoint_interval_steps(run: Path) -> float:
-    """One checkpoint interval in env steps: 5% of the budget, or 30 s at the run's speed if sooner."""
+    """One checkpoint interval in env steps: 5% of the budget, or 30 s at the run's speed if sooner,
+    from the run's status.json once it has finished (its steps, time and generations)."""
     config = read_json(run / "config.json")
     settings, budget = config["settings"], config["budget"]
     status = read_json(run / "status.json")
@@ -174,11 +175,12 @@ def run_trial(trial: Trial, base: Path, device: str | None) -> Trial:
     worst = max(runs, key=lambda r: steps_on_disk(r) - latest_steps(r)[0])
     trial.steps_at_kill = steps_on_disk(worst)
     trial.steps_in_latest, _ = latest_steps(worst)
-    trial.interval_steps = checkpoint_interval_steps(worst)
     resumed = subprocess.run(
         cartpole("train", "--resume", str(run), "--quiet"), capture_output=True, text=True
     )
     trial.resume_rc = resumed.returncode
+    # From the finished run's status: a kill before the first status with steps left none to go by.
+    trial.interval_steps = checkpoint_interval_steps(worst)
     statuses = [read_json(r / "status.json") for r in runs]
     verdicts = [read_json(r / "eval.json").get("verdict") for r in runs]
     trial.finished = all(s.get("state") == "finished" for s in statuses)
