@@ -122,6 +122,22 @@ def test_a_pixel_seed_alone_is_bit_identical_to_the_seed_in_a_population(agent):
     assert np.array_equal(act(observations, np.array([0])), alone.seed_policy(4).act(observations))
 
 
+@pytest.mark.parametrize("shared_trunk", [False, True])
+def test_an_update_sees_the_logits_and_values_of_each_seeds_own_network(shared_trunk):
+    """The batched forward pass of an update (channels-last, a shared trunk run once for both heads)
+    computes what each seed's nn.Module computes."""
+    config = PPOConfig(num_envs=4, n_steps=4, hidden_sizes=(16,), shared_trunk=shared_trunk)
+    population = build_population(get_agent("ppo"), config, env_info(PIXELS), [3, 5], "cpu")
+    pixels = torch.randint(
+        0, 256, (2, 6, *SHAPE), dtype=torch.uint8, generator=torch.Generator().manual_seed(2)
+    )
+    logits, values = population.model.forward_for_update(pixels)
+    for row in range(2):
+        own_logits, own_values = population.model.unstack(row)(pixels[row])
+        torch.testing.assert_close(logits[row], own_logits, rtol=1e-5, atol=1e-5)
+        torch.testing.assert_close(values[row], own_values, rtol=1e-5, atol=1e-5)
+
+
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
 @pytest.mark.parametrize("agent", sorted(TINY_CONFIGS))
 def test_a_pixel_population_trains_on_cuda_and_its_checkpoints_load_on_the_cpu(agent):

@@ -73,8 +73,16 @@ def forward_plan(model: ActorCritic, trunk_name: str, head_name: str) -> list[La
 
 
 def flatten_images(x: torch.Tensor) -> torch.Tensor:
-    """[S, B, C, H, W] -> [S, B, C * H * W], as nn.Flatten flattens each row."""
-    return x.flatten(2)
+    """[S, B, C, H, W] -> [S, B, H * W * C]: each row's values in channels-last order, the order a
+    seed's convolution leaves them in memory (no copy, and none in the backward pass). nn.Flatten
+    orders them C, H, W: :func:`channels_last_columns` reorders the next layer's weight to match."""
+    return x.permute(0, 1, 3, 4, 2).flatten(2)
+
+
+def channels_last_columns(weight: torch.Tensor, image_shape: torch.Size) -> torch.Tensor:
+    """``weight`` [S, out, C * H * W] (an nn.Linear's after nn.Flatten) with its columns in the
+    order of :func:`flatten_images`, so that ``flatten_images(x) @ w^T`` is nn.Flatten's layer."""
+    return weight.unflatten(2, image_shape).permute(0, 1, 3, 4, 2).flatten(2)
 
 
 def scale_stacked_pixels(x: torch.Tensor) -> torch.Tensor:
@@ -125,13 +133,6 @@ class UpdatePass:
     rows: torch.Tensor | None
 
 
-SHAPE_STEPS: dict[type[nn.Module], Callable[[torch.Tensor], torch.Tensor]] = {
-    nn.Flatten: flatten_images,
-}
-"""The parameter-free layers of an image trunk, on a seed axis, but for ``ScalePixels`` (see
-:meth:`StackedActorCritic.run`)."""
-
-
 class StackedActorCritic(FlatParameters[ActorCritic]):
     """The actor-critics of S seeds (:class:`~cartpole.agents.nn.flat_parameters.FlatParameters`),
     each linear layer one ``torch.baddbmm`` for all seeds."""
@@ -143,6 +144,8 @@ class StackedActorCritic(FlatParameters[ActorCritic]):
         critic_trunk = "actor_trunk" if self.template.shared_trunk else "critic_trunk"
         self.actor_plan = forward_plan(self.template, "actor_trunk", "policy_head")
         self.critic_plan = forward_plan(self.template, critic_trunk, "value_head")
+        self.one_trunk = self.actor_plan[:-1] == self.critic_plan[:-1]
+        """Whether both heads sit on one trunk (``shared_trunk``): an update then runs it once."""
         self.hand = (HandBackward.of(self.actor_plan), HandBackward.of(self.critic_plan))
         self.by_hand = None not in self.hand
         """Whether an update's gradients are computed by hand (MLPs; autograd's otherwise)."""
@@ -159,9 +162,13 @@ class StackedActorCritic(FlatParameters[ActorCritic]):
         """``x`` [S, B, *obs_shape] through ``plan``: one baddbmm per linear layer for all seeds, one
         conv2d per seed and convolutional layer; pixels scaled by ``scale``. ``inputs``, when given,
         receives each linear layer's input, in order."""
+        image_shape: torch.Size | None = None
+        """[C, H, W] of the images the last flatten took, until the linear layer after it."""
         for step in plan:
             if isinstance(step, tuple):
                 weight, bias = params[step[0]], params[step[1]]
+                if image_shape is not None:
+                    weight, image_shape = channels_last_columns(weight, image_shape), None
                 if inputs is not None:
                     inputs.append(x)
                 x = stacked_linear(x, weight, bias)
@@ -171,8 +178,9 @@ class StackedActorCritic(FlatParameters[ActorCritic]):
                 x = step.forward(x)
             elif step is ScalePixels:
                 x = scale(x)
-            elif step in SHAPE_STEPS:
-                x = SHAPE_STEPS[step](x)
+            elif step is nn.Flatten:
+                image_shape = x.shape[2:]
+                x = flatten_images(x)
             else:
                 x = TORCH_ACTIVATIONS[step](x)
         return x
@@ -205,10 +213,7 @@ class StackedActorCritic(FlatParameters[ActorCritic]):
         An MLP runs without autograd, keeping what the backward pass by hand needs."""
         self.update_pass = None
         if not self.by_hand:
-            params = self.rows_of_params(rows)
-            scale = self.scale_once
-            logits = self.run(self.actor_plan, params, observations, scale)
-            return logits, self.run(self.critic_plan, params, observations, scale).squeeze(-1)
+            return self.heads(self.rows_of_params(rows), observations)
         with torch.no_grad():  # the rows' parameters too: the gradients by hand need no graph
             params = self.rows_of_params(rows)
             inputs: tuple[list[torch.Tensor], list[torch.Tensor]] = ([], [])
@@ -216,6 +221,21 @@ class StackedActorCritic(FlatParameters[ActorCritic]):
             values = self.run(self.critic_plan, params, observations, inputs=inputs[1]).requires_grad_()
         self.update_pass = UpdatePass((logits, values), inputs, params, rows)
         return logits, values.squeeze(-1)
+
+    def heads(
+        self, params: dict[str, torch.Tensor], observations: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Logits [S, B, n_actions] and values [S, B] under ``params``, pixels scaled once; a shared
+        trunk runs once for both heads."""
+        if not self.one_trunk:
+            logits = self.run(self.actor_plan, params, observations, self.scale_once)
+            return logits, self.run(self.critic_plan, params, observations, self.scale_once).squeeze(-1)
+        features = self.run(self.actor_plan[:-1], params, observations, self.scale_once)
+        policy, value = self.actor_plan[-1], self.critic_plan[-1]
+        assert isinstance(policy, tuple) and isinstance(value, tuple)  # forward_plan ends on a head
+        (policy_weight, policy_bias), (value_weight, value_bias) = policy, value
+        logits = stacked_linear(features, params[policy_weight], params[policy_bias])
+        return logits, stacked_linear(features, params[value_weight], params[value_bias]).squeeze(-1)
 
     def rows_of_params(self, rows: torch.Tensor | None) -> dict[str, torch.Tensor]:
         """The parameters of the seeds at ``rows`` (None: all)."""
