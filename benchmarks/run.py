@@ -93,7 +93,7 @@ TABLES = [
     ),
     Benchmark(
         "tutorial-presets", "time_to_solve.py",
-        f"--agents {TUTORIALS} --seeds 10 --first-seed 10200 --jobs 2", minutes=50,
+        f"--agents {TUTORIALS} --seeds 4 --first-seed 10200 --jobs 2", minutes=25,
         tiny=f"--agents {TUTORIALS} --seeds 1 --first-seed 10200 --max-seconds-per-run 20",
         headline="The tutorials' agents, faithfully",
     ),
