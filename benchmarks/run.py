@@ -186,7 +186,8 @@ def read_record(results_dir: Path, name: str) -> dict[str, Any] | None:
 
 
 def not_run_yet(table: Benchmark) -> str:
-    return f"*Not run yet:* `python benchmarks/run.py {table.name}` (about {table.minutes} min).\n"
+    where = " on a machine with a CUDA GPU" if table.needs_cuda else ""
+    return f"*Not run yet:* `python benchmarks/run.py {table.name}`{where} (about {table.minutes} min).\n"
 
 
 def with_tables(text: str, results_dir: Path) -> str:
