@@ -144,8 +144,10 @@ class StackedActorCritic(FlatParameters[ActorCritic]):
         critic_trunk = "actor_trunk" if self.template.shared_trunk else "critic_trunk"
         self.actor_plan = forward_plan(self.template, "actor_trunk", "policy_head")
         self.critic_plan = forward_plan(self.template, critic_trunk, "value_head")
-        self.one_trunk = self.actor_plan[:-1] == self.critic_plan[:-1]
-        """Whether both heads sit on one trunk (``shared_trunk``): an update then runs it once."""
+        self.one_trunk = self.template.is_image and self.actor_plan[:-1] == self.critic_plan[:-1]
+        """Whether both heads sit on one image trunk (``shared_trunk`` on pixels): an update then runs it
+        once. An MLP's shared trunk runs for each head, as its gradients by hand do, so that autograd's
+        gradients are the same bits."""
         self.hand = (HandBackward.of(self.actor_plan), HandBackward.of(self.critic_plan))
         self.by_hand = None not in self.hand
         """Whether an update's gradients are computed by hand (MLPs; autograd's otherwise)."""
