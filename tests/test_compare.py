@@ -108,12 +108,12 @@ def test_compare_reports_resumes_and_adds_seeds(tmp_path):
 
 @pytest.mark.slow
 def test_ctrl_c_stops_every_worker_and_a_rerun_resumes(tmp_path):
-    # Hill climbing with a tiny step keeps training to its 15-second budget; latest.pt every generation.
+    # Hill climbing with a tiny step keeps training to its 30-second budget; latest.pt every generation.
     # (The budget leaves a loaded machine time to start both workers before either run ends.)
     preset = tmp_path / "slow.toml"
     preset.write_text("noise = 0.0001\nstop_when_solved = false\ncheckpoint_every = 1\n")
     runs_dir = tmp_path / "runs"
-    args = ["compare", f"hill-climbing:{preset}", "--seeds", "2", "--jobs", "2", "--budget", "15s",
+    args = ["compare", f"hill-climbing:{preset}", "--seeds", "2", "--jobs", "2", "--budget", "30s",
             "--name", "c", "--runs-dir", str(runs_dir)]  # fmt: skip
     process = subprocess.Popen(
         [sys.executable, "-m", "cartpole", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True

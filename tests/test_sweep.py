@@ -196,12 +196,12 @@ def test_ctrl_c_leaves_the_study_consistent_and_a_rerun_finishes_it(tmp_path):
     import signal
     import time
 
-    # 15 s of training each: time for a loaded machine to start both workers before either trial ends.
+    # 30 s of training each: time for a loaded machine to start both workers before either trial ends.
     preset = write(tmp_path / "slow.toml", "stop_when_solved = false\ncheckpoint_every = 1\n")
     space = write(tmp_path / "space.toml", "[noise]\nlow = 0.0001\nhigh = 0.0002\n")
     runs_dir = tmp_path / "runs"
     args = ["sweep", "hill-climbing", "--preset", preset, "--space", space, "--trials", "2",
-            "--workers", "2", "--seeds-per-trial", "1", "--study", "c", "--budget", "15s",
+            "--workers", "2", "--seeds-per-trial", "1", "--study", "c", "--budget", "30s",
             "--runs-dir", str(runs_dir)]  # fmt: skip
     process = subprocess.Popen(
         [sys.executable, "-m", "cartpole", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
