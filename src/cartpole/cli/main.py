@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from cartpole.cli import evaluate as eval_cmd
 from cartpole.cli import runs as runs_cmd
 from cartpole.cli import train as train_cmd
+from cartpole.cli.allocator import keep_freed_memory
 from cartpole.cli.errors import EXIT_BAD_INPUT
 from cartpole.core.errors import InputError
 from cartpole.core.version import __version__
@@ -61,6 +62,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
     args = parser.parse_args(argv)
     headless_pygame()
+    keep_freed_memory()
     try:
         return int(args.run(args) or 0)
     except (InputError, FileNotFoundError) as err:
