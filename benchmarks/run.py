@@ -122,7 +122,7 @@ TABLES = [
         tiny="--steps 100 --sessions 1 4 --episodes 3 --watch-load 1", headline="Web app: play round-trip",
     ),
     Benchmark(
-        "pixels", "pixels.py", "--agents ppo:pixels,dqn:pixels --seeds 5 --first-seed 9900", minutes=60,
+        "pixels", "pixels.py", "--agents ppo:pixels --seeds 8 --first-seed 9900 --population", minutes=30,
         tiny="--agents ppo:pixels --seeds 1 --first-seed 9900 --budget 2k", headline="CartPole from pixels",
     ),
     Benchmark(
