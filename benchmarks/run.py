@@ -126,6 +126,11 @@ TABLES = [
         tiny="--agents ppo:pixels --seeds 1 --first-seed 9900 --budget 2k", headline="CartPole from pixels",
     ),
     Benchmark(
+        "pixels-dqn", "pixels.py", "--agents dqn:pixels --seeds 10 --first-seed 9910", minutes=80,
+        tiny="--agents dqn:pixels --seeds 1 --first-seed 9910 --budget 2k",
+        headline="CartPole from pixels, DQN",
+    ),
+    Benchmark(
         "renderer", "renderer.py", "--sizes 30x100,40x60,60x200", minutes=2, quick=True,
         tiny="--sizes 30x100 --envs 1,64 --seconds 0.1 --repeats 1",
     ),

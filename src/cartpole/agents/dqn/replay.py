@@ -133,10 +133,15 @@ class StackedReplay:
         """The uint8 observations and next observations [S, B, C, H, W] of the rows ``index`` [S, B]."""
         assert self.images is not None
         _, seeds, capacity, *shape = self.images.shape
-        base = torch.arange(seeds, device=index.device).unsqueeze(1) * capacity
-        both = self.images.view(2, seeds * capacity, *shape).index_select(1, (index + base).view(-1))
-        both = both.view(2, seeds, index.shape[1], *shape)
-        return both[0], both[1]
+        rows = (index + torch.arange(seeds, device=index.device).unsqueeze(1) * capacity).view(-1)
+        # One index_select per store, each contiguous: on the whole [2, S, ...] store, once ``keep``
+        # has cut it to fewer seeds (a view with the old seed count's strides), index_select takes
+        # its element-by-element path, about a thousand times slower.
+        obs, next_obs = (
+            self.images[which].view(seeds * capacity, *shape).index_select(0, rows).view(seeds, -1, *shape)
+            for which in (0, 1)
+        )
+        return obs, next_obs
 
     def gather(self, index: torch.Tensor) -> torch.Tensor:
         """The rows ``index`` [S, B] (slot numbers within each seed's buffer): [S, B, 2 * obs_dim + 3]."""
