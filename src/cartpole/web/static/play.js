@@ -293,6 +293,7 @@ async function loadAgents() {
   el("no-runs").hidden = runs.length > 0;
   if (!runs.length) {
     select.innerHTML = '<option value="">(no runs yet)</option>';
+    if (game.phase === "over") updateCompareLink();
     return;
   }
   select.innerHTML = runs.map((r) => {
@@ -300,6 +301,7 @@ async function loadAgents() {
     return `<option value="${CP.escapeHTML(r.name)}" data-agent="${CP.escapeHTML(r.agent)}">${CP.escapeHTML(label)}</option>`;
   }).join("");
   if (runs.some((r) => r.name === chosen)) select.value = chosen;
+  if (game.phase === "over") updateCompareLink(); // the list may arrive after the game ended
 }
 
 async function refreshAgents() {
