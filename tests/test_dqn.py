@@ -114,6 +114,24 @@ def test_the_optimizer_is_adam_with_the_configured_learning_rate() -> None:
         assert float(moved[moved > 0].median()) == pytest.approx(lr, rel=1e-2)
 
 
+def test_a_linear_lr_schedule_decays_each_step_to_nothing_at_schedule_steps() -> None:
+    """Adam's first step moves a parameter by about the learning rate: 3 envs, 12 schedule steps,
+    the first round (at 3 env steps) runs at 3/4 of lr; from 12 env steps on, nothing moves."""
+    lr = 3e-2
+    config = small_config(learning_starts=0, gradient_steps=1, lr=lr, lr_schedule="linear", schedule_steps=12)
+    learner = make_learner(config, seed=5)
+    before = flat_params(learner)
+    env_steps = learner.learn().env_steps
+    assert env_steps == 3
+    moved = (flat_params(learner) - before).abs()
+    assert float(moved[moved > 0].median()) == pytest.approx(0.75 * lr, rel=1e-2)
+    while env_steps < 12:
+        env_steps += learner.learn().env_steps
+    settled = flat_params(learner)
+    assert learner.learn().scalars["train/gradient_steps"] > 0
+    assert torch.equal(flat_params(learner), settled)
+
+
 # ----------------------------------------------------------------------------------------------
 # The Bellman target
 # ----------------------------------------------------------------------------------------------
@@ -261,6 +279,8 @@ def test_each_preset_loads_and_runs_a_few_steps(preset: str) -> None:
         ({"gamma": "1.5"}, "gamma must be in"),
         ({"loss": "l3"}, "loss must be one of"),
         ({"epsilon_schedule": "cosine"}, "epsilon_schedule must be one of"),
+        ({"lr_schedule": "cosine"}, "lr_schedule must be one of"),
+        ({"schedule_steps": "0"}, "schedule_steps must be >= 1"),
         ({"hidden_sizes": "64,0"}, "hidden_sizes must all be >= 1"),
         ({"no_such_knob": "1"}, "unknown setting 'no_such_knob'"),
         ({"lr": "fast"}, "lr='fast' is not a valid"),

@@ -17,13 +17,13 @@ from cartpole.agents.actor_critic.a2c import A2CConfig
 from cartpole.agents.actor_critic.network import (
     ActorCritic,
     CategoricalPolicy,
-    schedule_value,
     stacked_greedy_actor,
 )
 from cartpole.agents.actor_critic.ppo import PPOConfig, clipped_surrogate_loss, clipped_value_loss
 from cartpole.agents.actor_critic.reinforce import ReinforceConfig
 from cartpole.agents.actor_critic.rollout import generalized_advantages
 from cartpole.agents.nn.masked import masked_normalize
+from cartpole.agents.nn.schedules import schedule_value
 from cartpole.agents.presets import preset_names
 from cartpole.agents.registry import get_agent, load_policy
 from cartpole.core.errors import ConfigError

@@ -66,6 +66,8 @@ DQN_CHANGES: dict[str, Change] = {
     "dropout": ({}, 0.3),
     "dueling": ({}, True),
     "lr": ({}, 1e-2),
+    "lr_schedule": ({"schedule_steps": 100}, "linear"),
+    "schedule_steps": ({"lr_schedule": "linear"}, 50),
     "gamma": ({}, 0.5),
     "loss": ({}, "mse"),
     "max_grad_norm": ({}, 0.05),

@@ -12,7 +12,6 @@
   probabilities, ``act`` their argmax. It runs the actor with numpy on copies of its weights
   (:class:`~cartpole.agents.nn.numpy_mlp.NumpyMLP`), or, for a convolutional actor (which has no
   numpy twin), with torch on a frozen copy.
-- ``schedule_value``: the constant and linear schedules of learning rate and clip range.
 """
 
 from __future__ import annotations
@@ -34,14 +33,6 @@ from cartpole.evaluation import BlockActor
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
 """Hidden-layer activations; each has a numpy twin (:mod:`cartpole.agents.nn.numpy_mlp`)."""
-SCHEDULES = ("constant", "linear")
-
-
-def schedule_value(start: float, schedule: str, env_steps: int, schedule_steps: int) -> float:
-    """``start`` (constant), or ``start`` decayed linearly to 0 at ``schedule_steps`` env steps (linear)."""
-    if schedule == "constant":
-        return start
-    return start * max(0.0, 1.0 - env_steps / schedule_steps)
 
 
 def mlp(sizes: list[int], activation: str) -> list[nn.Linear | nn.Module]:
@@ -261,7 +252,6 @@ __all__ = [
     "ACTIVATIONS",
     "CONV_LAYERS",
     "PIXEL_SCALE",
-    "SCHEDULES",
     "ActorCritic",
     "CategoricalPolicy",
     "ScalePixels",
@@ -271,6 +261,5 @@ __all__ = [
     "conv_output_size",
     "parameter_count",
     "scale_pixels",
-    "schedule_value",
     "stacked_greedy_actor",
 ]

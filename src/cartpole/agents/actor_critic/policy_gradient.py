@@ -16,11 +16,11 @@ import torch
 
 from cartpole.agents.actor_critic.network import (
     ACTIVATIONS,
-    SCHEDULES,
     ActorCritic,
     CategoricalPolicy,
     Standardization,
 )
+from cartpole.agents.nn.schedules import SCHEDULES
 from cartpole.agents.seed_state import unprefixed
 from cartpole.core.config import build_config, require
 from cartpole.core.errors import ConfigError

@@ -32,7 +32,6 @@ from cartpole.agents.actor_critic.network import (
     block_greedy_actor,
     conv_output_size,
     parameter_count,
-    schedule_value,
     stacked_greedy_actor,
 )
 from cartpole.agents.actor_critic.policy_gradient import (
@@ -47,6 +46,7 @@ from cartpole.agents.learner import LearnResult
 from cartpole.agents.nn.flat_parameters import on_the_cpu
 from cartpole.agents.nn.masked import masked_variance
 from cartpole.agents.nn.population_optimizers import population_optimizer
+from cartpole.agents.nn.schedules import schedule_value
 from cartpole.agents.population import Population, staying_rows
 from cartpole.agents.registry import AgentSpec
 from cartpole.agents.seed_state import SeedState, require_training_state, unprefixed, with_training_state

@@ -26,7 +26,6 @@ from dataclasses import dataclass
 
 import torch
 
-from cartpole.agents.actor_critic.network import SCHEDULES, schedule_value
 from cartpole.agents.actor_critic.policy_gradient import PolicyGradientConfig
 from cartpole.agents.actor_critic.population import (
     PopulationActorCritic,
@@ -36,6 +35,7 @@ from cartpole.agents.actor_critic.population import (
 from cartpole.agents.actor_critic.rollout import Rollout
 from cartpole.agents.learner import LearnResult
 from cartpole.agents.nn.masked import log_probs_and_entropy, masked_mean, masked_normalize
+from cartpole.agents.nn.schedules import SCHEDULES, schedule_value
 from cartpole.core.config import require
 from cartpole.envs import EnvInfo
 

@@ -2,7 +2,8 @@
 ``presets/dqn.toml``), checked on its own (``validate``) and against the env's observations
 (``check_env``). The learning rule that reads them is :mod:`cartpole.agents.dqn.dqn`.
 
-The three exploration schedules are the ones the tutorials used: linear (ours), exponential per env
+The learning rate's schedules are the policy-gradient agents' (constant or linear). The three
+exploration schedules are the ones the tutorials used: linear (ours), exponential per env
 step (the PyTorch tutorial), and multiplicative per gradient step (the Keras tutorial).
 """
 
@@ -12,11 +13,12 @@ from dataclasses import dataclass
 
 from cartpole.agents.dqn.q_network import ACTIVATIONS, network_input_shape
 from cartpole.agents.nn.conv import conv_output_size
+from cartpole.agents.nn.schedules import SCHEDULES
 from cartpole.core.config import require
 from cartpole.core.errors import ConfigError
 from cartpole.envs import EnvInfo, check_simulator
 
-SCHEDULES = ("linear", "exponential", "multiplicative")
+EPSILON_SCHEDULES = ("linear", "exponential", "multiplicative")
 LOSSES = ("huber", "mse")
 OPTIMIZERS = ("adam", "rmsprop")
 
@@ -48,7 +50,11 @@ class DQNConfig:
     optimizer: str = "adam"
     """adam, or rmsprop (torch.optim.RMSprop's defaults: alpha 0.99, eps 1e-8, no momentum)."""
     lr: float = 2e-3
-    """Learning rate of the optimizer."""
+    """Learning rate of the optimizer (its start, with a linear lr_schedule)."""
+    lr_schedule: str = "constant"
+    """constant, or linear: each seed's learning rate decays to 0 at schedule_steps of its env steps."""
+    schedule_steps: int = 100_000
+    """Env steps over which a linear lr_schedule decays the learning rate to 0."""
     gamma: float = 0.99
     """Discount factor."""
     loss: str = "huber"
@@ -117,6 +123,8 @@ class DQNConfig:
         require(self.activation in ACTIVATIONS, f"activation must be one of {', '.join(ACTIVATIONS)}")
         require(0.0 <= self.dropout < 1.0, "dropout must be in [0, 1)")
         require(self.lr > 0, f"lr must be > 0, got {self.lr}")
+        require(self.lr_schedule in SCHEDULES, f"lr_schedule must be one of {', '.join(SCHEDULES)}")
+        require(self.schedule_steps >= 1, f"schedule_steps must be >= 1, got {self.schedule_steps}")
         require(0.0 <= self.gamma <= 1.0, f"gamma must be in [0, 1], got {self.gamma}")
         require(self.loss in LOSSES, f"loss must be one of {', '.join(LOSSES)}, got {self.loss!r}")
         require(self.max_grad_norm is None or self.max_grad_norm > 0, "max_grad_norm must be > 0 or none")
@@ -130,7 +138,10 @@ class DQNConfig:
         require(self.train_freq >= 1, f"train_freq must be >= 1, got {self.train_freq}")
         require(self.gradient_steps >= 0, f"gradient_steps must be >= 0, got {self.gradient_steps}")
         require(1 <= self.n_step <= 100, f"n_step must be between 1 and 100, got {self.n_step}")
-        require(self.epsilon_schedule in SCHEDULES, f"epsilon_schedule must be one of {', '.join(SCHEDULES)}")
+        require(
+            self.epsilon_schedule in EPSILON_SCHEDULES,
+            f"epsilon_schedule must be one of {', '.join(EPSILON_SCHEDULES)}",
+        )
         require(
             0.0 <= self.epsilon_end <= self.epsilon_start <= 1.0,
             "need 0 <= epsilon_end <= epsilon_start <= 1",
@@ -162,4 +173,4 @@ class DQNConfig:
             ) from None
 
 
-__all__ = ["LOSSES", "OPTIMIZERS", "SCHEDULES", "DQNConfig"]
+__all__ = ["EPSILON_SCHEDULES", "LOSSES", "OPTIMIZERS", "DQNConfig"]

@@ -11,7 +11,9 @@
    to the Q-values, :meth:`PopulationDQN.q_gradient`, then the network's by hand; clipping; the
    optimizer step).
 4. A training round (:meth:`PopulationDQN.train`): ``gradient_steps`` gradient steps on minibatches
-   drawn from each seed's replay memory, each followed by the due target-network updates (Polyak or
+   drawn from each seed's replay memory at the seed's learning rate (constant, or decayed linearly
+   with its env steps: :meth:`PopulationDQN.learning_rates`), each followed by the due
+   target-network updates (Polyak or
    hard copies: :meth:`PopulationDQN.update_targets`) and the multiplicative epsilon decay
    (:meth:`PopulationDQN.after_step`).
 5. One ``learn()`` (:meth:`PopulationDQN.learn`): one batched env step of every seed, epsilon-greedy
@@ -40,6 +42,7 @@ from cartpole.agents.dqn.stacked import padded
 from cartpole.agents.episodes import Finished
 from cartpole.agents.learner import LearnResult
 from cartpole.agents.nn.flat_parameters import to_device
+from cartpole.agents.nn.schedules import schedule_value
 from cartpole.agents.registry import AgentSpec
 from cartpole.envs import EnvInfo
 
@@ -246,6 +249,8 @@ class PopulationDQN(QLearningPopulation):
         config, device = self.config, self.device
         counts = np.where(training, np.minimum(config.batch_size, self.replay.size), 0)
         shared = self.round_tensors(training, counts)
+        if self.config.lr_schedule != "constant":
+            shared = shared._replace(lr=self.learning_rates())
         metrics = torch.zeros(len(self.seeds), 2, device=device)
         slots = self.replay.sample_slots(
             training, counts, config.gradient_steps, self.batch_rows, self.replay_generators
@@ -272,6 +277,15 @@ class PopulationDQN(QLearningPopulation):
             row_weights = (active.to(mask.dtype) / count).unsqueeze(1) * mask
             self.rounds = {key: Round(mask, count, active, lr, row_weights)}
         return self.rounds[key]
+
+    def learning_rates(self) -> torch.Tensor:
+        """Each seed's learning rate now [S] (the schedule follows the seed's own env steps)."""
+        config = self.config
+        rates = [
+            schedule_value(config.lr, config.lr_schedule, int(s), config.schedule_steps)
+            for s in self.env_steps
+        ]
+        return to_device(torch.tensor(rates, dtype=torch.float64), self.device)
 
     @torch.no_grad()
     def update_targets(self, rows: np.ndarray) -> None:
