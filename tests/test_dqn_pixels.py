@@ -1,5 +1,5 @@
 """DQN from pixels: the convolutional Q-network, seed independence and exact resume in the batched
-engine, a replay that keeps frame stacks as uint8, the new settings (conv_layers, frame_difference,
+engine, a replay that keeps each frame once as uint8, the new settings (conv_layers, frame_difference,
 optimizer, max_grad_value) each changing what they say, and a pixel run's verdict from the CLI."""
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ import pytest
 import torch
 
 from cartpole.agents.dqn.config import DQNConfig
+from cartpole.agents.dqn.frames import StackedFrames
 from cartpole.agents.dqn.population import dqn_bytes_per_seed
 from cartpole.agents.dqn.q_network import QNetworkPolicy, q_network_parameters
 from cartpole.agents.dqn.replay import replay_bytes
@@ -77,7 +78,7 @@ def test_a_pixel_seed_alone_is_bit_identical_to_the_seed_in_a_population(changes
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
 def test_a_pixel_population_trains_on_cuda_and_its_checkpoints_load_on_the_cpu():
     on_gpu = build_population(DQN, TINY, env_info(PIXELS), [4, 9], "cuda")
-    assert on_gpu.replay.images is not None and on_gpu.replay.images.device.type == "cuda"
+    assert on_gpu.replay.frames is not None and on_gpu.replay.frames.frames.device.type == "cuda"
     for _ in range(12):
         result = on_gpu.learn()[4]
     assert result.scalars["train/gradient_steps"] > 0 and math.isfinite(result.scalars["train/loss"])
@@ -89,9 +90,10 @@ def test_a_pixel_population_trains_on_cuda_and_its_checkpoints_load_on_the_cpu()
     on_cpu = build_population(DQN, TINY, env_info(PIXELS), [4], "cpu")
     on_cpu.load_seed_state_dict(4, tensors, data)
     assert torch.equal(on_cpu.net.flat[0], on_gpu.net.flat[0].cpu())
-    assert on_cpu.replay.images is not None and on_gpu.replay.images is not None
-    filled = int(on_cpu.replay.size[0])
-    assert torch.equal(on_cpu.replay.images[:, 0, :filled], on_gpu.replay.images[:, 0, :filled].cpu())
+    rows = torch.arange(int(on_cpu.replay.size[0])).unsqueeze(0)
+    read_on_gpu = on_gpu.replay.gather_images(rows.repeat(2, 1).cuda())
+    for here, there in zip(on_cpu.replay.gather_images(rows), read_on_gpu, strict=True):
+        assert torch.equal(here[0], there[0].cpu())
     on_cpu.learn()  # and it trains on from there
 
 
@@ -110,16 +112,33 @@ def test_a_pixel_run_stopped_and_resumed_is_the_run_never_stopped(changes):
     for _ in range(12):
         first.learn()
     tensors, data = through_a_checkpoint_file(*first.seed_state_dict(3, resume=True))
-    assert tensors["replay.observations"].dtype == torch.uint8
-    assert tensors["replay.observations"].shape == (first.replay.size[0], *SHAPE)
+    assert tensors["replay.frames"].dtype == torch.uint8
+    assert tensors["replay.frame_index"].shape == (2, first.replay.size[0], SHAPE[0])
     resumed = population([3], **changes)
     resumed.load_seed_state_dict(3, tensors, data)
     assert [resumed.learn()[3].scalars for _ in range(12)] == steps[12:]
     assert torch.equal(resumed.net.flat, whole.net.flat)
     assert torch.equal(resumed.net.target, whole.net.target)
-    assert resumed.replay.images is not None and whole.replay.images is not None
-    filled = int(whole.replay.size[0])
-    assert torch.equal(resumed.replay.images[:, :, :filled], whole.replay.images[:, :, :filled])
+    rows = torch.arange(int(whole.replay.size[0])).unsqueeze(0)
+    for resumed_pixels, whole_pixels in zip(
+        resumed.replay.gather_images(rows), whole.replay.gather_images(rows), strict=True
+    ):
+        assert torch.equal(resumed_pixels, whole_pixels)
+
+
+def test_a_checkpoint_whose_replay_holds_frame_stacks_is_refused_in_one_line():
+    """Checkpoints written before the replay kept each frame once hold both stacks of every row."""
+    first = population([3])
+    for _ in range(6):
+        first.learn()
+    tensors, data = first.seed_state_dict(3, resume=True)
+    size = int(first.replay.size[0])
+    tensors = {k: v for k, v in tensors.items() if k not in ("replay.frames", "replay.frame_index")}
+    stacks = torch.zeros(size, *SHAPE, dtype=torch.uint8)
+    tensors |= {"replay.observations": stacks, "replay.next_observations": stacks}
+    with pytest.raises(ConfigError, match="cannot be resumed; train again with --from-scratch") as info:
+        population([3]).load_seed_state_dict(3, tensors, data)
+    assert "\n" not in str(info.value)
 
 
 def test_a_seed_leaving_the_population_keeps_the_others_replay():
@@ -136,14 +155,15 @@ def test_a_seed_leaving_the_population_keeps_the_others_replay():
 # --- the settings -----------------------------------------------------------------------------------
 
 
-def test_the_replay_keeps_pixels_as_uint8_and_the_memory_estimate_counts_them():
+def test_the_replay_keeps_each_frame_once_as_uint8_and_the_memory_estimate_counts_them():
     env, sizes = env_info(PIXELS), (5_000, 20_000)
     pops = [population([0], buffer_size=n) for n in sizes]
     configs = [dataclasses.replace(TINY, buffer_size=n) for n in sizes]
+    frame = math.prod(SHAPE[1:])
     for pop, config in zip(pops, configs, strict=True):
-        assert pop.replay.images is not None and pop.replay.images.dtype == torch.uint8
+        assert pop.replay.frames is not None and pop.replay.frames.frames.dtype == torch.uint8
         assert pop.replay.nbytes == replay_bytes(config, env)
-        assert pop.replay.nbytes < config.buffer_size * 2 * math.prod(SHAPE) * 1.01  # a byte a pixel
+        assert pop.replay.nbytes < config.buffer_size * 2 * frame  # under 2 frames a row, not 2 x 4
         assert pop.replay.nbytes <= dqn_bytes_per_seed(config, env)
     # What 15,000 more transitions cost, in the estimate and in the store: within 1%.
     estimated = dqn_bytes_per_seed(configs[1], env) - dqn_bytes_per_seed(configs[0], env)
@@ -154,13 +174,41 @@ def test_the_replay_keeps_pixels_as_uint8_and_the_memory_estimate_counts_them():
     assert windows is not None and windows.observations.dtype == np.uint8
     held = sum(a.nbytes for a in (windows.observations, windows.actions, windows.rewards, windows.count))
     n_step = dataclasses.replace(TINY, n_step=3)
-    assert dqn_bytes_per_seed(n_step, env) - dqn_bytes_per_seed(TINY, env) == held // 2
+    replays = replay_bytes(n_step, env) - replay_bytes(TINY, env)  # n-step rows: more frames looked up
+    assert dqn_bytes_per_seed(n_step, env) - dqn_bytes_per_seed(TINY, env) == held // 2 + replays
     big, replay = pops[1], pops[1].replay
     # It holds the frame stacks the envs showed, unchanged: obs, and next obs.
     shown = big.episodes.envs.observations().copy()
     big.learn()
-    assert np.array_equal(replay.images[0, 0, :4].numpy(), shown)
-    assert np.array_equal(replay.images[1, 0, :4].numpy(), big.episodes.envs.observations())
+    observations, next_observations = replay.gather_images(torch.arange(4).unsqueeze(0))
+    assert np.array_equal(observations[0].numpy(), shown)
+    assert np.array_equal(next_observations[0].numpy(), big.episodes.envs.observations())
+
+
+@pytest.mark.parametrize("n_step", [1, 3])
+def test_the_frames_read_back_are_the_stacks_written_through_episode_ends_and_full_rings(n_step):
+    """Each frame once, found by content: every row reads back the stacks it was given, bit for bit,
+    after many episodes (a reset fills a stack with one frame) and after both rings went round."""
+    pop = population([0, 1], buffer_size=300, n_step=n_step)
+    written: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+    original = StackedFrames.write
+
+    def recording(self, seed_rows, slots, env_columns, observations, next_observations, live_rows):
+        for k, (seed, slot) in enumerate(zip(seed_rows.tolist(), slots.tolist(), strict=True)):
+            written[seed, slot] = (observations[k].copy(), next_observations[k].copy())
+        original(self, seed_rows, slots, env_columns, observations, next_observations, live_rows)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(StackedFrames, "write", recording)
+        for _ in range(200):
+            pop.learn()
+    replay = pop.replay
+    assert replay.frames is not None and (replay.size == 300).all()
+    assert (replay.frames.serial > replay.frames.frame_capacity).all()  # the frame ring went round too
+    observations, next_observations = replay.gather_images(torch.arange(300).repeat(2, 1))
+    for (seed, slot), (obs, next_obs) in written.items():
+        assert np.array_equal(observations[seed, slot].numpy(), obs)
+        assert np.array_equal(next_observations[seed, slot].numpy(), next_obs)
 
 
 def test_conv_layers_make_the_network():

@@ -92,7 +92,9 @@ class QLearningPopulation:
         )
         width = self.net.flat.shape[1]
         self.optimizer = population_optimizer(config.optimizer, len(self.seeds), width, self.device)
-        self.replay = StackedReplay(len(self.seeds), config.buffer_size, env.obs_shape, self.device)
+        self.replay = StackedReplay(
+            len(self.seeds), config.buffer_size, env.obs_shape, self.device, config.num_envs, config.n_step
+        )
         self.explore_rngs = [np.random.default_rng(derived_seed(s, "explore")) for s in self.seeds]
         self.replay_generators = [self.cpu_generator(derived_seed(s, "replay")) for s in self.seeds]
         self.dropout_generators = [self.cpu_generator(derived_seed(s, "dropout")) for s in self.seeds]

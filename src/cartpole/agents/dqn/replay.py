@@ -4,10 +4,11 @@ minibatches of a training round drawn from them for every seed at once.
 Each row of the ``[S, capacity, 2 * obs_dim + 3]`` table is laid out as obs | next_obs | action |
 reward | terminated; each seed has its own write position and fill count. The minibatches of a
 training round's gradient steps, every seed's, come in one ``index_select``. Image observations are
-kept apart, as uint8 pixels in one ``[2, S, capacity, C, H, W]`` store (obs and next obs; a float32
-row would take four times the memory), beside a ``[S, capacity, 3]`` table of action | reward |
-terminated. With n-step returns a row's reward is the n steps' discounted sum and its next obs the
-one n steps on (:mod:`cartpole.agents.dqn.n_step` makes such rows).
+kept apart, as uint8 frames each stored once (:class:`~cartpole.agents.dqn.frames.StackedFrames`:
+a row's two frame stacks share all but a frame or two with its neighbours' rows), beside a
+``[S, capacity, 3]`` table of action | reward | terminated. With n-step returns a row's reward is
+the n steps' discounted sum and its next obs the one n steps on (:mod:`cartpole.agents.dqn.n_step`
+makes such rows).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import numpy as np
 import torch
 
 from cartpole.agents.dqn.config import DQNConfig
+from cartpole.agents.dqn.frames import StackedFrames, frame_store_bytes
 from cartpole.agents.nn.flat_parameters import to_device
 from cartpole.core.errors import ConfigError
 from cartpole.envs import EnvInfo
@@ -40,11 +42,19 @@ class StackedReplay:
     out as obs | next_obs | action | reward | terminated; each seed has its own write position and
     fill count.
 
-    Image observations (``obs_shape`` [C, H, W]) stay uint8 in their own store, ``images`` [2, S,
-    capacity, C, H, W] (obs, then next obs), and the table's rows hold only action | reward |
-    terminated (``obs_dim`` is then 0: no observation floats in a row)."""
+    Image observations (``obs_shape`` [stack, H, W]) stay uint8 in their own store, ``frames`` (each
+    frame once, for ``num_envs`` envs a seed and rows of ``n_step`` steps), and the table's rows hold
+    only action | reward | terminated (``obs_dim`` is then 0: no observation floats in a row)."""
 
-    def __init__(self, seeds: int, capacity: int, obs_shape: int | tuple[int, ...], device: torch.device):
+    def __init__(
+        self,
+        seeds: int,
+        capacity: int,
+        obs_shape: int | tuple[int, ...],
+        device: torch.device,
+        num_envs: int = 1,
+        n_step: int = 1,
+    ):
         shape = (obs_shape,) if isinstance(obs_shape, int) else tuple(obs_shape)
         self.capacity = capacity
         self.obs_dim = shape[0] if len(shape) == 1 else 0
@@ -55,11 +65,10 @@ class StackedReplay:
         # below it), except row 0, the padding slot of a seed with no rows yet: zeroed.
         self.table = torch.empty(seeds, capacity, 2 * self.obs_dim + 3, device=device)
         self.table[:, 0] = 0.0
-        self.images: torch.Tensor | None = None
-        """Image observations: uint8 [2, S, capacity, C, H, W], obs then next obs (None: flat ones)."""
+        self.frames: StackedFrames | None = None
+        """Image observations' frames, each once (None: flat observations)."""
         if len(shape) == 3:
-            self.images = torch.empty(2, seeds, capacity, *shape, dtype=torch.uint8, device=device)
-            self.images[:, :, 0] = 0
+            self.frames = StackedFrames(seeds, capacity, shape, num_envs, n_step, device)
         self.pos = np.zeros(seeds, dtype=np.int64)
         self.size = np.zeros(seeds, dtype=np.int64)
         self.host_view()
@@ -67,14 +76,12 @@ class StackedReplay:
     @property
     def nbytes(self) -> int:
         """Bytes of the stores (allocated; a page is resident once written)."""
-        images = 0 if self.images is None else self.images.nbytes
-        return self.table.nbytes + images
+        frames = 0 if self.frames is None else self.frames.nbytes
+        return self.table.nbytes + frames
 
     def host_view(self) -> None:
         """On the CPU rows are written through a numpy view of the table (cheaper for a few rows)."""
         self.host = self.table.numpy() if self.table.device.type == "cpu" else None
-        on_cpu = self.images is not None and self.images.device.type == "cpu"
-        self.host_images = self.images.numpy() if on_cpu and self.images is not None else None
 
     def add(self, valid: np.ndarray, fields: list[np.ndarray]) -> None:
         """Append the transitions of the envs where ``valid`` [S, N] is True to their seeds' buffers,
@@ -91,7 +98,7 @@ class StackedReplay:
             envs = seed_rows * valid.shape[1] + env_columns
             observations, actions, rewards, next_observations, terminated = fields
             rows = np.empty((len(envs), 2 * d + 3), dtype=np.float32)
-            if self.images is None:
+            if self.frames is None:
                 rows[:, :d] = observations[envs]
                 rows[:, d : 2 * d] = next_observations[envs]
             rows[:, 2 * d] = actions[envs]
@@ -106,42 +113,18 @@ class StackedReplay:
                     to_device(torch.from_numpy(slots), device),
                 )
                 self.table[index] = to_device(torch.from_numpy(rows), device)
-            if self.images is not None:
-                self.add_images(seed_rows, slots, observations[envs], next_observations[envs])
+            if self.frames is not None:
+                live = np.minimum(self.size + counts, self.capacity)
+                self.frames.write(
+                    seed_rows, slots, env_columns, observations[envs], next_observations[envs], live
+                )
         self.pos = (self.pos + counts) % self.capacity
         self.size = np.minimum(self.size + counts, self.capacity)
 
-    def add_images(
-        self,
-        seed_rows: np.ndarray,
-        slots: np.ndarray,
-        observations: np.ndarray,
-        next_observations: np.ndarray,
-    ) -> None:
-        """Write the pixels of new transitions (uint8 [k, C, H, W] each) at ``slots`` of ``seed_rows``."""
-        if self.host_images is not None:
-            self.host_images[0, seed_rows, slots] = observations
-            self.host_images[1, seed_rows, slots] = next_observations
-            return
-        assert self.images is not None
-        device = self.images.device
-        index = (to_device(torch.from_numpy(seed_rows), device), to_device(torch.from_numpy(slots), device))
-        self.images[0][index] = to_device(torch.from_numpy(np.ascontiguousarray(observations)), device)
-        self.images[1][index] = to_device(torch.from_numpy(np.ascontiguousarray(next_observations)), device)
-
     def gather_images(self, index: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The uint8 observations and next observations [S, B, C, H, W] of the rows ``index`` [S, B]."""
-        assert self.images is not None
-        _, seeds, capacity, *shape = self.images.shape
-        rows = (index + torch.arange(seeds, device=index.device).unsqueeze(1) * capacity).view(-1)
-        # One index_select per store, each contiguous: on the whole [2, S, ...] store, once ``keep``
-        # has cut it to fewer seeds (a view with the old seed count's strides), index_select takes
-        # its element-by-element path, about a thousand times slower.
-        obs, next_obs = (
-            self.images[which].view(seeds * capacity, *shape).index_select(0, rows).view(seeds, -1, *shape)
-            for which in (0, 1)
-        )
-        return obs, next_obs
+        assert self.frames is not None
+        return self.frames.gather(index)
 
     def gather(self, index: torch.Tensor) -> torch.Tensor:
         """The rows ``index`` [S, B] (slot numbers within each seed's buffer): [S, B, 2 * obs_dim + 3]."""
@@ -160,11 +143,9 @@ class StackedReplay:
             if new != old:
                 filled = int(self.size[old])
                 self.table[new, :filled] = self.table[old, :filled]
-                if self.images is not None:
-                    self.images[:, new, :filled] = self.images[:, old, :filled]
         self.table = self.table[: len(rows_np)]
-        if self.images is not None:
-            self.images = self.images[:, : len(rows_np)]
+        if self.frames is not None:
+            self.frames.keep(rows_np)
         self.pos, self.size = self.pos[rows_np], self.size[rows_np]
         self.host_view()
 
@@ -179,19 +160,26 @@ class StackedReplay:
             "next_observations": written[:, d : 2 * d].clone(),
             "terminated": written[:, 2 * d + 2].clone(),
         }
-        if self.images is not None:  # uint8 pixels
-            tensors["observations"] = self.images[0, row, :size].to("cpu", copy=True)
-            tensors["next_observations"] = self.images[1, row, :size].to("cpu", copy=True)
-        return tensors, {"capacity": self.capacity, "pos": int(self.pos[row]), "size": size}
+        data = {"capacity": self.capacity, "pos": int(self.pos[row]), "size": size}
+        if self.frames is not None:  # uint8 frames, each once, and each row's frames' serials
+            del tensors["observations"], tensors["next_observations"]
+            frames, frame_data = self.frames.row_state(row, size)
+            tensors |= frames
+            data |= frame_data
+        return tensors, data
 
     def load_row_state(self, row: int, tensors: dict[str, torch.Tensor], data: dict[str, Any]) -> None:
         if int(data["capacity"]) != self.capacity:
             raise ConfigError(f"replay capacity {data['capacity']} in the checkpoint, {self.capacity} here")
         d, size = self.obs_dim, int(data["size"])
         rows = torch.zeros(self.capacity, 2 * d + 3, device="cpu")
-        if self.images is not None:  # in place, as the table
-            self.images[0, row, :size] = tensors["observations"].to(self.images.device)
-            self.images[1, row, :size] = tensors["next_observations"].to(self.images.device)
+        if self.frames is not None:
+            if "frames" not in tensors:
+                raise ConfigError(
+                    "its replay holds frame stacks, saved before the replay kept each frame once: "
+                    "it cannot be resumed; train again with --from-scratch"
+                )
+            self.frames.load_row_state(row, tensors, data)
         else:
             rows[:size, :d] = tensors["observations"]
             rows[:size, d : 2 * d] = tensors["next_observations"]
@@ -230,7 +218,7 @@ class StackedReplay:
         table = table.view(seeds, steps, rows, -1).transpose(0, 1)  # [steps, S, B, row width]
         actions = table[..., 2 * d].long().unsqueeze(3)
         rewards, terminated = table[..., 2 * d + 1].contiguous(), table[..., 2 * d + 2].contiguous()
-        if self.images is None:
+        if self.frames is None:
             observations = table[..., :d].contiguous()
             next_observations = table[..., d : 2 * d].contiguous()
             pixels = list(zip(observations, next_observations, strict=True))
@@ -243,10 +231,11 @@ class StackedReplay:
 
 
 def replay_bytes(config: DQNConfig, env: EnvInfo) -> int:
-    """The bytes of one seed's replay memory: float32 rows, or for images uint8 pixels (obs and next
-    obs) beside a float32 action | reward | terminated."""
+    """The bytes of one seed's replay memory: float32 rows, or for images uint8 frames each stored once
+    beside a float32 action | reward | terminated."""
     if env.is_image:
-        return config.buffer_size * (2 * env.obs_dim + 3 * 4)
+        frames = frame_store_bytes(config.buffer_size, env.obs_shape, config.num_envs, config.n_step)
+        return frames + config.buffer_size * 3 * 4
     return config.buffer_size * (2 * env.obs_dim + 3) * 4
 
 
