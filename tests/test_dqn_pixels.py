@@ -295,7 +295,8 @@ def test_the_pixel_presets_resolve():
     assert (config.optimizer, config.lr, config.batch_size, config.gamma) == ("rmsprop", 0.01, 128, 0.999)
     assert config.hidden_sizes == () and config.max_grad_value == 1.0 and settings.budget == "50ep"
     pixels, settings = resolve_config("dqn", DQNConfig, "pixels")
-    assert pixels.double_dqn and pixels.dueling and settings.budget == "150k"
+    assert pixels.double_dqn and pixels.dueling and settings.budget == "85k"
+    assert (pixels.buffer_size, pixels.lr_schedule, pixels.schedule_steps) == (100_000, "linear", 85_000)
     assert (pixels.n_step, pixels.gamma, settings.eval_every) == (3, 0.985, 2000)
     assert settings.confirm_solves
     assert dqn_bytes_per_seed(pixels, env_info(PIXELS)) < 1.5e9
