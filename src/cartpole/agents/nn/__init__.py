@@ -18,5 +18,6 @@ module, with the benchmark table that measures it):
 5. the optimizer's numba pass over the flat rows (:mod:`~cartpole.agents.nn.population_optimizers`).
 
 Besides: per-seed statistics over the valid rows of a batch (masked), the convolutional trunk's
-generic pieces (conv) and fixed observation standardization (standardize).
+generic pieces (conv), fixed observation standardization (standardize) and the learning rate's
+schedules (schedules).
 """
