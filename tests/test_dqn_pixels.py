@@ -297,6 +297,7 @@ def test_the_pixel_presets_resolve():
     pixels, settings = resolve_config("dqn", DQNConfig, "pixels")
     assert pixels.double_dqn and pixels.dueling and settings.budget == "85k"
     assert (pixels.buffer_size, pixels.lr_schedule, pixels.schedule_steps) == (100_000, "linear", 85_000)
+    assert pixels.lr == 2e-3
     assert (pixels.n_step, pixels.gamma, settings.eval_every) == (3, 0.985, 2000)
     assert settings.confirm_solves
     assert dqn_bytes_per_seed(pixels, env_info(PIXELS)) < 1.5e9
