@@ -13,9 +13,8 @@
 4. A training round (:meth:`PopulationDQN.train`): ``gradient_steps`` gradient steps on minibatches
    drawn from each seed's replay memory at the seed's learning rate (constant, or decayed linearly
    with its env steps: :meth:`PopulationDQN.learning_rates`), each followed by the due
-   target-network updates (Polyak or
-   hard copies: :meth:`PopulationDQN.update_targets`) and the multiplicative epsilon decay
-   (:meth:`PopulationDQN.after_step`).
+   target-network updates (Polyak or hard copies: :meth:`PopulationDQN.update_targets`) and the
+   multiplicative epsilon decay (:meth:`PopulationDQN.after_step`).
 5. One ``learn()`` (:meth:`PopulationDQN.learn`): one batched env step of every seed, epsilon-greedy
    (:func:`epsilon_at`), its transitions stored (with the tutorials' reward shaping where configured:
    :func:`shaped_rewards`), then a training round for the seeds whose round is due.
@@ -249,8 +248,6 @@ class PopulationDQN(QLearningPopulation):
         config, device = self.config, self.device
         counts = np.where(training, np.minimum(config.batch_size, self.replay.size), 0)
         shared = self.round_tensors(training, counts)
-        if self.config.lr_schedule != "constant":
-            shared = shared._replace(lr=self.learning_rates())
         metrics = torch.zeros(len(self.seeds), 2, device=device)
         slots = self.replay.sample_slots(
             training, counts, config.gradient_steps, self.batch_rows, self.replay_generators
@@ -264,8 +261,8 @@ class PopulationDQN(QLearningPopulation):
         return metrics
 
     def round_tensors(self, training: np.ndarray, counts: np.ndarray) -> Round:
-        """A training round's shared tensors (:class:`Round`); made again only when who trains or how
-        many rows they have changes."""
+        """A training round's shared tensors (:class:`Round`): those of the rows are made again only when
+        who trains or how many rows they have changes; a scheduled learning rate, every round."""
         key = training.tobytes() + counts.tobytes()
         if key not in self.rounds:
             device = self.device
@@ -273,10 +270,10 @@ class PopulationDQN(QLearningPopulation):
             mask = to_device(torch.from_numpy(rows), device)
             count = to_device(torch.from_numpy(np.maximum(counts, 1).astype(np.float32)), device)
             active = to_device(torch.from_numpy(training.copy()), device)
-            lr = torch.full((len(self.seeds),), self.config.lr, dtype=torch.float64, device=device)
             row_weights = (active.to(mask.dtype) / count).unsqueeze(1) * mask
-            self.rounds = {key: Round(mask, count, active, lr, row_weights)}
-        return self.rounds[key]
+            self.rounds = {key: Round(mask, count, active, self.learning_rates(), row_weights)}
+        shared = self.rounds[key]
+        return shared if self.config.lr_schedule == "constant" else shared._replace(lr=self.learning_rates())
 
     def learning_rates(self) -> torch.Tensor:
         """Each seed's learning rate now [S] (the schedule follows the seed's own env steps)."""
