@@ -282,7 +282,7 @@ class PopulationDQN(QLearningPopulation):
             schedule_value(config.lr, config.lr_schedule, int(s), config.schedule_steps)
             for s in self.env_steps
         ]
-        return to_device(torch.tensor(rates, dtype=torch.float64), self.device)
+        return to_device(torch.tensor(rates, dtype=torch.float64, device="cpu"), self.device)
 
     @torch.no_grad()
     def update_targets(self, rows: np.ndarray) -> None:
