@@ -27,13 +27,21 @@ NOT_PINNED = {"pip", "setuptools", "wheel"}  # the venv's own tools
 
 
 def read_lock(path: Path) -> dict[str, Version]:
+    """The lock's pins for this environment: a pin whose marker is false here (colorama on Linux, the CUDA
+    packages elsewhere) is left out."""
     pins = {}
     for line in path.read_text().splitlines():
         line = line.split("#", 1)[0].strip()
         if line:
-            name, _, version = line.partition("==")
-            pins[canonicalize_name(name)] = Version(version)
+            pin = Requirement(line)
+            if pin.marker is None or pin.marker.evaluate():
+                pins[canonicalize_name(pin.name)] = Version(str(pin.specifier).removeprefix("=="))
     return pins
+
+
+def matches(installed: Version, pin: Version) -> bool:
+    """An installed build matches its pin, a local build (torch's 2.13.0+cpu) a public pin (2.13.0)."""
+    return installed == pin or (not pin.local and Version(installed.public) == pin)
 
 
 def project_requirements() -> list[Requirement]:
@@ -44,15 +52,13 @@ def project_requirements() -> list[Requirement]:
 
 
 def unmet_requirements(pins: dict[str, Version]) -> list[str]:
-    """Requirements of pyproject.toml that no pin satisfies (local versions such as +cpu count as met)."""
+    """Requirements of pyproject.toml that no pin satisfies."""
     problems = []
     for req in project_requirements():
         pin = pins.get(canonicalize_name(req.name))
         if pin is None:
             problems.append(f"{req} is not in the lock")
-        elif not req.specifier.contains(pin, prereleases=True) and not req.specifier.contains(
-            Version(pin.public), prereleases=True
-        ):
+        elif not req.specifier.contains(pin, prereleases=True):
             problems.append(f"{req} but the lock pins {pin}")
     return problems
 
@@ -70,7 +76,7 @@ def differences(pins: dict[str, Version]) -> list[str]:
     return [
         f"{name} {version} (lock: {pins[name]})" if name in pins else f"{name} {version} (not in the lock)"
         for name, version in sorted(installed().items())
-        if pins.get(name) != version
+        if name not in pins or not matches(version, pins[name])
     ]
 
 
