@@ -233,7 +233,7 @@ def test_a_worker_trains_on_the_clis_torch_thread_count(tmp_path, monkeypatch):
     (one on state observations), not on torch's one per core, which with --jobs 2 would oversubscribe."""
     import torch
 
-    from cartpole.experiments import processes, worker
+    from cartpole.experiments import worker
 
     seen: list[int] = []
 
@@ -242,7 +242,6 @@ def test_a_worker_trains_on_the_clis_torch_thread_count(tmp_path, monkeypatch):
         return {"state": worker.FINISHED}
 
     monkeypatch.setattr(worker, "run_task", spy)
-    monkeypatch.setattr(processes, "stop_when_orphaned", lambda: None)
     record = str(tmp_path / "record.json")
     task = worker.Task("cem", "default", 0, "CartPole-v1", "2gen", str(tmp_path), record, [])
     (tmp_path / "task.json").write_text(json.dumps(task.__dict__))

@@ -230,7 +230,7 @@ def test_a_worker_trains_on_the_clis_torch_thread_count(tmp_path, monkeypatch):
     (one on state observations), not on torch's one per core."""
     import torch
 
-    from cartpole.experiments import processes, sweep
+    from cartpole.experiments import sweep
 
     seen: list[int] = []
 
@@ -239,7 +239,6 @@ def test_a_worker_trains_on_the_clis_torch_thread_count(tmp_path, monkeypatch):
         return 0
 
     monkeypatch.setattr(sweep, "run_worker", spy)
-    monkeypatch.setattr(processes, "stop_when_orphaned", lambda: None)
     spec = sweep.SweepSpec("s", "cem", "default", "CartPole-v1", "2gen", 1, 1, "", None, str(tmp_path))
     (tmp_path / "spec.json").write_text(json.dumps(spec.__dict__))
     torch.set_num_threads(3)

@@ -24,7 +24,7 @@ BY_ENV = "by_env.toml"
 
 def preset_table(agent: str) -> dict[str, dict[str, Any]]:
     """All presets of ``agent`` as read from its TOML file."""
-    text = resources.files("cartpole.agents").joinpath("presets", f"{agent}.toml").read_text()
+    text = resources.files("cartpole.agents").joinpath("presets", f"{agent}.toml").read_text(encoding="utf-8")
     return tomllib.loads(text)
 
 
@@ -92,7 +92,9 @@ def by_env_source() -> str:
 
 
 def _by_env_table() -> dict[str, Any]:
-    return tomllib.loads(resources.files("cartpole.agents").joinpath("presets", BY_ENV).read_text())
+    return tomllib.loads(
+        resources.files("cartpole.agents").joinpath("presets", BY_ENV).read_text(encoding="utf-8")
+    )
 
 
 def image_presets(agent: str) -> list[str]:

@@ -3,6 +3,8 @@ person (seeds, episodes, video frames) gets one clear line instead of the out-of
 
 from __future__ import annotations
 
+import psutil
+
 MEMINFO = "/proc/meminfo"
 
 SHARE = 0.8
@@ -10,12 +12,15 @@ SHARE = 0.8
 
 
 def available_memory() -> int | None:
-    """Bytes of memory available to a new allocation (Linux ``MemAvailable``), None if unknown."""
+    """Bytes of memory available to a new allocation, None if unknown: Linux's ``MemAvailable``, and
+    where there is no :data:`MEMINFO` (macOS, Windows) psutil's estimate of the same."""
     try:
         with open(MEMINFO, encoding="ascii") as handle:
             for line in handle:
                 if line.startswith("MemAvailable:"):
                     return int(line.split()[1]) * 1024
+    except FileNotFoundError:
+        return int(psutil.virtual_memory().available)
     except (OSError, ValueError, IndexError):
         pass
     return None

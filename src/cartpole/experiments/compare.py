@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from cartpole.agents.registry import get_agent
+from cartpole.core.file_names import is_portable_name
 from cartpole.experiments.entries import Entry, ExperimentError
 from cartpole.experiments.processes import Job, python_module, run_job_source, run_jobs
 from cartpole.experiments.shared import SharedComparison, new_owner
@@ -38,8 +39,15 @@ WORKER = "cartpole.experiments.worker"
 
 
 def check_name(name: str, what: str) -> str:
+    """``name``, the folder name of an experiment or a study, if every OS accepts it; ExperimentError
+    otherwise (refused, not changed: the person finds it again under the name they gave)."""
     if not NAME.match(name):
         raise ExperimentError(f"{what} name {name!r}: use letters, digits, '.', '_' and '-'")
+    if not is_portable_name(name):
+        raise ExperimentError(
+            f"{what} name {name!r} is not a folder name on Windows (it ends in '.', or is a device name "
+            "such as NUL or COM1): choose another"
+        )
     return name
 
 

@@ -3,12 +3,12 @@ An entry that names no preset takes the agent's preset for the env, as ``cartpol
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 
 from cartpole.agents.presets import DEFAULT_PRESET, is_preset_file, resolve_preset
 from cartpole.agents.registry import agent_names, get_agent
 from cartpole.core.errors import InputError
+from cartpole.core.file_names import portable_name
 from cartpole.envs import env_info
 from cartpole.training.config import resolve_config
 
@@ -33,8 +33,8 @@ class Entry:
 
     @property
     def slug(self) -> str:
-        """The label as a safe file-name part."""
-        return re.sub(r"[^A-Za-z0-9._-]+", "-", self.label).strip("-")
+        """The label as a file-name part every OS accepts (``cem:my/fast.toml`` -> ``cem-my-fast.toml``)."""
+        return portable_name(self.label)
 
 
 def parse_entry(text: str, env_id: str = "CartPole-v1") -> Entry:

@@ -1,17 +1,27 @@
-"""Worker processes, J at a time, that stop cleanly together.
+"""Worker processes, J at a time, that stop cleanly together, the same way on every OS.
 
 Each worker is a fresh ``python -m ...`` process (so one run's imports and thread settings cannot
-change another's) in its own session: a Ctrl-C in the terminal reaches only the parent, which passes
-SIGINT on to every running worker and waits for each to save and exit. A second Ctrl-C, or a worker that
-has not exited within ``grace`` seconds, gets SIGKILL (its run resumes from its last checkpoint).
+change another's) in its own session (its own process group on Windows), so that a Ctrl-C in the
+terminal reaches only the parent. The parent holds the other end of each worker's stdin, a pipe, and
+the worker reads it (:func:`follow_parent`): the parent asks a worker to stop by writing
+:data:`STOP_REQUEST` to it and closing it (:func:`request_stop`), and a parent that dies however it
+dies (SIGKILL, its machine lost) closes it too. Either way the worker's SIGINT handler is called, as a
+Ctrl-C would call it: training saves ``checkpoints/latest.pt`` and the worker exits with 130, so no
+orphan trains on for nobody. Signals could not do this everywhere: Windows cannot send SIGINT to
+another process (``os.kill`` terminates it) and does not re-parent an orphan, which therefore cannot
+notice. A second Ctrl-C, or a worker that has not exited within ``grace`` seconds of the request, is
+killed (its run resumes from its last checkpoint).
 """
 
 from __future__ import annotations
 
+import _thread
 import contextlib
+import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -20,6 +30,10 @@ from typing import Any
 
 POLL_SECONDS = 0.2
 GRACE_SECONDS = 60.0
+STOP_REQUEST = b"stop\n"
+"""What the parent writes to a worker's stdin to ask it to stop (closing the pipe asks it too)."""
+FOLLOW_PARENT = "CARTPOLE_FOLLOW_PARENT"
+"""Set to ``1`` in the environment of a process :func:`start` started: its stdin is the parent's pipe."""
 
 
 @dataclass(frozen=True)
@@ -51,25 +65,55 @@ def python_module(module: str, *args: str) -> list[str]:
 
 
 def start(job: Job) -> subprocess.Popen[bytes]:
+    """Start the job's worker, its output appended to its log, its stdin a pipe from this process
+    (the worker's :func:`follow_parent` reads it)."""
     job.log.parent.mkdir(parents=True, exist_ok=True)
+    apart: dict[str, Any]
+    if sys.platform == "win32":  # a process group of its own: the terminal's Ctrl-C passes it by
+        apart = {"creationflags": subprocess.CREATE_NEW_PROCESS_GROUP}
+    else:  # a session of its own: the terminal's Ctrl-C (to the foreground group) passes it by
+        apart = {"start_new_session": True}
     with open(job.log, "ab") as log:
         return subprocess.Popen(
-            job.args, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True
+            job.args,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.PIPE,
+            bufsize=0,
+            env={**os.environ, FOLLOW_PARENT: "1"},
+            **apart,
         )
 
 
+def request_stop(process: subprocess.Popen[bytes]) -> None:
+    """Ask a worker :func:`start` started to stop as on Ctrl-C: :data:`STOP_REQUEST` to its stdin,
+    which is then closed. A worker that has ended already is not asked."""
+    if process.stdin is None or process.stdin.closed:
+        return
+    with contextlib.suppress(OSError):  # a broken pipe: the worker has ended
+        process.stdin.write(STOP_REQUEST)
+    close_pipe(process)
+
+
+def close_pipe(process: subprocess.Popen[bytes]) -> None:
+    """Close this end of a worker's stdin (the worker takes that for a stop request, if still there)."""
+    if process.stdin is not None:
+        with contextlib.suppress(OSError):
+            process.stdin.close()
+
+
 def stop_all(running: dict[subprocess.Popen[bytes], Job], grace: float = GRACE_SECONDS) -> None:
-    """SIGINT to every worker, then wait; SIGKILL what is still there after ``grace`` or a 2nd Ctrl-C."""
+    """Ask every worker to stop (:func:`request_stop`), then wait; kill what is still there after
+    ``grace`` seconds or a second Ctrl-C."""
     for process in running:
-        with contextlib.suppress(ProcessLookupError):
-            process.send_signal(signal.SIGINT)
+        request_stop(process)
     deadline = time.monotonic() + grace
     try:
         for process in running:
             process.wait(timeout=max(0.1, deadline - time.monotonic()))
     except (subprocess.TimeoutExpired, KeyboardInterrupt):
         for process in running:
-            with contextlib.suppress(ProcessLookupError):
+            with contextlib.suppress(OSError):  # it has ended meanwhile
                 process.kill()
         for process in running:
             process.wait()
@@ -118,6 +162,7 @@ def run_job_source(
                 if tick:
                     tick()
                 for process in [p for p in running if p.poll() is not None]:
+                    close_pipe(process)
                     on_done(running.pop(process), int(process.returncode))
         except KeyboardInterrupt:
             stop_all(running)
@@ -126,18 +171,27 @@ def run_job_source(
             raise
 
 
-def stop_when_orphaned(period: float = 1.0) -> None:
-    """In a worker: stop cleanly (SIGTERM to itself, which training handles by saving and exiting) when
-    the process that started it is gone, killed with SIGKILL or lost with its machine, so that no
-    orphan trains on for nobody."""
-    import os
-    import threading
+def follow_parent() -> None:
+    """In a worker, first (from the main thread): stop cleanly when the parent asks
+    (:func:`request_stop`) or is gone, as on a Ctrl-C: a thread waits for a line on stdin, or its end,
+    then has the main thread call its SIGINT handler (training's saves and stops; elsewhere Python's
+    raises KeyboardInterrupt, which the worker turns into exit code 130). Does nothing in a process
+    :func:`start` did not start, whose stdin is not its parent's pipe (a worker run by hand, a test)."""
+    if os.environ.pop(FOLLOW_PARENT, None) != "1":  # popped: no process the worker starts takes it
+        return
+    # Python's own handler, even where SIGINT came ignored (a parent started as a background job).
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    threading.Thread(target=_interrupt_when_asked, name="follow-parent", daemon=True).start()
 
-    parent = os.getppid()
 
-    def watch() -> None:
-        while os.getppid() == parent:
-            time.sleep(period)
-        os.kill(os.getpid(), signal.SIGTERM)
-
-    threading.Thread(target=watch, name="stop-when-orphaned", daemon=True).start()
+def _interrupt_when_asked() -> None:
+    """Wait for a line on stdin (fd 0, read directly: no lock of ``sys.stdin`` is held at exit) or
+    for its end, then interrupt the main thread with SIGINT."""
+    while True:
+        try:
+            chunk = os.read(0, 256)
+        except OSError:  # no stdin to read: the parent cannot be followed, so stop
+            break
+        if not chunk or b"\n" in chunk:
+            break
+    _thread.interrupt_main(signal.SIGINT)

@@ -428,18 +428,21 @@ class SweepFailed(Exception):
 
 def main(argv: list[str]) -> int:
     """Worker entry: ``python -m cartpole.experiments.sweep SWEEP.json``, training on ``cartpole
-    train``'s default torch thread count."""
-    from cartpole.experiments.processes import stop_when_orphaned
+    train``'s default torch thread count. It stops as on Ctrl-C when its parent asks or is gone
+    (:func:`~cartpole.experiments.processes.follow_parent`); 130 when stopped."""
+    from cartpole.experiments.processes import follow_parent
     from cartpole.training.threads import default_torch_threads, torch_threads
 
-    stop_when_orphaned()
-    spec = SweepSpec(**json.loads(Path(argv[0]).read_text(encoding="utf-8")))
     try:
+        follow_parent()  # inside: a stop asked for already interrupts as soon as it returns
+        spec = SweepSpec(**json.loads(Path(argv[0]).read_text(encoding="utf-8")))
         with torch_threads(default_torch_threads(spec.env_id)):
             return run_worker(spec)
     except ExperimentError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # stopped before its trials began (stop_flag notes a later stop)
+        return 130
 
 
 if __name__ == "__main__":

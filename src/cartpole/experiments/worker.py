@@ -4,7 +4,9 @@ pending seed of an entry whose agent batches its seeds, as one population in one
 ``python -m cartpole.experiments.worker TASK.json`` trains the seeds the task names and writes what it
 measured to each seed's ``record`` file (atomically). A record whose run is ``finished`` means the work is
 done; an ``interrupted`` one names the run folder that a later worker resumes. SIGINT and SIGTERM stop
-training at the next step with ``checkpoints/latest.pt`` saved (the training session's own handling).
+training at the next step with ``checkpoints/latest.pt`` saved (the training session's own handling),
+and so do the parent's stop request and the parent's end
+(:func:`~cartpole.experiments.processes.follow_parent`).
 """
 
 from __future__ import annotations
@@ -235,20 +237,23 @@ def make_population_record(
 
 def main(argv: list[str]) -> int:
     """Run the task in ``argv[0]`` on ``cartpole train``'s default torch thread count; exit 0 when
-    finished, 130 when interrupted."""
+    finished, 130 when interrupted (also when stopped before or between training sessions, where
+    nothing is half-written: every write is atomic)."""
     from cartpole.core.errors import InputError
-    from cartpole.experiments.processes import stop_when_orphaned
+    from cartpole.experiments.processes import follow_parent
     from cartpole.training.threads import default_torch_threads, torch_threads
 
-    stop_when_orphaned()
-    task = Task.load(Path(argv[0]))
     try:
+        follow_parent()  # inside: a stop asked for already interrupts as soon as it returns
+        task = Task.load(Path(argv[0]))
         with torch_threads(default_torch_threads(task.env_id)):
             record = run_task(task)
+        return 0 if record["state"] == FINISHED else 130
     except InputError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    return 0 if record["state"] == FINISHED else 130
+    except KeyboardInterrupt:
+        return 130
 
 
 if __name__ == "__main__":

@@ -1,6 +1,8 @@
 """Atomic file writes: write a temp file beside the target, fsync, then ``os.replace``.
 
 A crash or ``kill -9`` at any moment leaves either the old file or the new one, never half of one.
+Windows refuses to replace a file another process has open (the web app reading ``status.json``, a
+viewer showing a figure), so the replace is tried again for a moment (:data:`REPLACE_RETRY_SECONDS`).
 """
 
 from __future__ import annotations
@@ -9,9 +11,18 @@ import errno
 import json
 import os
 import tempfile
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any
+
+REPLACE_RETRY_SECONDS = 2.0
+"""How long a replace refused with PermissionError is tried again (every 0.05 s at first, then up to
+every 0.25 s) before the error stands. On Windows that is another process holding the target open for a
+moment, as readers here do (they read a file whole, then close it); elsewhere a replace is refused only
+for good, and is reported this much later."""
+REPLACE_RETRY_DELAYS = (0.05, 0.25)
+"""The first pause between tries, and the longest (each pause doubles up to it)."""
 
 
 def write_atomic(path: Path, write: Callable[[IO[bytes]], None], durable: bool = True) -> None:
@@ -43,13 +54,29 @@ def replace_atomically(path: Path, write_file: Callable[[Path], None], suffix: s
     try:
         write_file(Path(tmp))
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600 files; give the usual mode
-        os.replace(tmp, path)
+        replace_retrying(tmp, path)
     except OSError as err:  # named for the file being written, not its temp file: "disk full: latest.pt"
         Path(tmp).unlink(missing_ok=True)
         raise OSError(err.errno, err.strerror or str(err), str(path)) from err
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def replace_retrying(source: str | Path, target: Path) -> None:
+    """``os.replace(source, target)``, tried again while it is refused with PermissionError, for up to
+    :data:`REPLACE_RETRY_SECONDS`; any other error at once."""
+    deadline = time.monotonic() + REPLACE_RETRY_SECONDS
+    delay, longest = REPLACE_RETRY_DELAYS
+    while True:
+        try:
+            os.replace(source, target)
+            return
+        except PermissionError:
+            if time.monotonic() + delay > deadline:
+                raise
+        time.sleep(delay)
+        delay = min(2 * delay, longest)
 
 
 def append_text(path: Path, text: str) -> None:

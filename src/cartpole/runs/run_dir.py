@@ -26,7 +26,10 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
+import psutil
+
 from cartpole.core.errors import InputError
+from cartpole.core.file_names import portable_name
 from cartpole.core.names import CheckpointName, RunState
 from cartpole.runs.atomic import (
     DISK_FULL,
@@ -67,9 +70,11 @@ def utc_now() -> str:
 
 
 def run_name(env_id: str, agent: str, seed: int, when: datetime | None = None) -> str:
-    """``<env>__<agent>__s<seed>__<UTC YYYYmmdd-HHMMSS>``, safe as a folder name."""
+    """``<env>__<agent>__s<seed>__<UTC YYYYmmdd-HHMMSS>``, a folder name on every OS: the env id and
+    the agent through :func:`~cartpole.core.file_names.portable_name` (``ALE/Pong-v5`` and
+    ``mypkg:MyEnv-v0`` hold characters Windows refuses)."""
     stamp = (when or datetime.now(UTC)).strftime("%Y%m%d-%H%M%S")
-    return f"{env_id.replace('/', '-')}__{agent}__s{seed}__{stamp}"
+    return f"{portable_name(env_id)}__{portable_name(agent)}__s{seed}__{stamp}"
 
 
 def read_json(path: Path) -> Any:
@@ -384,16 +389,14 @@ class LiveStatus:
 
 
 def process_alive(pid: int) -> bool:
-    """Whether process ``pid`` exists on this machine."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
+    """Whether process ``pid`` exists on this machine (whoever owns it). Asked of psutil, never with
+    ``os.kill(pid, 0)``: on Windows signal 0 is CTRL_C_EVENT, sent to a whole process group."""
+    if pid <= 0:  # no training process: 0 and below name process groups for kill()
         return False
-    except PermissionError:  # it exists, owned by another user
-        return True
+    try:
+        return bool(psutil.pid_exists(pid))
     except (OSError, OverflowError, ValueError):
         return False
-    return True
 
 
 def last_heartbeat(status: dict[str, Any]) -> float | None:

@@ -18,6 +18,7 @@ import json
 import multiprocessing
 import os
 import signal
+import sys
 import threading
 import time
 from collections import OrderedDict
@@ -30,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import psutil
 import torch
 
 from cartpole.agents.registry import open_policy
@@ -48,6 +50,10 @@ UNLIMITED_STEPS = 100_000
 WORKER_NICENESS = 10
 """How much lower a worker's CPU priority is than the server's: episodes are batch work, while play
 steps wait on the event loop, so on a busy machine the server runs first."""
+
+SAME_START_SECONDS = 1.0
+"""Start times of one process, as two processes compute them, differ by less than this (they are the
+boot time plus the start's offset, and the boot time moves with the system clock)."""
 
 
 class PolicyCache:
@@ -288,18 +294,52 @@ def episode_body(
     return json.dumps(body, allow_nan=False, separators=(",", ":")).encode()
 
 
-def _start_worker(server_pid: int) -> None:
+def _start_worker(server_pid: int, server_started: float) -> None:
     """In each worker, first: give the CPU to the server first, and exit when the server is gone,
     however it ended (a pool's workers outlive a killed parent otherwise)."""
-    with suppress(OSError):
-        os.nice(WORKER_NICENESS)
+    lower_priority()
     torch.set_num_threads(1)  # a policy's forward pass is one row: more threads only spin
-    threading.Thread(target=_exit_with, args=(server_pid,), name="exit-with-server", daemon=True).start()
+    threading.Thread(
+        target=_exit_with, args=(server_pid, server_started), name="exit-with-server", daemon=True
+    ).start()
 
 
-def _exit_with(server_pid: int) -> None:
-    while os.getppid() == server_pid:
-        time.sleep(0.5)
+def lower_priority() -> None:
+    """This process's niceness raised by :data:`WORKER_NICENESS`; on Windows, which has no niceness,
+    the below-normal priority class. Where the OS refuses, the priority stays as it was."""
+    with suppress(OSError, psutil.Error):
+        if sys.platform == "win32":
+            psutil.Process().nice(psutil.BELOW_NORMAL_PRIORITY_CLASS)
+        else:
+            os.nice(WORKER_NICENESS)
+
+
+def wait_for_end(pid: int, started: float, period: float = 0.5) -> None:
+    """Return once process ``pid``, started at ``started`` (its ``psutil.Process.create_time()``),
+    has ended: it is gone, a zombie, or its pid names another process now. Asked of psutil, not of
+    ``os.getppid()``, which on Windows does not change when the parent dies. What the OS will not
+    tell (AccessDenied) counts as still there."""
+    try:
+        process = psutil.Process(pid)  # from here on, is_running() sees a reuse of the pid
+        with suppress(psutil.AccessDenied):
+            if abs(process.create_time() - started) > SAME_START_SECONDS:  # another process has the pid
+                return
+        while not _ended(process):
+            time.sleep(period)
+    except psutil.NoSuchProcess:  # a zombie too (ZombieProcess)
+        return
+
+
+def _ended(process: psutil.Process) -> bool:
+    if not process.is_running():
+        return True
+    with suppress(psutil.AccessDenied):
+        return bool(process.status() == psutil.STATUS_ZOMBIE)
+    return False
+
+
+def _exit_with(server_pid: int, server_started: float) -> None:
+    wait_for_end(server_pid, server_started)
     os._exit(0)
 
 
@@ -407,7 +447,8 @@ class EpisodeWorkers:
         with self._lock:
             if self._pool is None:
                 context = multiprocessing.get_context("spawn")
+                server = (os.getpid(), psutil.Process().create_time())
                 self._pool = ProcessPoolExecutor(
-                    self.processes, context, initializer=_start_worker, initargs=(os.getpid(),)
+                    self.processes, context, initializer=_start_worker, initargs=server
                 )
             return self._pool
