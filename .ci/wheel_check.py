@@ -122,7 +122,7 @@ def check_serve(runs: Path) -> None:
             if status != 200:
                 raise SystemExit(f"cartpole serve: {path} (linked from a page) answered {status}")
         status, listing = fetch(base + "/api/runs")
-        if status != 200 or runs.iterdir().__next__().name not in listing:
+        if status != 200 or next(runs.iterdir()).name not in listing:
             raise SystemExit(f"cartpole serve: /api/runs answered {status} without the trained run")
         print(f"  cartpole serve: {len(PAGES)} pages and the {len(linked)} paths they link answer 200")
     finally:
