@@ -25,10 +25,33 @@ def cpu_model_and_avx512() -> tuple[str, bool]:
     return model, avx512
 
 
+AVX2_SETTINGS = {"NUMBA_CPU_NAME": "haswell", "ATEN_CPU_CAPABILITY": "avx2", "MKL_CBWR": "AVX2"}
+"""The settings under which an AVX-512 CPU runs the float code of an AVX2 one: numba compiles for
+Haswell, torch takes its AVX2 kernels and MKL its AVX2 path (docs/DEVELOPMENT.md)."""
+
+
+def float_path_settings() -> dict[str, str]:
+    """Those of :data:`AVX2_SETTINGS`' variables that this process has set, with their values."""
+    return {name: os.environ[name] for name in AVX2_SETTINGS if os.environ.get(name)}
+
+
+def emulated_isa(avx512: bool) -> str | None:
+    """``AVX2`` where an AVX-512 CPU runs with all of :data:`AVX2_SETTINGS` (a table made so is an
+    emulated AVX2 one, and says so); None on a CPU measured as it is."""
+    settings = float_path_settings()
+    if avx512 and all(
+        settings.get(name, "").lower() == value.lower() for name, value in AVX2_SETTINGS.items()
+    ):
+        return "AVX2"
+    return None
+
+
 def describe_cpu() -> str:
-    """``model name, N CPUs, AVX-512: yes|no``."""
+    """``model name, N CPUs, AVX-512: yes|no``, or ``..., emulated AVX2 on an AVX-512 CPU``."""
     model, avx512 = cpu_model_and_avx512()
-    return f"{model}, {os.cpu_count()} CPUs, AVX-512: {'yes' if avx512 else 'no'}"
+    emulated = emulated_isa(avx512)
+    isa = f"emulated {emulated} on an AVX-512 CPU" if emulated else f"AVX-512: {'yes' if avx512 else 'no'}"
+    return f"{model}, {os.cpu_count()} CPUs, {isa}"
 
 
 def load_average() -> float | None:
@@ -49,6 +72,8 @@ def machine() -> dict[str, Any]:
     return {
         "cpu": model,
         "avx512": avx512,
+        "emulated": emulated_isa(avx512),
+        "float_paths": float_path_settings(),
         "cpus": os.cpu_count(),
         "load_average": load_average(),
         "python": platform.python_version(),

@@ -100,8 +100,12 @@ def commit() -> str | None:
 
 
 def describe_machine(found: dict[str, Any]) -> str:
-    """``AMD EPYC, AVX-512, 2 CPUs``: what a table's machine line and the README's rows say."""
-    avx = "AVX-512" if found.get("avx512") else "no AVX-512"
+    """``AMD EPYC, AVX-512, 2 CPUs`` (or ``..., emulated AVX2 on AVX-512, ...`` where the table ran under
+    the AVX2 settings of ``cpu.AVX2_SETTINGS``): what a table's machine line and the README's rows say."""
+    if found.get("emulated"):
+        avx = f"emulated {found['emulated']} on AVX-512"
+    else:
+        avx = "AVX-512" if found.get("avx512") else "no AVX-512"
     return f"{found.get('cpu', '?')}, {avx}, {found.get('cpus', '?')} CPUs"
 
 

@@ -4,6 +4,7 @@ the tables (benchmarks/README.md's table blocks, the README's "How fast"), so ne
 from __future__ import annotations
 
 import json
+import os
 import re
 import subprocess
 import sys
@@ -66,3 +67,42 @@ def test_how_fast_puts_ours_beside_the_peer_of_the_same_run(tmp_path):
     assert "(benchmarks/README.md#time-to-solve)" in cells[6]
     assert "| DQN: the same, median of 20 unseen seeds | never | - | - | 2/20 |" in table
     assert "not run yet: `python benchmarks/run.py population`" in table
+
+
+AVX2_SETTINGS = {"NUMBA_CPU_NAME": "haswell", "ATEN_CPU_CAPABILITY": "avx2", "MKL_CBWR": "AVX2"}
+
+
+def machine_under(env: dict[str, str]) -> dict:
+    """``benchmarks/cpu.py``'s machine record in a process with ``env`` added to (or, for the AVX2
+    settings it leaves out, removed from) this one's environment."""
+    base = {k: v for k, v in os.environ.items() if k not in AVX2_SETTINGS}
+    path = str(ROOT / "benchmarks")
+    code = f"import json, sys; sys.path.insert(0, {path!r}); import cpu; print(json.dumps(cpu.machine()))"
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env={**base, **env}, check=True
+    )
+    return json.loads(done.stdout)
+
+
+def test_a_table_made_under_the_avx2_settings_on_an_avx512_cpu_says_emulated_avx2():
+    plain = machine_under({})
+    assert plain["emulated"] is None and plain["float_paths"] == {}
+    emulated = machine_under(AVX2_SETTINGS)
+    assert emulated["float_paths"] == AVX2_SETTINGS
+    assert emulated["emulated"] == ("AVX2" if emulated["avx512"] else None)  # an AVX2 CPU emulates nothing
+    partly = machine_under({"ATEN_CPU_CAPABILITY": "avx2"})  # torch's kernels alone: not an AVX2 CPU
+    assert partly["emulated"] is None and partly["float_paths"] == {"ATEN_CPU_CAPABILITY": "avx2"}
+
+
+def test_the_machine_line_of_an_emulated_avx2_table_says_so(tmp_path):
+    groups = [{"agent": "ppo", "preset": "default", "seeds": 20, "final_solved": 20, "median_cpu": 0.5}]
+    record = {
+        "command": "python benchmarks/time_to_solve.py",
+        "machine": {"cpu": "Some CPU", "avx512": True, "emulated": "AVX2", "cpus": 2},
+        "note": "",
+        "summary": {"env": "CartPole-v1", "groups": groups},
+    }
+    (tmp_path / "time-to-solve.json").write_text(json.dumps(record))
+    done = run("--assemble", "--results-dir", str(tmp_path))
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "Some CPU, emulated AVX2 on AVX-512, 2 CPUs" in how_fast((tmp_path / "README.md").read_text())
