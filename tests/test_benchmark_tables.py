@@ -106,3 +106,24 @@ def test_the_machine_line_of_an_emulated_avx2_table_says_so(tmp_path):
     done = run("--assemble", "--results-dir", str(tmp_path))
     assert done.returncode == 0, done.stdout + done.stderr
     assert "Some CPU, emulated AVX2 on AVX-512, 2 CPUs" in how_fast((tmp_path / "README.md").read_text())
+
+
+def test_the_simulator_rows_name_the_dtype_and_show_the_default_float64_first(tmp_path):
+    rates = {"gymnasium": 1e7, "fast float32": 2e8, "fast float64": 5e7}
+    record = {
+        "command": "python benchmarks/env_throughput.py",
+        "machine": {"cpu": "Some CPU", "avx512": False, "cpus": 2},
+        "note": "",
+        "summary": {"steps_per_s": {"16": rates, "65536": rates, "single": rates}},
+    }
+    (tmp_path / "env-throughput.json").write_text(json.dumps(record))
+    done = run("--assemble", "--results-dir", str(tmp_path))
+    assert done.returncode == 0, done.stdout + done.stderr
+    rows = [
+        line for line in how_fast((tmp_path / "README.md").read_text()).splitlines() if "Simulator" in line
+    ]
+    assert [row.split("|")[1].strip() for row in rows] == [
+        "Simulator, float64 (the default): env steps per CPU second, 65,536 envs on one core",
+        "Simulator, float32 (`dtype=np.float32`): env steps per CPU second, 65,536 envs on one core",
+    ]
+    assert "| 5.0e7 |" in rows[0] and "| 5.0x |" in rows[0] and "| 20.0x |" in rows[1]
