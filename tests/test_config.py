@@ -23,6 +23,13 @@ def test_every_preset_value_reaches_the_config_and_the_settings(agent):
             assert resolved == expected, (preset, key)
 
 
+@pytest.mark.parametrize("agent", agent_names())
+def test_every_agents_default_preset_counts_a_solve_only_when_it_is_confirmed(agent):
+    """A passing evaluation counts, and stops training, only when the next 100 episodes pass too."""
+    _, settings = resolve_config(agent, get_agent(agent).config_cls, "default")
+    assert settings.confirm_solves and settings.stop_when_solved
+
+
 def as_tuples(value):
     """A TOML value as a config holds it: lists (and lists of lists) as tuples."""
     return tuple(as_tuples(v) for v in value) if isinstance(value, list) else value

@@ -27,6 +27,23 @@ def reference_returns(policy, env_id: str, seeds: list[int]) -> list[float]:
     return returns
 
 
+class Drifting:
+    """A linear policy whose episodes end anywhere from 250 steps to the time limit: where a float32
+    simulator's episodes drift apart from Gymnasium's float64 ones."""
+
+    def act(self, observations: np.ndarray) -> np.ndarray:
+        weights = np.array([-0.05, 0.0, 1.0, 0.15])
+        return (np.asarray(observations, dtype=np.float64) @ weights > 0).astype(np.int64)
+
+
+def test_an_evaluation_on_our_simulator_plays_gymnasiums_own_episodes_bit_for_bit():
+    """So an in-training evaluation may run on it (the default presets' ``eval_simulator``): the same
+    returns as Gymnasium's single env, on any CPU (both call the C library's sine and cosine)."""
+    report = evaluate(Drifting(), "CartPole-v1", episodes=40, seed=7, simulator="fast")
+    assert report.returns == reference_returns(Drifting(), "CartPole-v1", report.seeds)
+    assert min(report.returns) < 300 and max(report.returns) == 500  # long episodes, not all alike
+
+
 @pytest.mark.parametrize("env_id", ["CartPole-v1", "CartPole-v0"])
 @pytest.mark.parametrize("simulator", ["gymnasium", "fast"])
 def test_always_left_matches_a_plain_gymnasium_loop(always_left, env_id, simulator):

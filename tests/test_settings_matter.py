@@ -442,7 +442,8 @@ def test_eval_screen_episodes_sets_the_screen_size(tmp_path: Path) -> None:
 def test_eval_episodes_and_eval_simulator_shape_the_full_evaluation_and_the_verdict(cem_run: Path) -> None:
     runs_dir = cem_run.parent
     for episodes, simulator in ((100, "gymnasium"), (130, "fast")):
-        overrides = {"eval_episodes": episodes, "eval_simulator": simulator}
+        # Without a verdict_simulator of its own (the default presets name one), the verdict's is this.
+        overrides = {"eval_episodes": episodes, "eval_simulator": simulator, "verdict_simulator": "none"}
         outcome = train("cem", seed=0, overrides=overrides, runs_dir=runs_dir)
         full = [row for row in eval_rows(outcome) if row["eval/mean_return"] >= CARTPOLE.reward_threshold]
         assert full and all(row["eval/episodes"] == episodes for row in full)

@@ -30,8 +30,12 @@ register_pixel_envs()
 Simulator = Literal["fast", "gymnasium"]
 SIMULATORS: tuple[Simulator, ...] = ("fast", "gymnasium")
 FAST_DTYPE = np.float32
-"""The float type our fast simulator steps in for training and its screens (its envs default to
-float64, Gymnasium's bits; float32 is several times faster at many envs: :mod:`cartpole.envs.fast`)."""
+"""The float type our fast simulator steps in for training (its envs default to float64, Gymnasium's
+bits; float32 is several times faster at many envs: :mod:`cartpole.envs.fast`)."""
+EVAL_DTYPE = np.float64
+"""The float type of our fast simulator's CartPole in evaluations: float64, so that an evaluation on
+it plays Gymnasium's own episodes bit for bit (its equations, its start states, the C library's sine
+and cosine), at the speed of our simulator."""
 
 
 def fast_env_id(env_id: str) -> str:
@@ -56,12 +60,15 @@ def resolve_simulator(env_id: str, simulator: str) -> Simulator:
     return "fast" if checked == "fast" and (info.is_cartpole or info.pixels_of) else "gymnasium"
 
 
-def make_vec_env(env_id: str, num_envs: int, *, simulator: str = "gymnasium") -> gym.vector.VectorEnv:
-    """A vector env of ``num_envs`` copies of ``env_id`` with Gymnasium's next-step autoreset."""
+def make_vec_env(
+    env_id: str, num_envs: int, *, simulator: str = "gymnasium", dtype: type[np.floating[Any]] = FAST_DTYPE
+) -> gym.vector.VectorEnv:
+    """A vector env of ``num_envs`` copies of ``env_id`` with Gymnasium's next-step autoreset; ``dtype``:
+    what our fast simulator steps in."""
     info = env_info(env_id)  # validates the id and its spaces with a clear message
     if resolve_simulator(env_id, simulator) == "fast":
         return gym.make_vec(
-            fast_env_id(env_id), num_envs=num_envs, vectorization_mode="vector_entry_point", dtype=FAST_DTYPE
+            fast_env_id(env_id), num_envs=num_envs, vectorization_mode="vector_entry_point", dtype=dtype
         )
     if info.pixels_of:
         return gymnasium_pixels_vec_env(info.pixels_of, num_envs, info.obs_shape)
@@ -91,13 +98,16 @@ def make_eval_envs(
 ) -> gym.vector.VectorEnv | ShardedEnvs:
     """The envs an evaluation plays: :func:`make_vec_env`'s, except that Gymnasium's pictures (a
     pixel env on ``simulator="gymnasium"``) are drawn by ``workers`` processes when ``workers`` > 1
-    (:class:`~cartpole.envs.shards.ShardedEnvs`: the same episodes, sooner)."""
+    (:class:`~cartpole.envs.shards.ShardedEnvs`: the same episodes, sooner), and that our fast
+    CartPole steps in :data:`EVAL_DTYPE` (Gymnasium's bits)."""
     info = env_info(env_id)
     if workers > 1 and info.pixels_of and resolve_simulator(env_id, simulator) == "gymnasium":
         from cartpole.envs.shards import ShardedEnvs
 
         return ShardedEnvs(partial(make_gymnasium_pixels, info.pixels_of, info.obs_shape), num_envs, workers)
-    return make_vec_env(env_id, num_envs, simulator=simulator)
+    return make_vec_env(
+        env_id, num_envs, simulator=simulator, dtype=EVAL_DTYPE if info.is_cartpole else FAST_DTYPE
+    )
 
 
 __all__ = [
