@@ -292,11 +292,49 @@ def test_gradients_by_hand_train_as_autograd_does(agent, change):
     by_hand, autograd = small_population(agent, [2, 7], **change), small_population(agent, [2, 7], **change)
     assert by_hand.model.by_hand
     autograd.model.by_hand = False
+    by_hand.closed_form = False  # PPO's loss by autograd here too: the networks' gradients alone by hand
     learn(by_hand, 4)
     learn(autograd, 4)
     for seed in (2, 7):
         assert_same(weights(by_hand, seed), weights(autograd, seed))
     assert not torch.equal(by_hand.model.flat, small_population(agent, [2, 7], **change).model.flat)
+
+
+CLOSED_FORM_CASES = [
+    {},
+    {"ent_coef": 0.02, "activation": "relu", "shared_trunk": True},
+    {"minibatch_size": 64, "lr": 0.05},  # shuffled minibatches; ratios far enough from 1 to clip
+    {"target_kl": 0.002, "lr": 0.05},  # seeds that stop their epochs early
+    {"normalize_advantages": False},
+]
+
+
+@pytest.mark.parametrize("change", CLOSED_FORM_CASES)
+def test_ppos_loss_differentiated_in_closed_form_trains_as_autograd_does(change):
+    """PPO's loss gradients in closed form (ppo_loss_gradients): the weights and every metric come out
+    as with autograd's, to within float32 rounding, for each loss term, activation, shared trunk,
+    minibatch shape and early stop."""
+    closed, autograd = small_population("ppo", [2, 7], **change), small_population("ppo", [2, 7], **change)
+    assert closed.differentiates_in_closed_form
+    autograd.closed_form = False
+    for closed_results, autograd_results in zip(learn(closed, 2), learn(autograd, 2), strict=True):
+        for seed in (2, 7):
+            a, b = closed_results[seed].scalars, autograd_results[seed].scalars
+            assert a.keys() == b.keys()
+            for key in a:
+                assert a[key] == pytest.approx(b[key], rel=1e-4, abs=1e-6, nan_ok=True), key
+    for seed in (2, 7):
+        a, b = weights(closed, seed), weights(autograd, seed)
+        for key in a:
+            if a[key].is_floating_point():
+                assert torch.allclose(a[key], b[key], rtol=1e-4, atol=1e-6), key
+    assert not torch.equal(closed.model.flat, small_population("ppo", [2, 7], **change).model.flat)
+
+
+def test_ppos_loss_goes_to_autograd_where_the_closed_form_does_not_apply():
+    """Value clipping (not in the closed form) and networks without a backward pass by hand."""
+    assert not small_population("ppo", [1], clip_range_vf=0.2).differentiates_in_closed_form
+    assert not small_population("ppo", [1], activation="elu").differentiates_in_closed_form
 
 
 def test_networks_that_autograd_differentiates():

@@ -142,6 +142,17 @@ class PopulationActorCritic:
         self.model.backward((losses * active.float()).sum())
         self.step(lr, active)
 
+    def heads_backward_and_step(
+        self, logits_grad: torch.Tensor, values_grad: torch.Tensor, lr: torch.Tensor, active: torch.Tensor
+    ) -> None:
+        """:meth:`backward_and_step` from the gradients of every seed's loss with respect to its
+        logits and values (:meth:`StackedActorCritic.backward_from_heads`), those of inactive seeds
+        left out."""
+        weights = active.to(logits_grad.dtype).unsqueeze(1)
+        self.model.grad.zero_()
+        self.model.backward_from_heads(logits_grad * weights.unsqueeze(2), values_grad * weights)
+        self.step(lr, active)
+
     def step(self, lr: torch.Tensor, active: torch.Tensor) -> None:
         """Clip each seed's gradient norm to ``max_grad_norm`` (as clip_grad_norm_ does), then the
         optimizer's step of the ``active`` seeds."""

@@ -3,7 +3,10 @@
 1. :class:`PPOConfig`: every setting, with a one-line docstring each (presets in ``presets/ppo.toml``).
 2. The loss of one minibatch, each seed's on its own rows of ``[S, B]`` tensors:
    :func:`clipped_surrogate_loss` (the probability ratio clipped to ``1 +- clip_range``),
-   :func:`clipped_value_loss`, and the entropy term (:meth:`PopulationPPO.minibatch_loss`).
+   :func:`clipped_value_loss`, and the entropy term (:meth:`PopulationPPO.minibatch_loss`); and the
+   same loss differentiated in closed form (:func:`ppo_loss_gradients`), what an MLP's update uses
+   (without value clipping): fewer operations than autograd's backward pass, the same gradients to
+   within rounding.
 3. The update (:meth:`PopulationPPO.update`): ``n_epochs`` passes over each seed's rollout in
    shuffled minibatches, each one gradient step with the gradient norm clipped, with an optional
    early stop once a seed's approximate KL passes ``target_kl``.
@@ -88,6 +91,35 @@ class PPOConfig(PolicyGradientConfig):
 # ----------------------------------------------------------------------------------------------
 
 
+@dataclass(frozen=True)
+class PPOBatch:
+    """A minibatch: each seed's rows of its rollout, ``[S, B, ...]``."""
+
+    observations: torch.Tensor
+    actions: torch.Tensor
+    old_log_probs: torch.Tensor
+    old_values: torch.Tensor
+    advantages: torch.Tensor
+    returns: torch.Tensor
+
+    @classmethod
+    def of(cls, rollout: Rollout, index: torch.Tensor | None) -> PPOBatch:
+        """Each seed's rows ``index`` [S, B] of ``rollout`` (None: every row)."""
+
+        def take(x: torch.Tensor) -> torch.Tensor:
+            if index is None:
+                return x
+            if x.dim() == 2:
+                return x.gather(1, index)
+            rows = index.view(*index.shape, *[1] * (x.dim() - 2))  # [S, B, 1, ...]: every column
+            return x.gather(1, rows.expand(-1, -1, *x.shape[2:]))
+
+        return cls(
+            take(rollout.observations), take(rollout.actions), take(rollout.log_probs), take(rollout.values),
+            take(rollout.advantages), take(rollout.returns),
+        )  # fmt: skip
+
+
 def clipped_surrogate_loss(
     ratio: torch.Tensor, advantages: torch.Tensor, clip: torch.Tensor, mask: torch.Tensor, count: torch.Tensor
 ) -> torch.Tensor:
@@ -115,6 +147,61 @@ def clipped_value_loss(
     return 0.5 * masked_mean(squared, mask, count)
 
 
+def ppo_loss_gradients(
+    logits: torch.Tensor,
+    values: torch.Tensor,
+    batch: PPOBatch,
+    clip: torch.Tensor,
+    mask: torch.Tensor,
+    count: torch.Tensor,
+    ent_coef: float,
+    vf_coef: float,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """PPO's loss per seed (without value clipping) differentiated in closed form: the gradients of
+    each seed's ``policy_loss - ent_coef * entropy + vf_coef * value_loss`` with respect to its
+    ``logits`` [S, B, n_actions] and ``values`` [S, B], and the metrics [S, 5] (:data:`ROW_METRICS`).
+
+    What autograd would compute through :func:`clipped_surrogate_loss`, the entropy and
+    :func:`clipped_value_loss`, in fewer and fused operations (an update of small networks is bound
+    by the count of operations): with ``r`` the ratio, the row's term ``max(-A r, -A clip(r))`` has
+    the derivative ``-A`` in ``r`` where its unclipped side is the larger (half of it on a tie, as
+    autograd splits a tie), ``-A`` times whether ``r`` lies inside the clip range where the clipped
+    side is; ``d r / d logits = r (onehot(action) - softmax)``; the mean entropy's ``-p (log p +
+    H)``; the value loss's ``values - returns``; each over the seed's masked rows. Equal to
+    autograd's gradients to within float32 rounding (tests/test_population.py)."""
+    log_probs_all = torch.log_softmax(logits, dim=-1)
+    probs = log_probs_all.exp()
+    log_ratio = log_probs_all.gather(-1, batch.actions.unsqueeze(-1)).squeeze(-1) - batch.old_log_probs
+    ratio = log_ratio.exp()
+    clipped_ratio = torch.minimum(torch.maximum(ratio, 1.0 - clip), 1.0 + clip)
+    unclipped_term, clipped_term = -batch.advantages * ratio, -batch.advantages * clipped_ratio
+    row_entropy = -(probs * log_probs_all).sum(dim=-1)
+    error = values - batch.returns
+    rows = torch.stack(
+        [
+            torch.max(unclipped_term, clipped_term),
+            0.5 * error.square(),
+            row_entropy,
+            (ratio - 1.0) - log_ratio,
+            ((ratio - 1.0).abs() > clip).float(),
+        ],
+        dim=-1,
+    )  # [S, B, 5]: the rows of each metric, whose masked means are the metrics (one reduction)
+    divisor = count.clamp(min=1.0).unsqueeze(1)
+    metrics = (rows * mask.unsqueeze(-1)).sum(dim=1) / divisor
+    per_row = mask / divisor  # d masked_mean / d row
+    unclipped_side = (unclipped_term > clipped_term).float() + 0.5 * (unclipped_term == clipped_term).float()
+    inside = ((ratio > 1.0 - clip) & (ratio < 1.0 + clip)).float()
+    d_ratio = -batch.advantages * (unclipped_side + (1.0 - unclipped_side) * inside)
+    one_hot = torch.zeros_like(logits).scatter_(-1, batch.actions.unsqueeze(-1), 1.0)
+    logits_grad = (d_ratio * ratio * per_row).unsqueeze(-1) * (one_hot - probs)
+    if ent_coef != 0.0:
+        logits_grad += (
+            (ent_coef * per_row).unsqueeze(-1) * probs * (log_probs_all + row_entropy.unsqueeze(-1))
+        )
+    return logits_grad, vf_coef * per_row * error, metrics
+
+
 ROW_METRICS = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction")
 """What each minibatch reports per seed; an update reports their means over its gradient steps."""
 
@@ -133,44 +220,63 @@ class PopulationPPO(PopulationActorCritic):
         super().__init__(config, env, seeds, device, eps=config.adam_eps)
 
     def minibatch_loss(
-        self,
-        rollout: Rollout,
-        index: torch.Tensor | None,
-        mask: torch.Tensor,
-        count: torch.Tensor,
-        clip: torch.Tensor,
-        normalize: bool,
+        self, batch: PPOBatch, mask: torch.Tensor, count: torch.Tensor, clip: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Per-seed PPO loss [S], metrics [S, 5] (detached) and approximate KL [S] of one minibatch:
-        each seed's rows ``index`` [S, B] (None: every row), their advantages normalized first with
-        ``normalize``."""
+        """Per-seed PPO loss [S], metrics [S, 5] (detached) and approximate KL [S] of one minibatch
+        (:meth:`minibatch`)."""
         config = self.config
-
-        def take(x: torch.Tensor) -> torch.Tensor:
-            if index is None:
-                return x
-            if x.dim() == 2:
-                return x.gather(1, index)
-            rows = index.view(*index.shape, *[1] * (x.dim() - 2))  # [S, B, 1, ...]: every column
-            return x.gather(1, rows.expand(-1, -1, *x.shape[2:]))
-
-        observations, actions = take(rollout.observations), take(rollout.actions)
-        old_log_probs, old_values = take(rollout.log_probs), take(rollout.values)
-        advantages, returns = take(rollout.advantages), take(rollout.returns)
-        logits, values = self.model.forward_for_update(observations)
-        log_probs, entropy = log_probs_and_entropy(logits, actions, mask, count, config.ent_coef)
-        if normalize:
-            advantages = masked_normalize(advantages, mask, count)
-        log_ratio = log_probs - old_log_probs
+        logits, values = self.model.forward_for_update(batch.observations)
+        log_probs, entropy = log_probs_and_entropy(logits, batch.actions, mask, count, config.ent_coef)
+        log_ratio = log_probs - batch.old_log_probs
         ratio = log_ratio.exp()
-        policy_loss = clipped_surrogate_loss(ratio, advantages, clip, mask, count)
-        value_loss = clipped_value_loss(values, old_values, returns, config.clip_range_vf, mask, count)
+        policy_loss = clipped_surrogate_loss(ratio, batch.advantages, clip, mask, count)
+        value_loss = clipped_value_loss(
+            values, batch.old_values, batch.returns, config.clip_range_vf, mask, count
+        )
         loss = policy_loss - config.ent_coef * entropy + config.vf_coef * value_loss
         with torch.no_grad():
             approx_kl = masked_mean((ratio - 1.0) - log_ratio, mask, count)
             clip_fraction = masked_mean(((ratio - 1.0).abs() > clip).float(), mask, count)
             row_metrics = torch.stack([policy_loss, value_loss, entropy, approx_kl, clip_fraction], dim=1)
         return loss, row_metrics.detach(), approx_kl
+
+    def minibatch(
+        self,
+        rollout: Rollout,
+        index: torch.Tensor | None,
+        mask: torch.Tensor,
+        count: torch.Tensor,
+        normalize: bool,
+    ) -> PPOBatch:
+        """Each seed's rows ``index`` [S, B] of ``rollout`` (None: every row), their advantages
+        normalized with ``normalize``."""
+        batch = PPOBatch.of(rollout, index)
+        if not normalize:
+            return batch
+        return dataclasses.replace(batch, advantages=masked_normalize(batch.advantages, mask, count))
+
+    @property
+    def differentiates_in_closed_form(self) -> bool:
+        """Whether an update takes its loss's gradients from :func:`ppo_loss_gradients` (MLPs
+        differentiated by hand, no value clipping) rather than from autograd."""
+        return self.closed_form and self.model.by_hand and self.config.clip_range_vf is None
+
+    closed_form = True
+    """Set False to differentiate the loss with autograd even where the closed form applies."""
+
+    def minibatch_gradients(
+        self, batch: PPOBatch, mask: torch.Tensor, count: torch.Tensor, clip: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """:meth:`minibatch_loss` differentiated in closed form (:func:`ppo_loss_gradients`): the
+        gradients of each seed's loss with respect to its logits and values, its metrics [S, 5] and
+        approximate KL [S]."""
+        logits, values = self.model.forward_for_update(batch.observations)
+        with torch.no_grad():
+            logits_grad, values_grad, metrics = ppo_loss_gradients(
+                logits.detach(), values.detach(), batch, clip, mask, count,
+                self.config.ent_coef, self.config.vf_coef,
+            )  # fmt: skip
+        return logits_grad, values_grad, metrics, metrics[:, ROW_METRICS.index("approx_kl")]
 
     def update(self, rollout: Rollout, lr: torch.Tensor, clip: torch.Tensor) -> list[dict[str, float]]:
         """``n_epochs`` passes of each seed's shuffled valid rows in minibatches; per-seed metrics."""
@@ -192,6 +298,7 @@ class PopulationPPO(PopulationActorCritic):
         positions = torch.arange(size, device=self.device)
         mask, count = rollout.valid.float(), rollout.counts
         normalize = config.normalize_advantages
+        closed_form = self.differentiates_in_closed_form
         if whole and normalize:  # the same rows in every epoch: their advantages normalized once
             normalized = masked_normalize(rollout.advantages, mask, count)
             rollout = dataclasses.replace(rollout, advantages=normalized)
@@ -204,14 +311,23 @@ class PopulationPPO(PopulationActorCritic):
                     mask = (positions[: index.shape[1]] + start < rollout.counts.unsqueeze(1)).float()
                     count = mask.sum(dim=1)
                 active = (count > 0) & ~stopped
-                losses, row_metrics, kl = self.minibatch_loss(rollout, index, mask, count, clip, normalize)
+                batch = self.minibatch(rollout, index, mask, count, normalize)
+                if closed_form:
+                    logits_grad, values_grad, row_metrics, kl = self.minibatch_gradients(
+                        batch, mask, count, clip
+                    )
+                else:
+                    losses, row_metrics, kl = self.minibatch_loss(batch, mask, count, clip)
                 if config.target_kl is not None:
                     over = active & (kl > config.target_kl)
                     stopped |= over
                     active &= ~over
                 if not bool(active.any()):
                     continue
-                self.backward_and_step(losses, lr, active)
+                if closed_form:
+                    self.heads_backward_and_step(logits_grad, values_grad, lr, active)
+                else:
+                    self.backward_and_step(losses, lr, active)
                 sums += row_metrics * active.float().unsqueeze(1)
                 done_steps += active.float()
         self.updates += has_rows.cpu().numpy()
@@ -269,9 +385,11 @@ AGENT = actor_critic_spec(
 
 __all__ = [
     "AGENT",
+    "PPOBatch",
     "PPOConfig",
     "PopulationPPO",
     "clipped_surrogate_loss",
     "clipped_value_loss",
     "ppo_bytes_per_seed",
+    "ppo_loss_gradients",
 ]

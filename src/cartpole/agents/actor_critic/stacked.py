@@ -252,7 +252,23 @@ class StackedActorCritic(FlatParameters[ActorCritic]):
         if update is None:
             super().backward(loss)
             return
-        head_grads = torch.autograd.grad(loss, update.heads, allow_unused=True)
+        self.backward_through_networks(update, torch.autograd.grad(loss, update.heads, allow_unused=True))
+
+    def backward_from_heads(self, logits_grad: torch.Tensor, values_grad: torch.Tensor) -> None:
+        """Add to ``grad`` the gradient of a loss whose gradients with respect to the logits [S, B,
+        n_actions] and values [S, B] of the last :meth:`forward_for_update` (an MLP's) are
+        ``logits_grad`` and ``values_grad``: the caller differentiated the loss itself (PPO's in
+        closed form), the networks are differentiated by hand as in :meth:`backward`."""
+        update, self.update_pass = self.update_pass, None
+        if update is None:
+            raise ValueError("backward_from_heads needs an MLP's forward_for_update first")
+        self.backward_through_networks(update, (logits_grad, values_grad.unsqueeze(-1)))
+
+    def backward_through_networks(
+        self, update: UpdatePass, head_grads: tuple[torch.Tensor | None, ...] | list[torch.Tensor | None]
+    ) -> None:
+        """The networks' gradients by hand from their heads' gradients ``head_grads`` (the logits',
+        the values'; None: that head has no term in the loss), added to ``grad``."""
         for hand, inputs, grad in zip(self.hand, update.inputs, head_grads, strict=True):
             if hand is None or grad is None:  # None: the loss has no value term (REINFORCE alone)
                 continue
