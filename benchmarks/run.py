@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
 import shlex
 import subprocess
@@ -33,6 +34,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from cpu import AVX2_SETTINGS
 from table_file import BENCHMARKS, RESULTS_DIR, describe_machine
 
 ROOT = BENCHMARKS.parent
@@ -57,6 +59,8 @@ class Benchmark:
     headline: str | None = None
     """The README's "How fast" row for it, until it has run (None: no README row)."""
     needs_cuda: bool = False
+    env: tuple[tuple[str, str], ...] = ()
+    """Environment variables the script runs under (e.g. ``cpu.AVX2_SETTINGS``), beside this process's."""
 
     def command(self, smoke: bool = False) -> list[str]:
         return [
@@ -66,19 +70,29 @@ class Benchmark:
         ]
 
     def shown(self) -> str:
-        parts = ["python", f"benchmarks/{self.script}", self.args, "--table", self.name]
+        settings = [f"{name}={value}" for name, value in self.env]
+        parts = [*settings, "python", f"benchmarks/{self.script}", self.args, "--table", self.name]
         return " ".join(part for part in parts if part)
 
 
+AVX2 = tuple(AVX2_SETTINGS.items())
+CPU_KINDS: tuple[tuple[str, tuple[tuple[str, str], ...]], ...] = (("", ()), ("-avx2", AVX2))
+"""The profiling tables' two runs: as this CPU is, and as on an AVX2 CPU (emulated on an AVX-512 one)."""
 TTS_AGENTS = "ppo,dqn,a2c,reinforce,cem"
 ACROBOT_AGENTS = "ppo:acrobot,dqn,a2c:acrobot,reinforce:acrobot,cem,hill-climbing,random-search"
 TUTORIALS = "dqn:tutorial-keras,dqn:tutorial-pytorch,random-search:tutorial"
 TABLES = [
     Benchmark(
         "time-to-solve", "time_to_solve.py",
-        f"--agents {TTS_AGENTS} --seeds 20 --first-seed 10000 --sb3 ppo,dqn,a2c --jobs 1", minutes=35,
-        tiny=f"--agents {TTS_AGENTS} --seeds 1 --first-seed 10000 --sb3 ppo,dqn,a2c",
+        f"--agents {TTS_AGENTS} --seeds 20 --first-seed 70000 --sb3 ppo,dqn,a2c --jobs 1", minutes=25,
+        tiny=f"--agents {TTS_AGENTS} --seeds 1 --first-seed 70000 --sb3 ppo,dqn,a2c",
         headline="CPU seconds to a verified solve, beside Stable-Baselines3",
+    ),
+    Benchmark(
+        "time-to-solve-avx2", "time_to_solve.py",
+        f"--agents {TTS_AGENTS} --seeds 20 --first-seed 70000 --sb3 ppo,dqn,a2c --jobs 1", minutes=30,
+        tiny=f"--agents {TTS_AGENTS} --seeds 1 --first-seed 70000 --sb3 ppo,dqn,a2c",
+        headline="The same on an AVX2 CPU", env=AVX2,
     ),
     Benchmark(
         "population", "population.py",
@@ -90,6 +104,11 @@ TABLES = [
         "env-throughput", "env_throughput.py", "", minutes=2, quick=True,
         tiny="--sizes 1,4096 --seconds 0.1 --repeats 1 --no-compile-check",
         headline="Simulator: env steps per CPU second on one core",
+    ),
+    Benchmark(
+        "env-throughput-avx2", "env_throughput.py", "", minutes=2, quick=True,
+        tiny="--sizes 1,4096 --seconds 0.1 --repeats 1 --no-compile-check",
+        env=AVX2,
     ),
     Benchmark(
         "tutorial-presets", "time_to_solve.py",
@@ -134,14 +153,27 @@ TABLES = [
         "renderer", "renderer.py", "--sizes 30x100,40x60,60x200", minutes=2, quick=True,
         tiny="--sizes 30x100 --envs 1,64 --seconds 0.1 --repeats 1",
     ),
-    Benchmark(
-        "phases", "phases.py", "--seeds 3 --population 3", minutes=4, quick=True, tiny="--agents cem,ppo"
-    ),
-    Benchmark("kernels", "kernels.py", "", minutes=2, quick=True, tiny="--seeds 10 --repeats 5"),
-    Benchmark(
-        "dqn-step", "dqn_step.py", "table", minutes=4, quick=True,
-        tiny="table --seeds 10 --steps 50 --warmup 80 --repeats 10 --trials 2",
-    ),
+    *[
+        Benchmark(
+            f"phases{suffix}", "phases.py", "--seeds 3 --population 3", minutes=4, quick=True,
+            tiny="--agents cem,ppo", env=env,
+        )
+        for suffix, env in CPU_KINDS
+    ],
+    *[
+        Benchmark(
+            f"kernels{suffix}", "kernels.py", "", minutes=2, quick=True, tiny="--seeds 10 --repeats 5",
+            env=env,
+        )
+        for suffix, env in CPU_KINDS
+    ],
+    *[
+        Benchmark(
+            f"dqn-step{suffix}", "dqn_step.py", "table", minutes=4, quick=True,
+            tiny="table --seeds 10 --steps 50 --warmup 80 --repeats 10 --trials 2", env=env,
+        )
+        for suffix, env in CPU_KINDS
+    ],
     Benchmark(
         "gpu", "population.py", "--agent ppo,dqn --seeds 100 --first-seed 10100 --device cuda --singles 0 "
         "--processes 0", minutes=5, tiny="--agent ppo --seeds 4 --device cuda --singles 0 --processes 0",
@@ -173,7 +205,7 @@ def run_table(table: Benchmark, results_dir: Path, note: str, smoke: bool) -> bo
     command = [*table.command(smoke), "--table", table.name, "--results-dir", str(results_dir)]
     command += ["--note", note] if note else []
     print(f"== {table.name}: {' '.join(command[1:])}", flush=True)
-    done = subprocess.run(command, cwd=tempfile.gettempdir())
+    done = subprocess.run(command, cwd=tempfile.gettempdir(), env={**os.environ, **dict(table.env)})
     written = (results_dir / f"{table.name}.json").is_file()
     if done.returncode != 0:
         print(f"== {table.name}: the script exited {done.returncode}", file=sys.stderr)
@@ -229,16 +261,27 @@ def fraction(found: dict[str, Any], solved: str = "final_solved") -> str:
 AGENT_NAMES = {"ppo": "PPO", "dqn": "DQN", "a2c": "A2C", "reinforce": "REINFORCE", "cem": "CEM"}
 
 
-def time_to_solve_rows(summary: dict[str, Any]) -> list[Row]:
-    """Our agents beside SB3's in the same run: median CPU seconds to a verified solve, a row each;
-    the agents SB3 has no peer for share one row."""
+Group = dict[str, Any]
+
+
+def agents_and_peers(
+    summary: dict[str, Any],
+) -> tuple[list[tuple[str, Group, Group]], list[tuple[str, Group]]]:
+    """A time-to-solve table's groups of our agents: (name, ours, SB3's) for those SB3 has a peer
+    for, then (name, ours) for the others, in :data:`AGENT_NAMES`' order."""
     groups = {group["agent"]: group for group in summary["groups"]}
     ours = [(name, groups[agent], groups.get(f"sb3-{agent}")) for agent, name in AGENT_NAMES.items()
             if agent in groups]  # fmt: skip
+    paired = [(name, found, peer) for name, found, peer in ours if peer is not None]
+    return paired, [(name, found) for name, found, peer in ours if peer is None]
+
+
+def time_to_solve_rows(summary: dict[str, Any]) -> list[Row]:
+    """Our agents beside SB3's in the same run: median CPU seconds to a verified solve, a row each;
+    the agents SB3 has no peer for share one row."""
+    paired, alone = agents_and_peers(summary)
     rows = []
-    for name, found, peer in ours:
-        if peer is None:
-            continue
+    for name, found, peer in paired:
         ratio = "-"
         if found["median_cpu"] and peer["median_cpu"]:
             ratio = f"{peer['median_cpu'] / found['median_cpu']:.1f}x less CPU"
@@ -249,7 +292,6 @@ def time_to_solve_rows(summary: dict[str, Any]) -> list[Row]:
             "ratio": ratio,
             "verified": f"{fraction(found)} (SB3 {fraction(peer)})",
         })  # fmt: skip
-    alone = [(name, found) for name, found, peer in ours if peer is None]
     if alone:
         seeds = ", ".join(sorted({str(found["seeds"]) for _, found in alone}))
         rows.append({
@@ -260,6 +302,47 @@ def time_to_solve_rows(summary: dict[str, Any]) -> list[Row]:
             "verified": ", ".join(fraction(found) for _, found in alone),
         })  # fmt: skip
     return rows
+
+
+def time_to_solve_one_row(measure: str) -> Callable[[dict[str, Any]], list[Row]]:
+    """:func:`time_to_solve_rows` folded into one row named ``measure`` (another CPU's run of the same
+    table): the agents with an SB3 peer, then the others, each cell a list in that order."""
+
+    def rows(summary: dict[str, Any]) -> list[Row]:
+        return [one_row(measure, summary)] if summary["groups"] else []
+
+    return rows
+
+
+def one_row(measure: str, summary: dict[str, Any]) -> Row:
+    """The row of :func:`time_to_solve_one_row`."""
+    paired, alone = agents_and_peers(summary)
+    names = ", ".join(name for name, _, _ in paired) + ("; " if paired and alone else "")
+    names += ", ".join(name for name, _ in alone)
+    seeds = ", ".join(
+        sorted({str(g["seeds"]) for g in summary["groups"] if not g["agent"].startswith("sb3-")})
+    )
+
+    def listed(values: list[str]) -> str:
+        return ", ".join(values) if values else "-"
+
+    ratios = [
+        f"{peer['median_cpu'] / found['median_cpu']:.1f}x"
+        if found["median_cpu"] and peer["median_cpu"]
+        else "-"
+        for _, found, peer in paired
+    ]
+    solved = listed([fraction(found) for _, found, _ in paired])
+    if alone:
+        solved += "; " + listed([fraction(found) for _, found in alone])
+    return {
+        "measure": f"{measure} ({names}): CPU seconds, median of {seeds} unseen seeds",
+        "ours": listed([seconds(found["median_cpu"]) for _, found, _ in paired])
+        + ("; " + listed([seconds(found["median_cpu"]) for _, found in alone]) if alone else ""),
+        "peer": "SB3 (RL Zoo) " + listed([seconds(peer["median_cpu"]) for _, _, peer in paired]),
+        "ratio": listed(ratios) + " less CPU",
+        "verified": f"{solved} (SB3 {listed([fraction(peer) for _, _, peer in paired])})",
+    }  # fmt: skip
 
 
 def population_rows(summary: dict[str, Any]) -> list[Row]:
@@ -364,6 +447,7 @@ def web_latency_rows(summary: dict[str, Any]) -> list[Row]:
 
 README_ROWS: dict[str, Callable[[dict[str, Any]], list[Row]]] = {
     "time-to-solve": time_to_solve_rows,
+    "time-to-solve-avx2": time_to_solve_one_row("The same as on an AVX2 CPU"),
     "population": population_rows,
     "env-throughput": env_throughput_rows,
     "tutorial-presets": solve_rate_rows("The tutorials' agents within their own budgets"),

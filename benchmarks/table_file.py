@@ -25,8 +25,9 @@ from cartpole.runs.atomic import write_text_atomic
 
 BENCHMARKS = Path(__file__).resolve().parent
 RESULTS_DIR = BENCHMARKS / "results"
-NOT_RECORDED_OPTIONS = ("--results-dir", "--note")
-"""Options that change where a table goes or what its machine line says, never its figures."""
+NOT_RECORDED_OPTIONS = ("--results-dir", "--note", "--json")
+"""Options that change where a table (or a raw copy of its runs) goes or what its machine line says, never
+its figures."""
 
 
 def add_table_arguments(parser: argparse.ArgumentParser) -> None:

@@ -12,13 +12,15 @@ Usage (from the repository root)::
 Each run is one fresh subprocess (so torch thread settings and imports of one run cannot speed up or
 slow down another) that calls :func:`cartpole.training.train` with the preset's own budget. Per run we
 record the CPU time (``time.process_time``, all threads) and wall time from the start of training to
-the in-training verified solve (the first full 100-episode evaluation on Gymnasium's env with mean >=
-the threshold), the env steps at that moment, and the final verdict: the kept best checkpoint re-judged
-by ``evaluate`` on 100 fresh episodes. SB3's DQN, PPO and A2C (RL Zoo's CartPole-v1 hyperparameters)
-are judged by the same ``screened_evaluation`` at the cadence of our agent's default preset, with the
-same stop rule. Tianshou's DQN and PPO (the settings of its own CartPole test scripts) are judged the
-same way, after each of its trainer's collect-and-update steps. Every run uses one torch thread (our
-CLI's default; SB3's and Tianshou's runs are set the same way).
+the in-training verified solve (the default presets' rule: a full 100-episode evaluation with mean >=
+the threshold, confirmed by the next 100 episodes, both played on our float64 simulator, which plays
+Gymnasium's episodes bit for bit), the env steps at that moment, and the final verdict: the kept best
+checkpoint re-judged by ``evaluate`` on 100 fresh episodes of Gymnasium's own env. SB3's DQN, PPO and
+A2C (RL Zoo's CartPole-v1 hyperparameters) are judged by the same ``screened_evaluation`` with our
+agent's default preset's settings (cadence, screen, confirmation, simulator), with the same stop
+rule. Tianshou's DQN and PPO (the settings of its own CartPole test scripts) are judged the same way,
+after each of its trainer's collect-and-update steps. Every run uses one torch thread (our CLI's
+default; SB3's and Tianshou's runs are set the same way).
 """
 
 from __future__ import annotations
