@@ -90,10 +90,11 @@ def test_dqn_verifiably_solves_cartpole_with_the_discounted_return_as_its_q_valu
 # -- another env: the same code on Gymnasium's Acrobot-v1 (its vector env, not our simulator) ----------
 
 
-ACROBOT: dict[str, tuple[str, str, int]] = {"dqn": ("default", "10k", 4), "ppo": ("acrobot", "20k", 5)}
+ACROBOT: dict[str, tuple[str, str, int]] = {"dqn": ("default", "10k", 4), "ppo": ("acrobot", "20k", 7)}
 """(preset, budget, seeds) per agent: the value-based and the policy-gradient families (A2C and
-REINFORCE share PPO's population, networks and envs). One of the PPO seeds stays near -290 within this
-budget under every float path CI runs, hence a fifth."""
+REINFORCE share PPO's population, networks and envs). Within this budget two of the PPO seeds stay near
+-290 and -185 under every float path CI runs, and a third ends near -85 on some paths and -200 on others
+(torch's generic kernels, emulated AVX2), hence seven."""
 
 
 @pytest.mark.learning
@@ -105,7 +106,7 @@ def test_acrobot_swings_up_on_most_seeds(agent, tmp_path):
     benchmarks/README.md)."""
     preset, budget, seeds = ACROBOT[agent]
     means = verdict_means(train_seeds(agent, tmp_path, "Acrobot-v1", preset, budget, seeds))
-    assert sum(mean > -200 for mean in means) >= 3, means
+    assert sum(mean > -200 for mean in means) > len(means) / 2, means
     assert float(np.median(means)) > -150, means
 
 
