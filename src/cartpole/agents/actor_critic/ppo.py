@@ -215,6 +215,9 @@ class PopulationPPO(PopulationActorCritic):
     """PPO for seeds ``seeds``, all with ``config``: one ``learn()`` = a rollout and an update each."""
 
     config: PPOConfig
+    closed_form = True
+    """Set False to differentiate the loss with autograd even where the closed form applies
+    (:attr:`differentiates_in_closed_form`)."""
 
     def __init__(self, config: PPOConfig, env: EnvInfo, seeds: list[int], device: str = "cpu"):
         super().__init__(config, env, seeds, device, eps=config.adam_eps)
@@ -260,9 +263,6 @@ class PopulationPPO(PopulationActorCritic):
         """Whether an update takes its loss's gradients from :func:`ppo_loss_gradients` (MLPs
         differentiated by hand, no value clipping) rather than from autograd."""
         return self.closed_form and self.model.by_hand and self.config.clip_range_vf is None
-
-    closed_form = True
-    """Set False to differentiate the loss with autograd even where the closed form applies."""
 
     def minibatch_gradients(
         self, batch: PPOBatch, mask: torch.Tensor, count: torch.Tensor, clip: torch.Tensor
