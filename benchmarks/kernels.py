@@ -20,8 +20,11 @@ or not), so the CPU is printed first. Last, one ``learn()`` (rollout and update)
 REINFORCE's default presets for one seed and for ``--seeds``, with the networks' gradients by autograd
 and by hand (``agents/nn/stacked_linear.py``'s ``mlp_gradients``, what the populations use for MLPs).
 Then acting: one step of PPO's and DQN's default networks for every env of 1 and ``--seeds`` seeds,
-and a greedy policy on 1 and 100 rows, through the NumPy twins (``agents/nn/numpy_mlp.py``, how they
-act) and through torch on the same weights.
+through the NumPy twins (``agents/nn/numpy_mlp.py``, how they act) and through torch on the same
+weights; a greedy policy on 1 and 100 rows, through its compiled forward pass
+(``agents/nn/greedy_play.py``, how it acts) and through torch; and 10 and 100 greedy episodes of
+our float64 CartPole (an in-training evaluation), stepped by the vector env and played in one
+compiled call, per env step.
 
 ``--pixels``: instead, one seed's conv trunk (a 512-row batch of 4x30x100 frame stacks through
 ``agents/actor_critic/network.py``'s ``CONV_LAYERS``, forward and backward) with the images laid
@@ -168,7 +171,8 @@ def acting_calls(population: Any, x: np.ndarray) -> dict[str, Callable[[], objec
 
 
 def policy_calls(population: Any, observations: np.ndarray) -> dict[str, Callable[[], object]]:
-    """Seed 0's greedy policy on ``observations`` as it acts (its NumPy snapshot), and through torch."""
+    """Seed 0's greedy policy on ``observations`` as it acts (its snapshot's compiled forward pass,
+    ``agents/nn/greedy_play.py``), and through torch."""
     policy = population.seed_policy(0)
     if hasattr(population, "model"):
         forward = population.model.unstack(0).logits
@@ -180,17 +184,44 @@ def policy_calls(population: Any, observations: np.ndarray) -> dict[str, Callabl
     }
 
 
-def numpy_against_torch(what: str, calls: dict[str, Callable[[], object]], repeats: int) -> list[str]:
+def numpy_against_torch(
+    what: str, calls: dict[str, Callable[[], object]], repeats: int, ours: str = "numpy"
+) -> list[str]:
+    """Microseconds a call of ``calls["numpy"]`` (our way, named ``ours``) and of ``calls["torch"]``."""
     with torch.no_grad():
         times = {name: seconds_per_call(call, repeats) * 1e6 for name, call in calls.items()}
-    return [f"{what}: numpy / torch", f"{times['numpy']:.1f} / {times['torch']:.1f} us"]
+    return [f"{what}: {ours} / torch", f"{times['numpy']:.1f} / {times['torch']:.1f} us"]
+
+
+def greedy_episodes(population: Any, episodes: int, repeats: int) -> list[str]:
+    """Seed 0's greedy policy on ``episodes`` evaluation episodes of our float64 CartPole (an
+    in-training evaluation), stepped by the vector env and played in one compiled call
+    (``agents/nn/greedy_play.py``): CPU microseconds per env step."""
+    from cartpole.evaluation import evaluate
+
+    policy = population.seed_policy(0)
+
+    class Stepped:  # the same policy, without play_cartpole: the vector env steps its episodes
+        def act(self, observations: np.ndarray) -> np.ndarray:
+            return policy.act(observations)
+
+    times = {}
+    for name, player in (("vector env", Stepped()), ("compiled", policy)):
+        steps = sum(evaluate(player, "CartPole-v1", episodes, seed=0, simulator="fast").lengths)
+        seconds = seconds_per_call(
+            lambda p=player: evaluate(p, "CartPole-v1", episodes, seed=0, simulator="fast"), repeats
+        )
+        times[name] = seconds / steps * 1e6
+    return [f"greedy episodes, {episodes} at once (an evaluation on our simulator): vector env / compiled",
+            f"{times['vector env']:.2f} / {times['compiled']:.2f} us an env step"]  # fmt: skip
 
 
 def acting(seeds: int, repeats: int) -> list[list[str]]:
-    """What acting costs through a network's NumPy twin (how the populations and greedy policies act)
-    and through torch on the same weights: one step of the default presets' networks for every env of
-    1 and ``seeds`` seeds (a rollout's or DQN's batched env step), and a greedy policy on 1 and 100
-    rows (the web app's step, an evaluation's block)."""
+    """What acting costs our way and through torch on the same weights: one step of the default
+    presets' networks for every env of 1 and ``seeds`` seeds (a rollout's or DQN's batched env step,
+    through the NumPy twins), a greedy policy on 1 and 100 rows (the web app's step, a block of
+    Gymnasium's envs in a verdict; its compiled forward pass), and greedy episodes
+    (:func:`greedy_episodes`)."""
     rng = np.random.default_rng(0)
     rows = []
     for agent in ("ppo", "dqn"):
@@ -202,7 +233,13 @@ def acting(seeds: int, repeats: int) -> list[list[str]]:
         for batch in (1, 100):
             observations = rng.standard_normal((batch, 4)).astype(np.float32)
             what = f"greedy policy, {agent} default network, {batch} row(s)"
-            rows.append(numpy_against_torch(what, policy_calls(population, observations), repeats * 20))
+            calls = policy_calls(population, observations)  # its compiled forward pass (greedy_play)
+            rows.append(numpy_against_torch(what, calls, repeats * 20, ours="compiled"))
+        for episodes in (10, 100):
+            row = greedy_episodes(population, episodes, repeats * 5)
+            rows.append(
+                [row[0].replace("greedy episodes", f"greedy episodes, {agent} default network"), row[1]]
+            )
     for row in rows:
         print(*row, sep=": ", flush=True)
     return rows

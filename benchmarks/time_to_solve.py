@@ -115,6 +115,23 @@ def warm_up(env_id: str) -> None:
 
     for simulator in ("fast", "gymnasium"):
         evaluate(Left(), env_id, 2, seed=0, simulator=simulator)
+    # Our greedy MLP policies' compiled forward pass and episode loop (agents/nn/greedy_play.py).
+    from torch import nn
+
+    from cartpole.agents.nn.numpy_mlp import NumpyMLP
+
+    class Network:
+        def __init__(self) -> None:
+            self.network = NumpyMLP([nn.Linear(4, 2)])
+
+        def act(self, observations: np.ndarray) -> np.ndarray:
+            return self.network(observations).argmax(axis=1)
+
+        def play_cartpole(self, *args: Any) -> Any:
+            return self.network.play_cartpole(*args)
+
+    if env_id in ("CartPole-v1", "CartPole-v0"):
+        evaluate(Network(), env_id, 2, seed=0, simulator="fast")
     # Constructing any torch.optim optimizer imports torch._dynamo once per process (1.5-1.8 s of CPU
     # here): an import, paid before timing by every run, ours and SB3's alike.
     import torch

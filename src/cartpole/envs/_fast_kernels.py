@@ -102,6 +102,70 @@ def _sin_cos_overload(theta):
     return sin_cos_libm
 
 
+@njit(**_JIT, inline="always")
+def physics_constants(p: NDArray[np.floating[Any]]) -> tuple[float, ...]:
+    """What :func:`advance` reads of the parameter vector ``p``, as one tuple: read once before a loop,
+    so that the loop's stores cannot alias it and LLVM vectorizes the loop."""
+    return (
+        p[GRAVITY],
+        p[MASSPOLE],
+        p[TOTAL_MASS],
+        p[LENGTH],
+        p[POLEMASS_LENGTH],
+        p[TAU],
+        p[THETA_THRESHOLD],
+        p[X_THRESHOLD],
+        p[FOUR_THIRDS],
+        p[SEMI_IMPLICIT],
+    )
+
+
+@njit(**_JIT, inline="always")
+def advance(
+    x: float, x_dot: float, theta: float, theta_dot: float, force: float, constants: tuple[float, ...]
+) -> tuple[float, float, float, float, bool]:
+    """One cart-pole, one step of ``tau`` under ``force``: the next (x, x_dot, theta, theta_dot) and
+    whether it terminated (left the track, or its pole passed the angle threshold).
+
+    The equations and the order of every operation are Gymnasium's (Florian 2007, "Correct equations
+    for the dynamics of the cart-pole system"), so float64 results are bit-identical to it. This is
+    the only place they are written: :func:`dynamics` runs it over a batch, and a compiled policy
+    that plays whole episodes (:mod:`cartpole.agents.nn.greedy_play`) runs it too.
+    """
+    (
+        gravity,
+        masspole,
+        total_mass,
+        length,
+        polemass_length,
+        tau,
+        theta_threshold,
+        x_threshold,
+        four_thirds,
+        semi_implicit,
+    ) = constants
+    sintheta, costheta = sin_cos(theta)
+    temp = (force + polemass_length * (theta_dot * theta_dot) * sintheta) / total_mass
+    thetaacc = (gravity * sintheta - costheta * temp) / (
+        length * (four_thirds - masspole * (costheta * costheta) / total_mass)
+    )
+    xacc = temp - polemass_length * thetaacc * costheta / total_mass
+    if semi_implicit != 0:
+        x_dot = x_dot + tau * xacc
+        x = x + tau * x_dot
+        theta_dot = theta_dot + tau * thetaacc
+        theta = theta + tau * theta_dot
+    else:  # Euler, Gymnasium's default
+        x = x + tau * x_dot
+        x_dot = x_dot + tau * xacc
+        theta = theta + tau * theta_dot
+        theta_dot = theta_dot + tau * thetaacc
+    terminated = (
+        (x < -x_threshold) | (x > x_threshold) | (theta < -theta_threshold) | (theta > theta_threshold)
+    )
+    return x, x_dot, theta, theta_dot, terminated
+
+
 @njit(**_JIT)
 def dynamics(
     state: NDArray[np.floating[Any]],
@@ -109,45 +173,14 @@ def dynamics(
     p: NDArray[np.floating[Any]],
     terminated: NDArray[np.bool_],
 ) -> None:
-    """Advance ``state`` (4, N) by one step of ``tau`` under ``force`` (N,), in place.
-
-    The equations and the order of every operation are Gymnasium's (Florian 2007, "Correct equations
-    for the dynamics of the cart-pole system"), so float64 results are bit-identical to it.
-    ``terminated[i]`` is set when env ``i`` leaves the track or its pole passes the angle threshold.
-    """
-    # Scalars read once, before the loop: the stores below cannot then alias them, so LLVM vectorizes.
-    gravity = p[GRAVITY]
-    masspole = p[MASSPOLE]
-    total_mass = p[TOTAL_MASS]
-    length = p[LENGTH]
-    polemass_length = p[POLEMASS_LENGTH]
-    tau = p[TAU]
-    theta_threshold = p[THETA_THRESHOLD]
-    x_threshold = p[X_THRESHOLD]
-    four_thirds = p[FOUR_THIRDS]
-    semi_implicit = p[SEMI_IMPLICIT] != 0
+    """Advance ``state`` (4, N) by one step of ``tau`` under ``force`` (N,), in place (:func:`advance`
+    for every env). ``terminated[i]`` is set when env ``i`` leaves the track or its pole passes the
+    angle threshold."""
+    constants = physics_constants(p)
     xs, x_dots, thetas, theta_dots = state[0], state[1], state[2], state[3]
     for i in range(xs.shape[0]):
-        x, x_dot, theta, theta_dot = xs[i], x_dots[i], thetas[i], theta_dots[i]
-        sintheta, costheta = sin_cos(theta)
-        temp = (force[i] + polemass_length * (theta_dot * theta_dot) * sintheta) / total_mass
-        thetaacc = (gravity * sintheta - costheta * temp) / (
-            length * (four_thirds - masspole * (costheta * costheta) / total_mass)
-        )
-        xacc = temp - polemass_length * thetaacc * costheta / total_mass
-        if semi_implicit:
-            x_dot = x_dot + tau * xacc
-            x = x + tau * x_dot
-            theta_dot = theta_dot + tau * thetaacc
-            theta = theta + tau * theta_dot
-        else:  # Euler, Gymnasium's default
-            x = x + tau * x_dot
-            x_dot = x_dot + tau * xacc
-            theta = theta + tau * theta_dot
-            theta_dot = theta_dot + tau * thetaacc
-        xs[i], x_dots[i], thetas[i], theta_dots[i] = x, x_dot, theta, theta_dot
-        terminated[i] = (
-            (x < -x_threshold) | (x > x_threshold) | (theta < -theta_threshold) | (theta > theta_threshold)
+        xs[i], x_dots[i], thetas[i], theta_dots[i], terminated[i] = advance(
+            xs[i], x_dots[i], thetas[i], theta_dots[i], force[i], constants
         )
 
 

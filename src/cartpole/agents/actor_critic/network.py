@@ -27,8 +27,9 @@ from torch import nn
 
 from cartpole.agents.nn import conv
 from cartpole.agents.nn.conv import PIXEL_SCALE, ScalePixels, scale_pixels
-from cartpole.agents.nn.numpy_mlp import NumpyMLP, StackedNumpyMLP, stacked_block_actor
+from cartpole.agents.nn.numpy_mlp import NumpyMLP, StackedGreedyActor, StackedNumpyMLP
 from cartpole.agents.nn.standardize import StandardizeObservations
+from cartpole.envs.params import CartPoleParams
 from cartpole.evaluation import BlockActor
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
@@ -218,6 +219,15 @@ class CategoricalPolicy:
     def act(self, observations: np.ndarray) -> np.ndarray:
         return self.logits(observations).argmax(axis=1)
 
+    def play_cartpole(
+        self, states: np.ndarray, params: CartPoleParams, max_episode_steps: int, block_size: int
+    ) -> np.ndarray | None:
+        """Whole greedy episodes on our float64 CartPole in one compiled call
+        (:class:`~cartpole.evaluation.CartPolePlayer`); None for a convolutional actor."""
+        if not isinstance(self.logits, NumpyMLP):
+            return None
+        return self.logits.play_cartpole(states, params, max_episode_steps, block_size)
+
 
 class TorchActor:
     """The action logits of a frozen copy of an actor, computed with torch: for convolutional actors,
@@ -235,8 +245,9 @@ class TorchActor:
 
 def block_greedy_actor(logits: StackedNumpyMLP, obs_dim: int) -> BlockActor:
     """The greedy actions of S stacked actors (``logits``) as one :data:`BlockActor`
-    (:func:`~cartpole.agents.nn.numpy_mlp.stacked_block_actor`)."""
-    return stacked_block_actor([logits], obs_dim, lambda actors, x: actors[0](x))
+    (:class:`~cartpole.agents.nn.numpy_mlp.StackedGreedyActor`, which plays whole episodes of our
+    CartPole itself)."""
+    return StackedGreedyActor([logits], obs_dim, lambda actors, x: actors[0](x), argmax_of=logits)
 
 
 def stacked_greedy_actor(policies: Sequence[object], obs_dim: int) -> BlockActor | None:

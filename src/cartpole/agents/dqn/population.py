@@ -40,7 +40,7 @@ from cartpole.agents.episodes import EnvStep, SeedEpisodes
 from cartpole.agents.learner import LearnResult
 from cartpole.agents.nn.conv import conv_activations
 from cartpole.agents.nn.flat_parameters import on_the_cpu, to_device
-from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step, stacked_block_actor
+from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedGreedyActor, StackedNumpyMLP, Step
 from cartpole.agents.nn.population_optimizers import population_optimizer
 from cartpole.agents.nn.stacked_linear import TORCH_ACTIVATIONS
 from cartpole.agents.population import staying_rows
@@ -282,7 +282,8 @@ class QLearningPopulation:
         if self.env_info.is_image:
             return self.torch_block_actor([self.seeds.index(seed) for seed in seeds])
         networks = self.numpy_networks([self.seeds.index(seed) for seed in seeds], copy=True)
-        return stacked_block_actor(networks, self.env_info.obs_dim, q_values_from)
+        chain = None if self.net.dueling else networks[0].then(networks[1])  # body, then head
+        return StackedGreedyActor(networks, self.env_info.obs_dim, q_values_from, argmax_of=chain)
 
     def torch_block_actor(self, rows: list[int]) -> BlockActor:
         """The greedy actions of the online networks of ``rows`` as one :data:`BlockActor`, through

@@ -31,8 +31,10 @@ import torch
 from torch import nn
 
 from cartpole.agents.nn.conv import LastFrameDifference, ScalePixels, conv_output_size, conv_parameters
-from cartpole.agents.nn.numpy_mlp import NumpyMLP
+from cartpole.agents.nn.greedy_play import CompiledMLP
+from cartpole.agents.nn.numpy_mlp import KERNEL_ACTIVATIONS, NumpyMLP
 from cartpole.envs import EnvInfo
+from cartpole.envs.params import CartPoleParams
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {"relu": nn.ReLU, "tanh": nn.Tanh, "elu": nn.ELU, "gelu": nn.GELU}
 
@@ -231,3 +233,17 @@ class QNetworkPolicy:
 
     def act(self, observations: np.ndarray) -> np.ndarray:
         return self.scores(observations).argmax(axis=1)
+
+    def play_cartpole(
+        self, states: np.ndarray, params: CartPoleParams, max_episode_steps: int, block_size: int
+    ) -> np.ndarray | None:
+        """Whole greedy episodes on our float64 CartPole in one compiled call
+        (:class:`~cartpole.evaluation.CartPolePlayer`): a plain network's body and head as one;
+        None for a dueling or convolutional one."""
+        if self.torch_net is not None or len(self.parts) != 2:
+            return None
+        body, head = self.parts
+        compiled = CompiledMLP.of(body.plan + head.plan, KERNEL_ACTIVATIONS)
+        if compiled is None:
+            return None
+        return compiled.play_cartpole(states, params, max_episode_steps, len(states))

@@ -1,7 +1,7 @@
 """Building blocks of the neural agents, batched over seeds where it pays. They know no agent: the
 algorithms in :mod:`cartpole.agents`' folders are built from them.
 
-A network exists in up to five forms, each in one place, each for one reason (stated in that
+A network exists in up to six forms, each in one place, each for one reason (stated in that
 module, with the benchmark table that measures it):
 
 1. the ``nn.Module`` (``ActorCritic`` in ``actor_critic/network.py``, ``QNetwork`` in
@@ -14,8 +14,10 @@ module, with the benchmark table that measures it):
 3. an MLP's gradients by hand (:func:`~cartpole.agents.nn.stacked_linear.mlp_gradients`): what an
    update of a stacked MLP backpropagates with;
 4. a NumPy twin (:mod:`~cartpole.agents.nn.numpy_mlp`, with :mod:`~cartpole.agents.nn.fast_tanh`):
-   what a rollout, DQN's batched env step and every greedy policy act through;
-5. the optimizer's numba pass over the flat rows (:mod:`~cartpole.agents.nn.population_optimizers`).
+   what a rollout and DQN's batched env step act through;
+5. a greedy policy's compiled forward pass (:mod:`~cartpole.agents.nn.greedy_play`): what every
+   greedy MLP policy acts through, and what plays an evaluation's whole episodes on our simulator;
+6. the optimizer's numba pass over the flat rows (:mod:`~cartpole.agents.nn.population_optimizers`).
 
 Besides: per-seed statistics over the valid rows of a batch (masked), the convolutional trunk's
 generic pieces (conv), fixed observation standardization (standardize) and the learning rate's

@@ -20,8 +20,9 @@ import numpy as np
 from torch import nn
 
 from cartpole.agents.nn.fast_tanh import tanh_array
+from cartpole.agents.nn.greedy_play import RELU, TANH, CompiledMLP
 from cartpole.agents.nn.standardize import StandardizeObservations
-from cartpole.evaluation import BlockActor
+from cartpole.envs.params import CartPoleParams
 
 
 def _relu(x: np.ndarray) -> np.ndarray:
@@ -49,6 +50,14 @@ NUMPY_ACTIVATIONS: dict[type[nn.Module], Callable[[np.ndarray], np.ndarray]] = {
     nn.ELU: _elu,
     nn.GELU: _gelu,
 }
+
+
+KERNEL_ACTIVATIONS: dict[Callable[[np.ndarray], np.ndarray], int] = {
+    _relu: RELU,
+    _tanh: TANH,
+}
+"""The activations the compiled forward pass (:class:`~cartpole.agents.nn.greedy_play.CompiledMLP`)
+computes, by the NumPy functions of a plan."""
 
 
 Step = tuple[np.ndarray, np.ndarray] | Callable[[np.ndarray], np.ndarray]
@@ -91,9 +100,23 @@ class NumpyMLP:
                 self.plan.append(layer.constants)
             elif not is_dropout(layer):
                 raise TypeError(f"no numpy form for {type(layer).__name__}")
+        self.compiled = CompiledMLP.of(self.plan, KERNEL_ACTIVATIONS)
+        """The plan's compiled form, which computes the outputs when there is one (linear layers with
+        ReLU or tanh), so that the same arithmetic acts here and in whole compiled episodes."""
 
     def __call__(self, inputs: np.ndarray) -> np.ndarray:
+        if self.compiled is not None:
+            return self.compiled(np.asarray(inputs, dtype=np.float32))
         return run_steps(self.plan, np.asarray(inputs, dtype=np.float32))
+
+    def play_cartpole(
+        self, states: np.ndarray, params: CartPoleParams, max_episode_steps: int, block_size: int
+    ) -> np.ndarray | None:
+        """Whole greedy episodes (the argmax of the outputs) on our float64 CartPole, in one compiled
+        call (:meth:`~cartpole.agents.nn.greedy_play.CompiledMLP.play_cartpole`)."""
+        if self.compiled is None:
+            return None
+        return self.compiled.play_cartpole(states, params, max_episode_steps, len(states))
 
 
 class StackedNumpyMLP:
@@ -140,32 +163,69 @@ class StackedNumpyMLP:
     def __call__(self, inputs: np.ndarray) -> np.ndarray:
         return run_steps(self.plan, np.asarray(inputs, dtype=np.float32))
 
+    def then(self, other: StackedNumpyMLP) -> StackedNumpyMLP:
+        """This stack followed by ``other`` (network b's outputs into network b), as one."""
+        return StackedNumpyMLP(self.plan + other.plan)
 
-def stacked_block_actor(
-    networks: list[StackedNumpyMLP],
-    obs_dim: int,
-    scores: Callable[[list[StackedNumpyMLP], np.ndarray], np.ndarray],
-) -> BlockActor:
+
+class StackedGreedyActor:
     """The greedy actions of stacks of S networks as one :data:`~cartpole.evaluation.BlockActor`: the
     rows of blocks ``blocks`` ``[k * E, obs_dim]`` (network b's E rows in block b) to the argmax of
     ``scores(networks, rows [k, E, obs_dim])``, ``[k * E]``. A subset of the blocks runs through
-    stacks of those networks only, kept until the subset changes."""
-    kept: dict[bytes, list[StackedNumpyMLP]] = {}
+    stacks of those networks only, kept until the subset changes.
 
-    def subset(blocks: np.ndarray) -> list[StackedNumpyMLP]:
-        if len(blocks) == networks[-1].count:
-            return networks
+    When the scores are one stack's outputs (``argmax_of``) and it has a compiled form
+    (:class:`~cartpole.agents.nn.greedy_play.CompiledMLP`), that computes them, and plays whole
+    episodes of our CartPole itself (a :class:`~cartpole.evaluation.CartPolePlayer`): the same
+    arithmetic as each network's greedy policy alone (:class:`NumpyMLP`)."""
+
+    def __init__(
+        self,
+        networks: list[StackedNumpyMLP],
+        obs_dim: int,
+        scores: Callable[[list[StackedNumpyMLP], np.ndarray], np.ndarray],
+        argmax_of: StackedNumpyMLP | None = None,
+    ):
+        self.networks, self.obs_dim, self.scores = networks, obs_dim, scores
+        self.compiled = None if argmax_of is None else CompiledMLP.of(argmax_of.plan, KERNEL_ACTIVATIONS)
+        self.kept: dict[bytes, list[StackedNumpyMLP]] = {}
+        self.kept_compiled: dict[bytes, CompiledMLP] = {}
+
+    def subset(self, blocks: np.ndarray) -> list[StackedNumpyMLP]:
+        """The stacks of networks ``blocks`` only (all of them: the stacks themselves)."""
+        if len(blocks) == self.networks[-1].count:
+            return self.networks
         key = np.asarray(blocks, dtype=np.int64).tobytes()
-        if key not in kept:
-            kept.clear()
-            kept[key] = [network.subset(np.asarray(blocks)) for network in networks]
-        return kept[key]
+        if key not in self.kept:
+            self.kept.clear()
+            self.kept[key] = [network.subset(np.asarray(blocks)) for network in self.networks]
+        return self.kept[key]
 
-    def act(observations: np.ndarray, blocks: np.ndarray) -> np.ndarray:
-        x = np.asarray(observations, dtype=np.float32).reshape(len(blocks), -1, obs_dim)
-        return scores(subset(blocks), x).argmax(axis=-1).reshape(-1)
+    def compiled_subset(self, compiled: CompiledMLP, blocks: np.ndarray) -> CompiledMLP:
+        """The compiled networks ``blocks`` only (all of them: the compiled stack itself)."""
+        if len(blocks) == compiled.count:
+            return compiled
+        key = np.asarray(blocks, dtype=np.int64).tobytes()
+        if key not in self.kept_compiled:
+            self.kept_compiled = {key: compiled.subset(np.asarray(blocks))}
+        return self.kept_compiled[key]
 
-    return act
+    def __call__(self, observations: np.ndarray, blocks: np.ndarray) -> np.ndarray:
+        x = np.asarray(observations, dtype=np.float32).reshape(len(blocks), -1, self.obs_dim)
+        if self.compiled is not None:
+            scores = self.compiled_subset(self.compiled, blocks)(x)
+        else:
+            scores = self.scores(self.subset(blocks), x)
+        return scores.argmax(axis=-1).reshape(-1)
+
+    def play_cartpole(
+        self, states: np.ndarray, params: CartPoleParams, max_episode_steps: int, block_size: int
+    ) -> np.ndarray | None:
+        """Whole greedy episodes on our float64 CartPole, network b playing block b, in one compiled
+        call (:meth:`~cartpole.agents.nn.greedy_play.CompiledMLP.play_cartpole`)."""
+        if self.compiled is None:
+            return None
+        return self.compiled.play_cartpole(states, params, max_episode_steps, block_size)
 
 
-__all__ = ["NUMPY_ACTIVATIONS", "NumpyMLP", "StackedNumpyMLP", "stacked_block_actor"]
+__all__ = ["KERNEL_ACTIVATIONS", "NUMPY_ACTIVATIONS", "NumpyMLP", "StackedGreedyActor", "StackedNumpyMLP"]
