@@ -218,12 +218,18 @@ class QNetworkPolicy:
     def __init__(self, q_net: QNetwork):
         self.torch_net: QNetwork | None = None
         """The frozen torch copy of a convolutional network (None: the numpy snapshot acts)."""
+        self.compiled: CompiledMLP | None = None
+        """Body and head as one compiled network, which plays whole episodes (None when dueling or
+        convolutional)."""
         if q_net.is_image:
             self.torch_net = copy.deepcopy(q_net).requires_grad_(False).eval()
             return
         value = [] if q_net.value is None else [NumpyMLP([q_net.value])]
         self.parts = [NumpyMLP(q_net.body), NumpyMLP([q_net.head]), *value]
         """The body, the head and (dueling) the value head (:func:`q_values_from`)."""
+        body, head = self.parts[:2]
+        if not value:
+            self.compiled = CompiledMLP.of(body.plan + head.plan, KERNEL_ACTIVATIONS)
 
     def scores(self, observations: np.ndarray) -> np.ndarray:
         """Q-values, shape [N, n_actions] (as ``QNetwork.forward`` in eval mode)."""
@@ -240,10 +246,6 @@ class QNetworkPolicy:
         """Whole greedy episodes on our float64 CartPole in one compiled call
         (:class:`~cartpole.evaluation.CartPolePlayer`): a plain network's body and head as one;
         None for a dueling or convolutional one."""
-        if self.torch_net is not None or len(self.parts) != 2:
+        if self.compiled is None:
             return None
-        body, head = self.parts
-        compiled = CompiledMLP.of(body.plan + head.plan, KERNEL_ACTIVATIONS)
-        if compiled is None:
-            return None
-        return compiled.play_cartpole(states, params, max_episode_steps, len(states))
+        return self.compiled.play_cartpole(states, params, max_episode_steps, len(states))

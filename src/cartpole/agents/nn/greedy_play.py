@@ -19,15 +19,17 @@ dueling head) has no compiled form: it acts through NumPy, and the vector env st
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from types import ModuleType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from cartpole.envs.fast import packed_params
 from cartpole.envs.params import CartPoleParams
+
+if TYPE_CHECKING:  # numpy_mlp imports this module
+    from cartpole.agents.nn.numpy_mlp import Step
 
 _loaded: list[ModuleType] = []
 
@@ -44,9 +46,6 @@ def _kernels() -> ModuleType:
 NO_ACTIVATION, RELU, TANH = 0, 1, 2
 """The kernel's codes of what follows a linear layer."""
 
-PlanStep = tuple[np.ndarray, np.ndarray] | Callable[[np.ndarray], np.ndarray]
-"""A step of a NumPy forward pass (:data:`cartpole.agents.nn.numpy_mlp.Step`)."""
-
 
 class CompiledMLP:
     """One network, or a stack of S networks of one shape, in the kernels' form: each network's
@@ -60,7 +59,7 @@ class CompiledMLP:
         self.weights, self.shapes, self.activations = weights, shapes, activations
 
     @classmethod
-    def of(cls, plan: list[PlanStep], activation_codes: dict[Any, int]) -> CompiledMLP | None:
+    def of(cls, plan: list[Step], activation_codes: dict[Any, int]) -> CompiledMLP | None:
         """The kernel form of ``plan`` (weights ``[S, in, out]`` and biases ``[S, 1, out]``, or one
         network's ``[in, out]`` and ``[out]``; ``activation_codes`` maps the plan's activation
         functions to the kernels' codes); None unless the plan is linear layers with those

@@ -202,7 +202,7 @@ class StackedGreedyActor:
         return self.kept[key]
 
     def compiled_subset(self, compiled: CompiledMLP, blocks: np.ndarray) -> CompiledMLP:
-        """The compiled networks ``blocks`` only (all of them: the compiled stack itself)."""
+        """The compiled networks ``blocks`` of ``compiled`` only (all of them: ``compiled`` itself)."""
         if len(blocks) == compiled.count:
             return compiled
         key = np.asarray(blocks, dtype=np.int64).tobytes()
