@@ -13,8 +13,9 @@ import torch
 from one_seed import one_seed
 
 from cartpole.agents.dqn.config import DQNConfig
-from cartpole.agents.dqn.dqn import td_targets
+from cartpole.agents.dqn.dqn import td_gradient, td_targets
 from cartpole.agents.dqn.q_network import QNetwork
+from cartpole.agents.dqn.replay import Minibatch
 from cartpole.agents.registry import get_agent
 from cartpole.core.errors import ConfigError
 from cartpole.envs import env_info
@@ -151,6 +152,39 @@ def test_double_dqn_target_lets_the_online_net_choose_the_action() -> None:
     next_q_online = torch.tensor([[9.0, 0.0], [0.0, 9.0]])  # picks action 0, then action 1
     targets = td_targets(rewards, terminated, next_q_target, next_q_online, gamma=1.0)
     torch.testing.assert_close(targets, torch.tensor([1.0, 2.0]))
+
+
+@pytest.mark.parametrize("loss", ["huber", "mse"])
+@pytest.mark.parametrize("double", [True, False])
+def test_the_td_gradients_numba_pass_gives_torchs_bits(loss: str, double: bool) -> None:
+    """On the CPU the Q-values' gradient and the Bellman targets come from one numba pass; it gives
+    the bits of the torch operations it replaces (``kernel=False``), over 3 seeds with padding rows
+    (weight 0), terminations, ties between the next actions' values and NaNs (a diverged network:
+    torch's argmax takes the first NaN, and NaN errors stay NaN)."""
+    generator = torch.Generator().manual_seed(0)
+    seeds, rows, n_actions = 3, 64, 3
+    q_all = torch.randn(seeds, rows, n_actions, generator=generator) * 3
+    next_q = torch.randn(2, seeds, rows, n_actions, generator=generator) * 3
+    next_q[:, :, :8] = next_q[:, :, :8].round()  # ties
+    next_q[1, 0, 8, 1] = next_q[0, 1, 9, 2] = math.nan
+    q_all[2, 10, :] = math.nan
+    actions = torch.randint(0, n_actions, (seeds, rows, 1), generator=generator)
+    minibatch = Minibatch(
+        torch.zeros(seeds, rows, 4),
+        torch.zeros(seeds, rows, 4),
+        actions,
+        torch.rand(seeds, rows, generator=generator),
+        (torch.rand(seeds, rows, generator=generator) < 0.2).float(),
+    )
+    row_weights = torch.full((seeds, rows), 1 / 48)
+    row_weights[:, 48:] = 0.0
+    chooser = next_q[1] if double else next_q[0]
+    got = td_gradient(q_all, minibatch, next_q[0], chooser, row_weights, 0.985**3, loss)
+    expected = td_gradient(q_all, minibatch, next_q[0], chooser, row_weights, 0.985**3, loss, kernel=False)
+    for kernels, torchs in zip(got, expected, strict=True):
+        assert torch.equal(kernels.nan_to_num(7.0), torchs.nan_to_num(7.0))
+        assert torch.equal(kernels.isnan(), torchs.isnan())
+    assert got[0].isnan().any() and (got[0] != 0).sum() > 100
 
 
 def test_collection_stores_transitions_only_never_the_autoreset_step() -> None:

@@ -13,9 +13,10 @@ import pytest
 import torch
 
 from cartpole.agents.dqn.config import DQNConfig
-from cartpole.agents.dqn.dqn import PopulationDQN, epsilon_at
+from cartpole.agents.dqn.dqn import PopulationDQN, epsilon_at, td_gradient
 from cartpole.agents.dqn.population import dqn_bytes_per_seed, policy_from_checkpoint, seeded_q_network
 from cartpole.agents.dqn.q_network import q_network_parameters
+from cartpole.agents.dqn.replay import Minibatch
 from cartpole.agents.learner import LearnResult
 from cartpole.core.config import config_to_dict
 from cartpole.core.errors import ConfigError
@@ -504,13 +505,16 @@ def test_a_plain_relu_networks_gradients_by_hand_are_autograds(changes):
     inputs: list[torch.Tensor] = []
     with torch.no_grad():
         q_all = net.forward(net.params, batch[..., :d].contiguous(), population.activation, inputs=inputs)
-        targets = population.targets(
-            batch[..., d : 2 * d].contiguous(), batch[..., 2 * d + 1], batch[..., 2 * d + 2]
-        )
+    next_observations = batch[..., d : 2 * d].contiguous()
+    rewards, terminated = batch[..., 2 * d + 1], batch[..., 2 * d + 2]
     actions = batch[..., 2 * d].long().unsqueeze(2)
-    q = q_all.gather(2, actions).squeeze(2)
+    minibatch = Minibatch(
+        batch[..., :d].contiguous(), next_observations, actions, rewards.contiguous(), terminated.contiguous()
+    )
     row_weights = torch.full((2, 32), 1 / 32)  # every row counts, each seed's mean over its 32
-    grad = population.q_gradient(q, targets, actions, row_weights, q_all)
+    loss = population.config.loss
+    next_q = population.next_q_values(next_observations)
+    grad, _ = td_gradient(q_all, minibatch, *next_q, row_weights, population.discount, loss)
     net.backward_by_hand(inputs, grad)
     by_hand = torch.cat([net.params[name].grad.reshape(2, -1) for name in net.params], dim=1)
     assert torch.allclose(by_hand, expected, rtol=1e-5, atol=1e-7)

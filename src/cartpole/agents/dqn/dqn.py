@@ -8,7 +8,7 @@
    bootstraps with ``gamma^n`` (:mod:`cartpole.agents.dqn.n_step`).
 3. The loss (:meth:`PopulationDQN.losses`: Huber or MSE, each seed's mean over its own rows) and one
    gradient step (:meth:`PopulationDQN.gradient_step`: for a plain ReLU MLP the gradient with respect
-   to the Q-values, :meth:`PopulationDQN.q_gradient`, then the network's by hand; clipping; the
+   to the Q-values, :func:`td_gradient`, then the network's by hand; clipping; the
    optimizer step).
 4. A training round (:meth:`PopulationDQN.train`): ``gradient_steps`` gradient steps on minibatches
    drawn from each seed's replay memory at the seed's learning rate (constant, or decayed linearly
@@ -28,6 +28,7 @@ rule runs on (the stacked networks, replay memories, envs, generators, acting, c
 from __future__ import annotations
 
 import math
+from types import ModuleType
 from typing import NamedTuple
 
 import numpy as np
@@ -69,6 +70,69 @@ def td_targets(
     next_actions = chooser.argmax(dim=1, keepdim=True)
     next_values = next_q_target.gather(1, next_actions).squeeze(1)
     return rewards + gamma * (1.0 - terminated) * next_values
+
+
+def bellman_targets(
+    rewards: torch.Tensor,
+    terminated: torch.Tensor,
+    next_q_target: torch.Tensor,
+    next_q_chooser: torch.Tensor,
+    gamma: float,
+) -> torch.Tensor:
+    """:func:`td_targets` of every seed's rows: rewards and terminated flags [S, B], the next states'
+    target values and the chooser's (whose argmax picks the action) [S, B, n_actions]; [S, B]."""
+    seeds, rows, n_actions = next_q_target.shape
+    targets = td_targets(
+        rewards.reshape(-1),
+        terminated.reshape(-1),
+        next_q_target.reshape(-1, n_actions),
+        next_q_chooser.reshape(-1, n_actions),
+        gamma,
+    )
+    return targets.view(seeds, rows)
+
+
+def td_gradient(
+    q_all: torch.Tensor,
+    minibatch: Minibatch,
+    next_q_target: torch.Tensor,
+    next_q_chooser: torch.Tensor,
+    row_weights: torch.Tensor,
+    gamma: float,
+    loss: str,
+    kernel: bool | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The gradient [S, B, n_actions] with respect to the Q-values ``q_all`` of the summed weighted
+    loss (each row's loss times its ``row_weights`` [S, B]: see :class:`Round`), and the Bellman
+    targets [S, B] (:func:`bellman_targets`) it was taken against. Only the taken actions' values
+    have a gradient: Huber's derivative is the error clipped to [-1, 1], MSE's twice the error.
+
+    ``kernel`` None: on the CPU one numba pass over the rows (:mod:`cartpole.agents.dqn._td_kernels`:
+    the same bits as torch's operations on float32 tensors, in a fraction of their dispatch), torch
+    elsewhere; False: torch always. The tensors carry no autograd graph (the gradient is by hand)."""
+    if kernel is not False and q_all.device.type == "cpu":
+        gradient, targets = torch.empty_like(q_all), torch.empty_like(minibatch.rewards)
+        arrays = [t.numpy() for t in (q_all, minibatch.actions, minibatch.rewards, minibatch.terminated)]
+        arrays += [next_q_target.numpy(), next_q_chooser.numpy(), row_weights.numpy()]
+        _td_kernels().td_gradient_rows(*arrays, gamma, loss == "huber", gradient.numpy(), targets.numpy())
+        return gradient, targets
+    targets = bellman_targets(minibatch.rewards, minibatch.terminated, next_q_target, next_q_chooser, gamma)
+    error = q_all.gather(2, minibatch.actions).squeeze(2) - targets
+    slope = error.clamp(-1.0, 1.0) if loss == "huber" else 2.0 * error
+    gradient = torch.zeros_like(q_all).scatter_(2, minibatch.actions, (slope * row_weights).unsqueeze(2))
+    return gradient, targets
+
+
+_loaded: list[ModuleType] = []
+
+
+def _td_kernels() -> ModuleType:
+    """The numba kernel, compiled on first use (importing this module does not import numba)."""
+    if not _loaded:
+        from cartpole.agents.dqn import _td_kernels as kernels
+
+        _loaded.append(kernels)
+    return _loaded[0]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -134,30 +198,27 @@ class PopulationDQN(QLearningPopulation):
         """The last training round's tensors (see :meth:`round_tensors`), by who trained and their rows."""
 
     @torch.no_grad()
-    def targets(
-        self, next_observations: torch.Tensor, rewards: torch.Tensor, terminated: torch.Tensor
-    ) -> torch.Tensor:
-        """The Bellman targets [S, B] of every seed's minibatch (:func:`td_targets`, per row), with
-        ``gamma^n_step``. Without a target network the online nets (without dropout) value s'."""
+    def next_q_values(self, next_observations: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The values of every seed's next states [S, B, n_actions]: the target networks' (which value
+        the chosen action) and the chooser's (whose argmax chooses it: the online networks' for double
+        DQN, else the same tensor). Without a target network the online nets (without dropout) do both."""
         config, net = self.config, self.net
-        next_q_online = None
         if config.double_dqn and net.target is not None:  # both networks in one pass
             twice = torch.cat([next_observations, next_observations])  # cheaper than repeat()
             q = net.forward(net.pair_params, twice, self.activation, buffers="next")
             next_q_target, next_q_online = q.chunk(2)
-        else:
-            next_q_target = net.forward(net.target_params, next_observations, self.activation, buffers="next")
-            if config.double_dqn:  # no target network: the online nets choose and value
-                next_q_online = next_q_target
-        seeds, rows, n_actions = next_q_target.shape
-        targets = td_targets(
-            rewards.reshape(-1),
-            terminated.reshape(-1),
-            next_q_target.reshape(-1, n_actions),
-            None if next_q_online is None else next_q_online.reshape(-1, n_actions),
-            config.gamma**config.n_step,
-        )
-        return targets.view(seeds, rows)
+            return next_q_target, next_q_online
+        next_q_target = net.forward(net.target_params, next_observations, self.activation, buffers="next")
+        return next_q_target, next_q_target
+
+    @torch.no_grad()
+    def targets(
+        self, next_observations: torch.Tensor, rewards: torch.Tensor, terminated: torch.Tensor
+    ) -> torch.Tensor:
+        """The Bellman targets [S, B] of every seed's minibatch (:func:`td_targets`, per row), with
+        ``gamma^n_step``."""
+        next_q_target, next_q_chooser = self.next_q_values(next_observations)
+        return bellman_targets(rewards, terminated, next_q_target, next_q_chooser, self.discount)
 
     def losses(
         self, q: torch.Tensor, targets: torch.Tensor, mask: torch.Tensor, count: torch.Tensor
@@ -170,21 +231,10 @@ class PopulationDQN(QLearningPopulation):
             elementwise = F.mse_loss(q, targets, reduction="none")
         return (elementwise * mask).sum(dim=1) / count
 
-    def q_gradient(
-        self,
-        q: torch.Tensor,
-        targets: torch.Tensor,
-        actions: torch.Tensor,
-        row_weights: torch.Tensor,
-        q_all: torch.Tensor,
-    ) -> torch.Tensor:
-        """The gradient of the summed loss of :meth:`gradient_step` with respect to every Q-value
-        ``[S, B, n_actions]``: each active seed's mean loss over its own rows (``row_weights``, see
-        :class:`Round`), through the taken actions' Q-values ``q`` [S, B] (Huber's derivative is the
-        error clipped to [-1, 1])."""
-        error = q - targets
-        slope = error.clamp(-1.0, 1.0) if self.config.loss == "huber" else 2.0 * error
-        return torch.zeros_like(q_all).scatter_(2, actions, (slope * row_weights).unsqueeze(2))
+    @property
+    def discount(self) -> float:
+        """What a replay row's bootstrap is discounted by: ``gamma^n_step``."""
+        return self.config.gamma**self.config.n_step
 
     def gradient_step(
         self,
@@ -197,38 +247,59 @@ class PopulationDQN(QLearningPopulation):
         round's mask is 0 are padding); with ``metrics``, each seed's loss and Q mean [S, 2]
         (detached; a round reports its last step's, and a gradient by hand needs no loss)."""
         config, net = self.config, self.net
-        mask, count, active = shared.mask, shared.row_counts, shared.active
-        by_hand = net.plain_relu and keeps is None
-        inputs: list[torch.Tensor] = []
-        with torch.set_grad_enabled(not by_hand):
-            q_all = net.forward(
-                net.params,
-                minibatch.observations,
-                self.activation,
-                keeps,
-                inputs if by_hand else None,
-                buffers="online",
-            )
-            targets = self.targets(minibatch.next_observations, minibatch.rewards, minibatch.terminated)
-            q = q_all.gather(2, minibatch.actions).squeeze(2)
-            losses = self.losses(q, targets, mask, count) if metrics or not by_hand else None
-        if by_hand:
-            grad = self.q_gradient(q, targets, minibatch.actions, shared.row_weights, q_all)
-            net.backward_by_hand(inputs, grad)
+        if net.plain_relu and keeps is None:
+            measured = self.gradient_by_hand(minibatch, shared, metrics)
         else:
-            assert losses is not None
-            net.grad.zero_()
-            net.backward((losses * active.to(losses.dtype)).sum())
+            measured = self.gradient_by_autograd(minibatch, keeps, shared)
         if config.max_grad_value is not None:  # every value on its own, as clip_grad_value_
             net.grad.clamp_(-config.max_grad_value, config.max_grad_value)
         if config.max_grad_norm is not None:
             net.clip_grad_norms(config.max_grad_norm)
-        self.optimizer.step(net.flat, net.grad, shared.lr, active)
-        if not metrics or losses is None:
+        self.optimizer.step(net.flat, net.grad, shared.lr, shared.active)
+        if not metrics or measured is None:
             return None
+        q, losses = measured
         with torch.no_grad():
-            q_means = (q.detach() * mask).sum(dim=1) / count
+            q_means = (q.detach() * shared.mask).sum(dim=1) / shared.row_counts
             return torch.stack([losses.detach(), q_means], dim=1)
+
+    @torch.no_grad()
+    def gradient_by_hand(
+        self, minibatch: Minibatch, shared: Round, metrics: bool
+    ) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """Write the online networks' gradients of a plain ReLU MLP (no dropout) on ``minibatch`` into
+        ``net.grad``: the Q-values' (:func:`td_gradient`), then the network's by hand. With
+        ``metrics``, the taken actions' Q-values [S, B] and each seed's loss [S] (no gradient needs
+        them)."""
+        net, loss = self.net, self.config.loss
+        inputs: list[torch.Tensor] = []
+        observations = minibatch.observations
+        q_all = net.forward(net.params, observations, self.activation, inputs=inputs, buffers="online")
+        next_q_target, next_q_chooser = self.next_q_values(minibatch.next_observations)
+        grad, targets = td_gradient(
+            q_all, minibatch, next_q_target, next_q_chooser, shared.row_weights, self.discount, loss
+        )
+        net.backward_by_hand(inputs, grad)
+        if not metrics:
+            return None
+        q = q_all.gather(2, minibatch.actions).squeeze(2)
+        return q, self.losses(q, targets, shared.mask, shared.row_counts)
+
+    def gradient_by_autograd(
+        self, minibatch: Minibatch, keeps: list[torch.Tensor] | None, shared: Round
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Write the online networks' gradients on ``minibatch`` into ``net.grad`` by autograd (dropout
+        masks ``keeps``; any activation, dueling heads, convolutions): the taken actions' Q-values [S, B]
+        and each seed's loss [S]."""
+        net = self.net
+        with torch.enable_grad():
+            q_all = net.forward(net.params, minibatch.observations, self.activation, keeps)
+            targets = self.targets(minibatch.next_observations, minibatch.rewards, minibatch.terminated)
+            q = q_all.gather(2, minibatch.actions).squeeze(2)
+            losses = self.losses(q, targets, shared.mask, shared.row_counts)
+            net.grad.zero_()
+            net.backward((losses * shared.active.to(losses.dtype)).sum())
+        return q, losses
 
     def dropout_keeps(self, training: np.ndarray, counts: np.ndarray) -> list[torch.Tensor]:
         """Each hidden layer's dropout keep-mask [S, batch rows, width] for one gradient step: each
