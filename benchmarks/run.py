@@ -84,14 +84,14 @@ TUTORIALS = "dqn:tutorial-keras,dqn:tutorial-pytorch,random-search:tutorial"
 TABLES = [
     Benchmark(
         "time-to-solve", "time_to_solve.py",
-        f"--agents {TTS_AGENTS} --seeds 20 --first-seed 70000 --sb3 ppo,dqn,a2c --jobs 1", minutes=25,
-        tiny=f"--agents {TTS_AGENTS} --seeds 1 --first-seed 70000 --sb3 ppo,dqn,a2c",
+        f"--agents {TTS_AGENTS} --seeds 20 --first-seed 80000 --sb3 ppo,dqn,a2c --jobs 1", minutes=25,
+        tiny=f"--agents {TTS_AGENTS} --seeds 1 --first-seed 80000 --sb3 ppo,dqn,a2c",
         headline="CPU seconds to a verified solve, beside Stable-Baselines3",
     ),
     Benchmark(
         "time-to-solve-avx2", "time_to_solve.py",
-        f"--agents {TTS_AGENTS} --seeds 20 --first-seed 70000 --sb3 ppo,dqn,a2c --jobs 1", minutes=30,
-        tiny=f"--agents {TTS_AGENTS} --seeds 1 --first-seed 70000 --sb3 ppo,dqn,a2c",
+        f"--agents {TTS_AGENTS} --seeds 20 --first-seed 80000 --sb3 ppo,dqn,a2c --jobs 1", minutes=30,
+        tiny=f"--agents {TTS_AGENTS} --seeds 1 --first-seed 80000 --sb3 ppo,dqn,a2c",
         headline="The same on an AVX2 CPU", env=AVX2,
     ),
     Benchmark(
