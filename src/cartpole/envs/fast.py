@@ -155,6 +155,7 @@ DEFAULT_RESET_LOW, DEFAULT_RESET_HIGH = -0.05, 0.05
 _DTYPES = (np.dtype(np.float32), np.dtype(np.float64))
 
 
+@functools.cache
 def _kernels() -> ModuleType:
     """The numba kernels, imported on first use so that importing this module stays cheap."""
     from cartpole.envs import _fast_kernels

@@ -27,6 +27,7 @@ rule runs on (the stacked networks, replay memories, envs, generators, acting, c
 
 from __future__ import annotations
 
+import functools
 import math
 from types import ModuleType
 from typing import NamedTuple
@@ -114,7 +115,7 @@ def td_gradient(
         gradient, targets = torch.empty_like(q_all), torch.empty_like(minibatch.rewards)
         arrays = [t.numpy() for t in (q_all, minibatch.actions, minibatch.rewards, minibatch.terminated)]
         arrays += [next_q_target.numpy(), next_q_chooser.numpy(), row_weights.numpy()]
-        _td_kernels().td_gradient_rows(*arrays, gamma, loss == "huber", gradient.numpy(), targets.numpy())
+        _kernels().td_gradient_rows(*arrays, gamma, loss == "huber", gradient.numpy(), targets.numpy())
         return gradient, targets
     targets = bellman_targets(minibatch.rewards, minibatch.terminated, next_q_target, next_q_chooser, gamma)
     error = q_all.gather(2, minibatch.actions).squeeze(2) - targets
@@ -123,16 +124,12 @@ def td_gradient(
     return gradient, targets
 
 
-_loaded: list[ModuleType] = []
-
-
-def _td_kernels() -> ModuleType:
+@functools.cache
+def _kernels() -> ModuleType:
     """The numba kernel, compiled on first use (importing this module does not import numba)."""
-    if not _loaded:
-        from cartpole.agents.dqn import _td_kernels as kernels
+    from cartpole.agents.dqn import _td_kernels
 
-        _loaded.append(kernels)
-    return _loaded[0]
+    return _td_kernels
 
 
 # ----------------------------------------------------------------------------------------------

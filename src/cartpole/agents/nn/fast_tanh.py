@@ -14,22 +14,20 @@ dtypes and devices fall back to NumPy's and torch's own ``tanh``.
 
 from __future__ import annotations
 
+import functools
 from types import ModuleType
 from typing import Any
 
 import numpy as np
 import torch
 
-_loaded: list[ModuleType] = []
 
-
+@functools.cache
 def _kernels() -> ModuleType:
     """The numba kernels, compiled on first use (importing this module does not import numba)."""
-    if not _loaded:
-        from cartpole.agents.nn import _tanh_kernels
+    from cartpole.agents.nn import _tanh_kernels
 
-        _loaded.append(_tanh_kernels)
-    return _loaded[0]
+    return _tanh_kernels
 
 
 def tanh_array(x: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:

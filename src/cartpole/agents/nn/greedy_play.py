@@ -19,6 +19,7 @@ dueling head) has no compiled form: it acts through NumPy, and the vector env st
 
 from __future__ import annotations
 
+import functools
 from types import ModuleType
 from typing import TYPE_CHECKING, Any
 
@@ -31,16 +32,13 @@ from cartpole.envs.params import CartPoleParams
 if TYPE_CHECKING:  # numpy_mlp imports this module
     from cartpole.agents.nn.numpy_mlp import Step
 
-_loaded: list[ModuleType] = []
 
-
+@functools.cache
 def _kernels() -> ModuleType:
     """The numba kernel, compiled on first use (importing this module does not import numba)."""
-    if not _loaded:
-        from cartpole.agents.nn import _greedy_play_kernels
+    from cartpole.agents.nn import _greedy_play_kernels
 
-        _loaded.append(_greedy_play_kernels)
-    return _loaded[0]
+    return _greedy_play_kernels
 
 
 NO_ACTIVATION, RELU, TANH = 0, 1, 2

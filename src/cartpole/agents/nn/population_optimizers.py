@@ -11,21 +11,19 @@ Other devices (and ``fused=False``) use the torch form.
 
 from __future__ import annotations
 
+import functools
 from types import ModuleType
 from typing import Any, Protocol
 
 import torch
 
-_loaded: list[ModuleType] = []
 
-
+@functools.cache
 def _kernels() -> ModuleType:
     """The numba kernels, compiled on first use (importing this module does not import numba)."""
-    if not _loaded:
-        from cartpole.agents.nn import _population_optimizer_kernels
+    from cartpole.agents.nn import _population_optimizer_kernels
 
-        _loaded.append(_population_optimizer_kernels)
-    return _loaded[0]
+    return _population_optimizer_kernels
 
 
 def use_kernels(fused: bool | None, *tensors: torch.Tensor) -> bool:
