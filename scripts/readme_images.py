@@ -1,9 +1,9 @@
-"""Make the two pictures the README shows, from a real training run.
+"""Make the two pictures the README shows: a real training run's curve, and the web app's Train page.
 
 - ``learning-curve.png``: the learning curve of PPO (seed 0) on CartPole-v1, drawn by the project's own
   plotting (``cartpole.plotting.plot_runs``, what ``cartpole plot`` calls);
-- ``web-app.png``: a 1280x840 screenshot of the web app (``cartpole serve``) on the Watch page of that
-  run, its best checkpoint replaying an episode just after a nudge to the pole.
+- ``web-train.png``: a 1280x900 screenshot of the web app's Train page (``cartpole serve``): DQN picked,
+  one setting and the budget changed, and beside them a training of PPO that the page's API started.
 
 The run is trained with the CLI in a temporary runs folder that is deleted at the end; the server is
 stopped however the script ends. Needs the project installed (``pip install -e .``), the ``playwright``
@@ -15,6 +15,7 @@ package and Chromium at /usr/bin/chromium (or ``--chromium PATH``). Takes well u
 from __future__ import annotations
 
 import argparse
+import json
 import socket
 import subprocess
 import sys
@@ -52,13 +53,12 @@ CURVE_WINDOW = 20
 CURVE_TITLE = f"PPO on CartPole-v1, seed {SEED}"
 CURVE_DPI = 130  # 10 x 6.4 inches -> 1300 x 832 pixels
 
-VIEWPORT = {"width": 1280, "height": 840}  # tall enough for the line that tells how the episode ended
-EPISODE_SEED = 0
-NUDGE_STEP = 60
-"""The step at which the screenshot's episode gets a push to the left; the frame shown is the one, of the
-next 12 (while the canvas still draws the push), where the pole leans the most that way."""
-NUDGE_STRENGTH = 1.0
-"""rad/s: a push the policy recovers from (at 1.2 to the left it loses the pole 27 steps later)."""
+VIEWPORT = {"width": 1280, "height": 900}  # the form and the trainings beside it
+TOKEN = "readme-images"
+TRAINING = {"agent": "ppo", "budget": "2000k", "settings": {"stop_when_solved": False}}
+"""The training listed beside the form while the picture is taken (the server stops it at the end)."""
+FORM = {"agent": "dqn", "budget": "50k", "lr": "0.002"}
+"""What the form shows changed."""
 SERVER_START_TIMEOUT_S = 30.0
 PAGE_TIMEOUT_MS = 30_000
 
@@ -132,7 +132,7 @@ def serving(runs_dir: Path, log: Path) -> Iterator[str]:
     port = free_port()
     with log.open("wb") as log_file:
         server = subprocess.Popen(
-            cartpole_command("serve", "--runs-dir", str(runs_dir), "--port", str(port)),
+            cartpole_command("serve", "--runs-dir", str(runs_dir), "--port", str(port), "--token", TOKEN),
             stdout=log_file,
             stderr=subprocess.STDOUT,
         )
@@ -144,33 +144,29 @@ def serving(runs_dir: Path, log: Path) -> Iterator[str]:
             stop_server(server)
 
 
-def show_nudged_episode(page: Page) -> None:
-    """On a loaded Watch page: push the pole left at NUDGE_STEP, then pause where it leans the most after."""
-    page.wait_for_function("() => watch.episode !== null && watch.maxScore !== undefined")
-    page.evaluate(f"() => {{ setPlaying(false); watch.frame = {NUDGE_STEP}; render(); }}")
-    strength = page.locator("#nudge-size")
-    strength.evaluate("(input, value) => { input.value = value; }", str(NUDGE_STRENGTH))
-    strength.dispatch_event("input")  # the page shows the strength beside the slider
-    page.click("#nudge-left")
-    page.wait_for_function("() => watch.episode.nudges.length === 1 && watch.playing")
-    page.evaluate(
-        """(step) => {
-            setPlaying(false);
-            const states = watch.episode.states;
-            let best = step;
-            for (let i = step; i < Math.min(step + 12, states.length); i++) {
-                if (states[i][2] < states[best][2]) best = i;  // leaning left: the most negative angle
-            }
-            watch.frame = best;
-            render();
-            document.activeElement.blur();
-        }""",
-        NUDGE_STEP,
+def start_training(base: str) -> None:
+    """Start TRAINING through the server's API, as the Train page does (with the token)."""
+    request = urllib.request.Request(
+        f"{base}/api/trainings",
+        json.dumps(TRAINING).encode(),
+        {"Authorization": f"Bearer {TOKEN}", "Content-Type": "application/json"},
     )
-    if page.evaluate("() => watch.episode.terminated"):
-        raise RuntimeError(f"the policy did not recover from the nudge: {page.inner_text('#outcome')}")
-    page.mouse.move(0, VIEWPORT["height"] - 1)  # no hover highlight on the button just clicked
-    page.wait_for_timeout(300)  # let the canvas and the bars paint
+    with urllib.request.urlopen(request, timeout=60) as response:
+        if response.status != 201:
+            raise RuntimeError(f"POST /api/trainings answered {response.status}")
+
+
+def fill_form(page: Page) -> None:
+    """On a loaded Train page: pick FORM's agent, change its budget and learning rate."""
+    page.locator('#settings-table tr[data-setting="eval_every"]').wait_for()
+    page.select_option("#agent", FORM["agent"])
+    page.locator('#settings-table tr[data-setting="lr"]').wait_for()
+    page.fill("#budget", FORM["budget"])
+    page.fill('#settings-table [data-setting-input="lr"]', FORM["lr"])
+    page.dispatch_event('#settings-table [data-setting-input="lr"]', "change")
+    page.locator("#queue tr[data-training]").first.wait_for()
+    page.evaluate("() => { document.activeElement.blur(); window.scrollTo(0, 0); }")
+    page.wait_for_timeout(300)  # let the highlight paint
 
 
 def record_console_error(message: ConsoleMessage, errors: list[str]) -> None:
@@ -178,11 +174,11 @@ def record_console_error(message: ConsoleMessage, errors: list[str]) -> None:
         errors.append(message.text)
 
 
-def screenshot_watch_page(base: str, run_name: str, out: Path, chromium: Path) -> Path:
-    """Screenshot the Watch page of the run's best checkpoint at VIEWPORT."""
+def screenshot_train_page(base: str, out: Path, chromium: Path) -> Path:
+    """Screenshot the Train page at VIEWPORT, with a training running beside the form."""
     from playwright.sync_api import sync_playwright
 
-    url = f"{base}/watch?run={run_name}&checkpoint=best&seed={EPISODE_SEED}"
+    start_training(base)
     errors: list[str] = []
     with sync_playwright() as playwright:
         browser = playwright.chromium.launch(executable_path=str(chromium), args=CHROMIUM_ARGS)
@@ -191,10 +187,10 @@ def screenshot_watch_page(base: str, run_name: str, out: Path, chromium: Path) -
             page.set_default_timeout(PAGE_TIMEOUT_MS)
             page.on("pageerror", lambda err: errors.append(str(err)))
             page.on("console", lambda msg: record_console_error(msg, errors))
-            page.goto(url)
-            show_nudged_episode(page)
+            page.goto(f"{base}/train?token={TOKEN}")  # the address `cartpole serve` prints sets the cookie
+            fill_form(page)
             if errors:
-                raise RuntimeError(f"the Watch page reported errors: {errors}")
+                raise RuntimeError(f"the Train page reported errors: {errors}")
             out.parent.mkdir(parents=True, exist_ok=True)
             page.screenshot(path=str(out))
         finally:
@@ -225,7 +221,7 @@ def main(argv: list[str] | None = None) -> int:
         curve = draw_learning_curve(run, args.out / "learning-curve.png")
         print(f"wrote {curve} ({curve.stat().st_size // 1024} KiB)")
         with serving(runs_dir, Path(tmp) / "serve.log") as base:
-            shot = screenshot_watch_page(base, run.name, args.out / "web-app.png", args.chromium)
+            shot = screenshot_train_page(base, args.out / "web-train.png", args.chromium)
         print(f"wrote {shot} ({shot.stat().st_size // 1024} KiB)")
     return 0
 

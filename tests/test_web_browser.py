@@ -8,9 +8,7 @@ from __future__ import annotations
 import math
 import os
 import re
-import socket
 import sys
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -28,9 +26,9 @@ uvicorn = pytest.importorskip(
 )
 
 from cartpole.web.app import create_app  # noqa: E402
-from cartpole.web.security import SERVER_OPTIONS  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).parent))
+from conftest_browser import DESKTOP, PHONE, Page, Server, free_port, screenshots_dir  # noqa: E402
 from conftest_web import (  # noqa: E402
     WebRuns,
     make_cem_run,
@@ -40,16 +38,6 @@ from conftest_web import (  # noqa: E402
     make_sweep,
     make_web_runs,
 )
-
-DESKTOP = {"width": 1280, "height": 800}
-PHONE = {"width": 390, "height": 844}
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
 
 EXPERIMENT = "cem-vs-dqn"
 SWEEP = "dqn-2seeds"
@@ -68,60 +56,18 @@ def one_generation(web_runs: WebRuns) -> str:
     return make_single_generation_run(web_runs.root, web_runs.root / web_runs.cem)
 
 
-class Server:
-    """uvicorn serving the app on ``port`` in a background thread, with ``cartpole serve``'s options."""
-
-    def __init__(self, runs_dir: Path, port: int):
-        config = uvicorn.Config(
-            create_app(runs_dir), host="127.0.0.1", port=port, log_level="warning", **SERVER_OPTIONS
-        )
-        self.uvicorn = uvicorn.Server(config)
-        self.thread = threading.Thread(target=self.uvicorn.run, daemon=True)
-        self.thread.start()
-        deadline = time.monotonic() + 20
-        while not self.uvicorn.started:
-            assert time.monotonic() < deadline, "uvicorn did not start"
-            time.sleep(0.05)
-
-    def stop(self) -> None:
-        self.uvicorn.should_exit = True
-        self.thread.join(timeout=10)
-
-
 @pytest.fixture(scope="module")
 def server(web_runs: WebRuns) -> Iterator[str]:
     """uvicorn serving the app on a free port, in a background thread."""
     port = free_port()
-    srv = Server(web_runs.root, port)
+    srv = Server(create_app(web_runs.root), port)
     yield f"http://127.0.0.1:{port}"
     srv.stop()
 
 
 @pytest.fixture(scope="module")
 def shots(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    where = os.environ.get("CARTPOLE_WEB_SCREENSHOTS")
-    path = Path(where) if where else tmp_path_factory.mktemp("screenshots")
-    path.mkdir(parents=True, exist_ok=True)
-    return path
-
-
-class Page:
-    """A browser page that records console errors and uncaught exceptions."""
-
-    def __init__(self, browser: object, base: str, viewport: dict[str, int]):
-        self.context = browser.new_context(viewport=viewport)  # type: ignore[attr-defined]
-        self.page = self.context.new_page()
-        self.base = base
-        self.errors: list[str] = []
-        self.page.on("console", lambda m: self.errors.append(m.text) if m.type == "error" else None)
-        self.page.on("pageerror", lambda e: self.errors.append(str(e)))
-
-    def goto(self, path: str) -> object:
-        self.page.goto(self.base + path)
-        return self.page
-
-    def close(self) -> None:
-        self.context.close()
+    return screenshots_dir(tmp_path_factory)
 
 
 @pytest.fixture
@@ -280,7 +226,7 @@ def test_every_page_renders_without_console_errors(
 
 def test_runs_page_recovers_after_the_server_restarts(browser: object, web_runs: WebRuns):
     port = free_port()
-    srv = Server(web_runs.root, port)
+    srv = Server(create_app(web_runs.root), port)
     page = Page(browser, f"http://127.0.0.1:{port}", DESKTOP)
     try:
         p = page.goto("/")
@@ -288,7 +234,7 @@ def test_runs_page_recovers_after_the_server_restarts(browser: object, web_runs:
         srv.stop()
         p.locator("#runs-error").wait_for(timeout=15_000)  # type: ignore[attr-defined]
         assert "Trying again" in p.inner_text("#runs-error")  # type: ignore[attr-defined]
-        srv = Server(web_runs.root, port)
+        srv = Server(create_app(web_runs.root), port)
         p.locator(f'tr[data-run="{web_runs.cem}"]').wait_for(timeout=30_000)  # type: ignore[attr-defined]
         assert p.locator("#runs-error").count() == 0  # type: ignore[attr-defined]
     finally:
@@ -332,7 +278,7 @@ def test_a_nudge_after_the_episode_ended_is_not_counted(desktop: Page, web_runs:
 def test_play_page_explains_how_to_get_an_agent_and_notices_new_runs(browser: object, tmp_path: Path):
     runs_dir = tmp_path / "empty-runs"
     port = free_port()
-    srv = Server(runs_dir, port)
+    srv = Server(create_app(runs_dir), port)
     page = Page(browser, f"http://127.0.0.1:{port}", DESKTOP)
     try:
         p = page.goto("/play")
@@ -430,7 +376,7 @@ def test_experiment_pages_recover_after_the_server_restarts(
     browser: object, web_runs: WebRuns, path: str, ready: str
 ):
     port = free_port()
-    srv = Server(web_runs.root, port)
+    srv = Server(create_app(web_runs.root), port)
     page = Page(browser, f"http://127.0.0.1:{port}", DESKTOP)
     try:
         p = page.goto(path)
@@ -438,7 +384,7 @@ def test_experiment_pages_recover_after_the_server_restarts(
         srv.stop()
         p.locator("#load-error").wait_for(timeout=20_000)  # type: ignore[attr-defined]
         assert "Trying again" in p.inner_text("#load-error")  # type: ignore[attr-defined]
-        srv = Server(web_runs.root, port)
+        srv = Server(create_app(web_runs.root), port)
         p.locator("#load-error").wait_for(state="detached", timeout=40_000)  # type: ignore[attr-defined]
         assert p.locator(ready).count() == 1  # type: ignore[attr-defined]
     finally:
@@ -514,7 +460,7 @@ def test_live_pages_show_a_crashed_run_as_crashed(browser: object, web_runs: Web
     run.write_status(alive)
     run.append_metrics([{"step": 100, "episode": 2, "time": 0.5, "train/mean_return": 20.0}])
     port = free_port()
-    srv = Server(runs_dir, port)
+    srv = Server(create_app(runs_dir), port)
     runs_page = Page(browser, f"http://127.0.0.1:{port}", DESKTOP)
     run_page = Page(browser, f"http://127.0.0.1:{port}", DESKTOP)
     try:

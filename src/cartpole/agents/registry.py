@@ -103,6 +103,10 @@ def build_population(
     return spec.make_population(config, env, seeds, device)
 
 
+DEFAULT_AGENT = "dqn"
+"""What ``cartpole train`` trains when no agent is named (and the web app's training form shows first)."""
+
+
 def agent_names() -> list[str]:
     return list(AGENT_MODULES)
 

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import re
 import signal
 import socket
 from pathlib import Path
 from typing import Any
 
+TOKEN_TEXT = re.compile(r"^[A-Za-z0-9._-]{1,200}$")
 INSTALL_HINT = "the web app needs FastAPI and uvicorn: pip install fastapi uvicorn websockets"
 
 
@@ -17,7 +19,9 @@ def add_parser(sub: Any) -> None:
         help="start the local web app",
         description=(
             "Serve the web app for the runs under --runs-dir: a runs table, live learning curves, "
-            "agents played on a canvas, and CartPole to play yourself. It only reads run folders."
+            "agents played on a canvas, CartPole to play yourself, and a page that trains agents (each "
+            "training a `cartpole train` process of its own). It prints its address with its token: "
+            "starting, stopping or resuming a training needs the token."
         ),
     )
     parser.add_argument("--runs-dir", default="runs", metavar="DIR", help="(default: runs)")
@@ -35,6 +39,24 @@ def add_parser(sub: Any) -> None:
             "repeatable. 127.0.0.1, localhost, [::1] and --host are always allowed; other hosts get 400"
         ),
     )
+    parser.add_argument(
+        "--token",
+        metavar="TOKEN",
+        help="the token that starting, stopping and resuming trainings need (default: a new random one, "
+        "printed in the address); opening the address sets it as a cookie, programs send "
+        "Authorization: Bearer TOKEN",
+    )
+    parser.add_argument(
+        "--read-only",
+        action="store_true",
+        help="only show runs: refuse every change (no trainings started, stopped or resumed)",
+    )
+    parser.add_argument(
+        "--max-trainings",
+        type=int,
+        metavar="N",
+        help="trainings that run at once; later ones wait in a queue (default: one per core)",
+    )
     parser.set_defaults(run=serve)
 
 
@@ -50,13 +72,36 @@ def serve(args: argparse.Namespace) -> int:
         raise UsageError(f"{INSTALL_HINT} ({err})") from err
     if not 0 < args.port < 65536:
         raise UsageError(f"--port must be between 1 and 65535, got {args.port}")
+    if args.token is not None and not args.token.strip():
+        raise UsageError(
+            "--token is empty: give a token (letters, digits, - and _), or leave it out for a new one"
+        )
+    if args.token is not None and not TOKEN_TEXT.match(args.token):
+        raise UsageError("--token may hold only letters, digits, '-', '_' and '.' (it goes in an address)")
+    if args.max_trainings is not None and args.max_trainings < 1:
+        raise UsageError(f"--max-trainings must be at least 1, got {args.max_trainings}")
     check_can_listen(args.host, args.port)
     runs_dir = Path(args.runs_dir)
-    app = create_app(runs_dir, allow_hosts=[args.host, *args.allow_host])
+    local = args.host in ("127.0.0.1", "localhost", "::1")
+    app = create_app(
+        runs_dir,
+        allow_hosts=[args.host, *args.allow_host],
+        token=args.token,
+        read_only=args.read_only,
+        max_trainings=args.max_trainings,
+        reads_need_token=not local,
+    )
     host = f"[{args.host}]" if ":" in args.host else args.host
-    print(f"cartpole web app for {runs_dir.resolve()}/ at http://{host}:{args.port}/  (Ctrl+C to stop)")
-    if args.host not in ("127.0.0.1", "localhost", "::1"):
-        print(f"warning: bound to {args.host}: other machines can reach this app")
+    address = f"http://{host}:{args.port}/"
+    if not args.read_only or not local:
+        address += f"?token={app.state.token}"
+    print(f"cartpole web app for {runs_dir.resolve()}/ at {address}  (Ctrl+C to stop)", flush=True)
+    if args.read_only:
+        print("read-only: runs are shown, nothing is started or changed")
+    if not local:
+        print(
+            f"warning: bound to {args.host}: other machines can reach this app; every request needs its token"
+        )
     previous = signal.signal(signal.SIGTERM, exit_on_sigterm)
     try:
         uvicorn.run(app, host=args.host, port=args.port, log_level="warning", **SERVER_OPTIONS)

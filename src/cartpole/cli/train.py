@@ -9,10 +9,10 @@ from typing import TYPE_CHECKING, Any
 
 from rich.console import Console
 
+from cartpole.agents.registry import DEFAULT_AGENT
+
 if TYPE_CHECKING:
     from cartpole.runs import RunDir
-
-DEFAULT_AGENT = "dqn"
 
 
 def parse_overrides(pairs: list[str]) -> dict[str, Any]:
@@ -166,7 +166,7 @@ def torch_threads_for(args: argparse.Namespace) -> int:
 
 def run(args: argparse.Namespace) -> int:
     from cartpole.cli.errors import UsageError
-    from cartpole.training import parse_budget, resume, train
+    from cartpole.training import resume, train
     from cartpole.training.session import is_population_run
 
     if args.torch_threads is not None and args.torch_threads < 0:
@@ -189,17 +189,13 @@ def run(args: argparse.Namespace) -> int:
             return 0
         console.print(f"run: {outcome.run.path}")
     else:
-        try:
-            budget = None if args.budget is None else parse_budget(args.budget)
-        except ValueError as err:
-            raise UsageError(f"--budget: {err}") from None
         outcome = train(
             args.agent or DEFAULT_AGENT,
             args.env,
             seed=args.seed,
             preset=args.preset,
             overrides=parse_overrides(args.overrides),
-            budget=budget,
+            budget=args.budget,  # checked with every other choice (training/request.py)
             runs_dir=args.runs_dir,
             device=args.device,
             stop_when_solved=False if args.no_stop_when_solved else None,
@@ -294,7 +290,6 @@ def judged_checkpoint(run: RunDir) -> str:
 def run_population(args: argparse.Namespace) -> int:
     """``cartpole train AGENT --seeds 0-99`` (or ``--resume`` of a population's run)."""
     from cartpole.cli.errors import UsageError
-    from cartpole.training import parse_budget
     from cartpole.training.engine import population_summary
     from cartpole.training.session import parse_seeds, resume_population, train_population
 
@@ -310,17 +305,13 @@ def run_population(args: argparse.Namespace) -> int:
     else:
         agent = args.agent or DEFAULT_AGENT
         seeds = parse_seeds(args.seeds)
-        try:
-            budget = None if args.budget is None else parse_budget(args.budget)
-        except ValueError as err:
-            raise UsageError(f"--budget: {err}") from None
         outcome = train_population(
             agent,
             seeds,
             args.env,
             preset=args.preset,
             overrides=parse_overrides(args.overrides),
-            budget=budget,
+            budget=args.budget,
             runs_dir=args.runs_dir,
             device=args.device,
             stop_when_solved=False if args.no_stop_when_solved else None,

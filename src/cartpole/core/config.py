@@ -7,8 +7,13 @@ check their ``validate()`` methods use.
 
 from __future__ import annotations
 
+import ast
 import dataclasses
+import functools
+import inspect
+import json
 import math
+import textwrap
 import tomllib
 import types
 import typing
@@ -59,7 +64,21 @@ def _coerce(value: Any, annotation: Any, key: str) -> Any:
         if float in kinds
         else ""
     )
-    raise ConfigError(f"{key}={value!r} is not a valid {name}{rule}")
+    raise ConfigError(f"{key}={setting_text(value)!r} is not a valid {name}{rule}")
+
+
+def setting_text(value: Any) -> str:
+    """A value as ``--set KEY=VALUE`` writes it, which :func:`build_config` reads back to the same
+    value: ``true``, ``0.001``, ``none``, ``[64, 64]`` (a TOML array); text stays as it is."""
+    if value is None:
+        return "none"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return repr(value)
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(json.dumps(item) for item in value) + "]"
+    return str(value)
 
 
 def _items(text: str) -> list[Any]:
@@ -118,3 +137,29 @@ def build_valid_config(cls: type, values: dict[str, Any]) -> Any:
 def config_to_dict(config: Any) -> dict[str, Any]:
     """A dataclass config as JSON-able data (tuples become lists)."""
     return dataclasses.asdict(config)
+
+
+@functools.cache
+def field_docs(cls: type) -> dict[str, str]:
+    """Each field's docstring (the string literal under it in the class body, its own or a base
+    class's) as one line: Python keeps no attribute docstrings at run time, so they are read from the
+    source (installed with the package). A field without one maps to ""."""
+    docs: dict[str, str] = {}
+    for klass in reversed(cls.__mro__):
+        if not dataclasses.is_dataclass(klass):
+            continue
+        try:
+            tree = ast.parse(textwrap.dedent(inspect.getsource(klass)))
+        except (OSError, TypeError, SyntaxError):  # no source (a frozen app): no docs, nothing breaks
+            continue
+        body = tree.body[0].body if tree.body and isinstance(tree.body[0], ast.ClassDef) else []
+        for node, after in zip(body, [*body[1:], None], strict=True):
+            if isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+                docs[node.target.id] = _docstring(after)
+    return {f.name: docs.get(f.name, "") for f in fields(cls)}
+
+
+def _docstring(node: ast.stmt | None) -> str:
+    """The string literal statement ``node`` as one line ("" if it is not one)."""
+    value = node.value.value if isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant) else None
+    return " ".join(value.split()) if isinstance(value, str) else ""

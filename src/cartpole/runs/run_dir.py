@@ -52,8 +52,9 @@ HEARTBEAT_SECONDS = 5.0
 """How often a training process refreshes the heartbeat in ``status.json``."""
 STALE_SECONDS = 60.0
 """A "running" status whose heartbeat is older than this has lost its process: it shows as crashed."""
-NOT_RUNS = ("experiments", "sweeps")
-"""Folders of a runs folder that hold experiments and sweeps (their run folders inside), not one run."""
+NOT_RUNS = ("experiments", "sweeps", "trainings")
+"""Folders of a runs folder that are not one run: experiments and sweeps (their run folders inside),
+and the web app's records of the trainings it started (``trainings/``)."""
 RUN_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*__[A-Za-z0-9._-]+__s\d+__\d{8}-\d{6}(-\d+)?$")
 
 

@@ -40,7 +40,8 @@ FLUSH_SECONDS = 5.0
 second). A hundred seeds writing every second spend more on files than on bookkeeping; the status
 thread's heartbeat still shows each run alive, and ``latest`` still writes the rows first."""
 
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, *([signal.SIGBREAK] if hasattr(signal, "SIGBREAK") else []))
+"""Ctrl-C, a kill, and on Windows Ctrl-Break (how the web app stops a training there)."""
 
 
 @contextmanager

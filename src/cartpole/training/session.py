@@ -7,11 +7,9 @@ This is the library form of ``cartpole train``; benchmarks, experiments and test
 
 from __future__ import annotations
 
-import re
 import shutil
 import sys
 import uuid
-from collections import Counter
 from collections.abc import Callable, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass
@@ -21,13 +19,10 @@ from typing import Any, TextIO
 import numpy as np
 
 from cartpole.agents.population import Population
-from cartpole.agents.presets import resolve_preset
-from cartpole.agents.registry import AgentSpec, build_population, get_agent
+from cartpole.agents.registry import build_population
 from cartpole.core.errors import ConfigError, InputError
-from cartpole.core.memory import SHARE, describe_bytes, fits_in_memory
 from cartpole.core.names import CheckpointName, RunState, StopReason
 from cartpole.core.seeding import MAX_TRAIN_SEED
-from cartpole.envs import EnvInfo, env_info
 from cartpole.evaluation import EvalReport
 from cartpole.runs import (
     Checkpoint,
@@ -37,15 +32,18 @@ from cartpole.runs import (
     displayed_state,
     load_checkpoint,
 )
-from cartpole.training.budget import Budget, check_budget_unit, parse_budget
+from cartpole.training.budget import Budget
 from cartpole.training.callbacks import require_tensorboard
-from cartpole.training.config import resolve_config
 from cartpole.training.engine import PopulationOutcome, SeedLearner, run_members
 from cartpole.training.loop import Callback, LoopState
+from cartpole.training.request import (
+    MAX_SEEDS,
+    check_memory,
+    is_seed_count,
+    parse_seeds,
+    plan_training,
+)
 from cartpole.training.setup import RunSetup, resolve_device, run_record
-
-MAX_SEEDS = 4096
-"""More seeds than this in one process: split them (each seed holds a run folder and a status thread)."""
 
 
 @dataclass
@@ -170,19 +168,14 @@ def start(
     agent."""
     if tensorboard:
         require_tensorboard()  # before a run folder is made
-    spec = get_agent(agent)
-    env = env_info(env_id)
-    spec.check_env(env)  # before its memory estimate: that of an agent that cannot take the env is moot
-    preset = resolve_preset(agent, env, preset)
-    config, settings = resolve_config(agent, spec.config_cls, preset, overrides)
-    if stop_when_solved is not None:
-        settings.stop_when_solved = stop_when_solved
-    if isinstance(budget, str):
-        budget = parse_budget(budget)
-    budget = budget or parse_budget(settings.budget)
-    check_budget_unit(budget, agent, spec.iteration)
+    plan = plan_training(
+        agent, env_id, len(seeds), preset=preset, overrides=overrides, budget=budget,
+        stop_when_solved=stop_when_solved,
+    )  # fmt: skip
+    spec, env, preset, config, settings, budget = (
+        plan.spec, plan.env, plan.preset, plan.config, plan.settings, plan.budget
+    )  # fmt: skip
     device = resolve_device(device, len(seeds))
-    check_memory(spec, config, env, len(seeds))
     learner = build_population(spec, config, env, seeds, device)
     population_record = {"population": {"id": uuid.uuid4().hex[:12], "seeds": list(seeds)}}
     with ExitStack() as stack:
@@ -206,82 +199,6 @@ def start(
         if announce is not None:
             announce({setup.seed: setup.run for setup in setups})
         return run_members(learner, setups, {}, quiet, stream, callbacks)
-
-
-def check_memory(spec: AgentSpec, config: Any, env: EnvInfo, seeds: int) -> None:
-    """InputError, before anything is allocated, when ``seeds`` seeds of ``spec`` with ``config`` on
-    ``env`` will not fit in the memory available (the agent's own estimate of a seed's bytes)."""
-    needed = spec.bytes_per_seed(config, env) * seeds
-    fits, free = fits_in_memory(needed)
-    if fits or free is None:
-        return
-    what = "this run" if seeds == 1 else f"{seeds} seeds"
-    fewer = "" if seeds == 1 else f"fewer seeds (about {int(seeds * SHARE * free / needed)} fit) or "
-    raise InputError(
-        f"{what} of {spec.name} would take about {describe_bytes(needed)} of memory but "
-        f"{describe_bytes(free)} is available; use {fewer}smaller settings"
-    )
-
-
-_RANGE = re.compile(r"^(\d+)-(\d+)$")
-SEEDS_HINT = "give a count (5: seeds 0-4), a range (0-99), a list (3,5,8) or both (0-9,20)"
-
-
-def is_seed_count(text: str) -> bool:
-    """Whether ``--seeds`` text is a count (a number alone) rather than seeds named by range or list."""
-    return text.strip().isdigit()
-
-
-def parse_seeds(text: str, first: int = 0) -> list[int]:
-    """The seeds ``--seeds`` names, with one meaning in train, compare and sweep: a number alone is a
-    count (``10``: seeds ``first`` to ``first + 9``); a range (``0-99``, inclusive), a list
-    (``3,5,8``) or both (``0-9,20``) name the seeds. InputError on anything else: empty, malformed,
-    a count of none, reversed ranges, duplicates, seeds out of range, ``first`` with named seeds."""
-    if not text.strip():
-        raise InputError(f"--seeds is empty; {SEEDS_HINT}")
-    if is_seed_count(text):
-        count = int(text)
-        if count < 1:
-            raise InputError(f"--seeds {count} is a count of no seeds; {SEEDS_HINT} (one seed: N-N)")
-        if count > MAX_SEEDS:
-            raise InputError(f"--seeds asks for more than {MAX_SEEDS} seeds; split them into several runs")
-        return check_seed_range(list(range(first, first + count)))
-    if first:
-        raise InputError(
-            f"--first-seed shifts a count of seeds (--seeds N), but --seeds {text.strip()} names its "
-            "seeds already; drop --first-seed"
-        )
-    seeds: list[int] = []
-    for part in text.split(","):
-        part = part.strip()
-        match = _RANGE.match(part)
-        if match:
-            low, high = int(match.group(1)), int(match.group(2))
-            if low > high:
-                raise InputError(f"--seeds range {part!r} is reversed; write {high}-{low}")
-            if len(seeds) + high - low + 1 > MAX_SEEDS:
-                raise InputError(
-                    f"--seeds asks for more than {MAX_SEEDS} seeds; split them into several runs"
-                )
-            seeds += range(low, high + 1)
-        elif part.isdigit():
-            seeds.append(int(part))
-        else:
-            raise InputError(f"--seeds {text!r}: {part!r} is not a seed or a range; {SEEDS_HINT}")
-        if len(seeds) > MAX_SEEDS:
-            raise InputError(f"--seeds asks for more than {MAX_SEEDS} seeds; split them into several runs")
-    duplicates = sorted(seed for seed, count in Counter(seeds).items() if count > 1)
-    if duplicates:
-        raise InputError(f"--seeds lists seed {duplicates[0]} more than once; each seed trains once")
-    return check_seed_range(seeds)
-
-
-def check_seed_range(seeds: list[int]) -> list[int]:
-    """``seeds``, or InputError naming the first out of training's range."""
-    out_of_range = [s for s in seeds if not 0 <= s <= MAX_TRAIN_SEED]
-    if out_of_range:
-        raise InputError(f"seed {out_of_range[0]} is out of range; seeds are 0 to {MAX_TRAIN_SEED}")
-    return seeds
 
 
 # ----------------------------------------------------------------------------------------------

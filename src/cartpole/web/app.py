@@ -1,7 +1,9 @@
 """The web app: FastAPI serving the JSON API, the WebSockets and the static pages.
 
 Pages are plain HTML/CSS/JS under ``static/`` (no build step, nothing fetched from the internet);
-charts use uPlot, vendored in ``static/vendor`` with its license. The app only reads the runs folder.
+charts use uPlot, vendored in ``static/vendor`` with its license. The app reads the runs folder; the
+trainings it starts (``trainings.py``) write their run folders as ``cartpole train`` does, each in a
+process of its own.
 """
 
 from __future__ import annotations
@@ -19,11 +21,20 @@ from starlette.exceptions import HTTPException
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 
 from cartpole.core.version import __version__
-from cartpole.web import api, experiments_api, live
+from cartpole.web import api, experiments_api, live, trainings_api
 from cartpole.web.episodes import EpisodeWorkers
 from cartpole.web.experiments_folder import ExperimentsFolder
 from cartpole.web.runs_folder import RunsFolder
-from cartpole.web.security import SameOriginWebSockets, SecurityHeaders, URLLengthLimit, allowed_hosts
+from cartpole.web.security import (
+    SameOriginWebSockets,
+    SecurityHeaders,
+    TokenGate,
+    URLLengthLimit,
+    allowed_hosts,
+    new_token,
+)
+from cartpole.web.trainings import Trainings
+from cartpole.web.trainings_api import default_max_trainings
 
 STATIC = Path(__file__).parent / "static"
 PAGES = {
@@ -34,14 +45,26 @@ PAGES = {
     "/experiments": "experiments.html",
     "/experiment": "experiment.html",
     "/sweep": "sweep.html",
+    "/train": "train.html",
 }
 
 
-def create_app(runs_dir: Path | str = "runs", allow_hosts: Iterable[str] = ()) -> FastAPI:
+def create_app(
+    runs_dir: Path | str = "runs",
+    allow_hosts: Iterable[str] = (),
+    *,
+    token: str | None = None,
+    read_only: bool = False,
+    max_trainings: int | None = None,
+    reads_need_token: bool = False,
+) -> FastAPI:
     """The app for one runs folder (which need not exist yet: runs made later are noticed).
 
     It answers only requests addressed to this machine (127.0.0.1, localhost, [::1]) or to one of
     ``allow_hosts`` (the address it is bound to, names given with ``--allow-host``), see security.py.
+    Starting, stopping and resuming trainings needs ``token`` (None: a new random one, in
+    ``app.state.token``); ``read_only`` refuses every change; ``reads_need_token`` asks the token of
+    every request. At most ``max_trainings`` train at once (None: one per core).
     """
     # /docs and /redoc would load Swagger UI from a CDN; the schema itself is served at /openapi.json.
     app = FastAPI(
@@ -55,8 +78,15 @@ def create_app(runs_dir: Path | str = "runs", allow_hosts: Iterable[str] = ()) -
     app.state.runs = RunsFolder(Path(runs_dir))
     app.state.experiments = ExperimentsFolder(Path(runs_dir))
     app.state.episodes = EpisodeWorkers.shared()
+    app.state.token = token or new_token()
+    app.state.trainings = (
+        None if read_only else Trainings(Path(runs_dir), max_trainings or default_max_trainings())
+    )
     app.add_exception_handler(HTTPException, _without_machine_paths)
-    # Outermost last: headers on every answer, then the URL size, the Host, the WebSocket Origin.
+    # Outermost last: headers on every answer, then the URL size, the Host, the WebSocket Origin, the token.
+    app.add_middleware(
+        TokenGate, token=app.state.token, read_only=read_only, reads_need_token=reads_need_token
+    )
     app.add_middleware(SameOriginWebSockets)
     app.add_middleware(TrustedHostMiddleware, allowed_hosts=allowed_hosts(allow_hosts), www_redirect=False)
     app.add_middleware(URLLengthLimit)
@@ -64,6 +94,7 @@ def create_app(runs_dir: Path | str = "runs", allow_hosts: Iterable[str] = ()) -
     app.include_router(api.router)
     app.include_router(experiments_api.router)
     app.include_router(live.router)
+    app.include_router(trainings_api.router)
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
     for route, page in PAGES.items():
         app.add_api_route(route, _page(page), include_in_schema=False, methods=["GET"])
@@ -83,7 +114,14 @@ async def _warm_up(app: FastAPI) -> AsyncIterator[None]:
     the first Watch or Play request does not wait seconds for imports and numba's cache."""
     threading.Thread(target=_load_heavy_modules, name="cartpole-web-warm-up", daemon=True).start()
     app.state.episodes.start()
-    yield
+    trainings: Trainings | None = app.state.trainings
+    if trainings is not None:
+        trainings.open()
+    try:
+        yield
+    finally:
+        if trainings is not None:
+            trainings.close()  # each one saves, as after Ctrl-C; Resume goes on after a restart
 
 
 def _load_heavy_modules() -> None:

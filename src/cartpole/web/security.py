@@ -1,4 +1,5 @@
-"""What keeps a local web app local: allowed hosts, same-origin WebSockets, response headers, URL size.
+"""What keeps a local web app local: allowed hosts, same-origin WebSockets, response headers, URL size,
+and the server's token, without which nothing is changed (:class:`TokenGate`).
 
 A page on any other site the user visits can send requests to 127.0.0.1 (and, through DNS
 rebinding, read the answers) and open WebSockets to it. So every request must name one of the
@@ -12,12 +13,13 @@ play step's round trip.
 
 from __future__ import annotations
 
+import secrets
 from collections.abc import Iterable
 from typing import Any
-from urllib.parse import urlsplit
+from urllib.parse import parse_qs, urlencode, urlsplit
 
 from starlette.datastructures import Headers
-from starlette.responses import PlainTextResponse
+from starlette.responses import JSONResponse, PlainTextResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from starlette.websockets import WebSocketClose
 
@@ -147,3 +149,115 @@ class SecurityHeaders:
             await send(message)
 
         await self.app(scope, receive, send_with_headers)
+
+
+# ---------------------------------------------------------------------------------------------------
+# The server's token: what starting, stopping and resuming trainings need
+# ---------------------------------------------------------------------------------------------------
+
+TOKEN_COOKIE = "cartpole_token"
+SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
+"""Methods that change nothing; every other one is a change."""
+
+
+def new_token() -> str:
+    """A token no page can guess (as Jupyter's): 256 random bits."""
+    return secrets.token_urlsafe(32)
+
+
+class TokenGate:
+    """What a request must carry to be answered.
+
+    A change (any method but GET, HEAD and OPTIONS) needs the server's token, in the ``cartpole_token``
+    cookie or as ``Authorization: Bearer TOKEN`` (401 without it or with a wrong one), and, when it
+    comes from a browser, the server's own origin (``Origin``, ``Sec-Fetch-Site``: 403 from another
+    site); on a read-only server every change gets 403. With ``reads_need_token`` (a server bound to
+    more than this machine) every request needs the token, WebSockets too.
+
+    Opening any page with ``?token=TOKEN`` (the address ``cartpole serve`` prints) sets the cookie,
+    HttpOnly and SameSite=Strict, and redirects to the same address without the token.
+    """
+
+    def __init__(self, app: ASGIApp, token: str, read_only: bool = False, reads_need_token: bool = False):
+        self.app = app
+        self.token = token.encode()
+        self.read_only = read_only
+        self.reads_need_token = reads_need_token
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] not in ("http", "websocket"):
+            await self.app(scope, receive, send)
+            return
+        headers = Headers(scope=scope)
+        if scope["type"] == "websocket":
+            if self.reads_need_token and not self.carries_token(headers):
+                await WebSocketClose(code=1008, reason="this server needs its token")(scope, receive, send)
+                return
+            await self.app(scope, receive, send)
+            return
+        query = parse_qs(scope.get("query_string", b"").decode("latin-1"))
+        if scope["method"] == "GET" and "token" in query:
+            await self.token_in_address(scope, query, receive, send)
+            return
+        change = scope["method"] not in SAFE_METHODS
+        refusal = self.refusal(headers, change)
+        if refusal is not None:
+            status, text = refusal
+            await JSONResponse({"detail": text}, status_code=status)(scope, receive, send)
+            return
+        await self.app(scope, receive, send)
+
+    def refusal(self, headers: Headers, change: bool) -> tuple[int, str] | None:
+        """(status, one line) for a request that may not be answered; None for one that may."""
+        if change and self.read_only:
+            return 403, "this server is read-only (cartpole serve --read-only): it changes nothing"
+        if change and not from_own_origin(headers):
+            return 403, "a change must come from this app's own pages (cross-origin request refused)"
+        if (change or self.reads_need_token) and not self.carries_token(headers):
+            return 401, (
+                "this needs the server's token: open the address `cartpole serve` printed (with ?token=), "
+                "or send Authorization: Bearer TOKEN"
+            )
+        return None
+
+    def carries_token(self, headers: Headers) -> bool:
+        scheme, _, given = headers.get("authorization", "").partition(" ")
+        if scheme.lower() == "bearer" and self.matches(given.strip()):
+            return True
+        cookie = cookie_value(headers.get("cookie", ""), TOKEN_COOKIE)
+        return cookie is not None and self.matches(cookie)
+
+    def matches(self, given: str) -> bool:
+        return secrets.compare_digest(given.encode("utf-8", "replace"), self.token)
+
+    async def token_in_address(
+        self, scope: Scope, query: dict[str, list[str]], receive: Receive, send: Send
+    ) -> None:
+        """``?token=``: a right one sets the cookie and redirects to the address without it; 401 otherwise."""
+        if not self.matches(query["token"][-1]):
+            await PlainTextResponse(
+                "wrong token: open the address `cartpole serve` printed", status_code=401
+            )(scope, receive, send)
+            return
+        rest = urlencode([(k, v) for k, values in query.items() if k != "token" for v in values])
+        location = scope.get("root_path", "") + scope["path"] + (f"?{rest}" if rest else "")
+        cookie = f"{TOKEN_COOKIE}={self.token.decode()}; Path=/; HttpOnly; SameSite=Strict"
+        headers = {"location": location, "set-cookie": cookie, "cache-control": "no-store"}
+        await PlainTextResponse("", status_code=303, headers=headers)(scope, receive, send)
+
+
+def from_own_origin(headers: Headers) -> bool:
+    """Whether a request comes from this server's own pages or from a program (no ``Origin``): a
+    browser names the page's origin on every change and says ``Sec-Fetch-Site`` where it knows it."""
+    if headers.get("sec-fetch-site", "same-origin") not in ("same-origin", "none"):
+        return False
+    origin = headers.get("origin")
+    return origin is None or _same_origin(origin, headers.get("host", ""))
+
+
+def cookie_value(header: str, name: str) -> str | None:
+    for part in header.split(";"):
+        key, sep, value = part.strip().partition("=")
+        if sep and key == name:
+            return value
+    return None

@@ -4,6 +4,7 @@
 const NAV = [
   ["/", "Runs"],
   ["/experiments", "Experiments"],
+  ["/train", "Train"],
   ["/play", "Play"],
 ];
 
@@ -34,9 +35,42 @@ async function getJSON(url) {
     const message = typeof detail === "string" ? detail : detail.map(validationText).join("; ");
     const error = new Error(message);
     error.status = response.status;
+    error.field = body && typeof body.field === "string" ? body.field : null; // the trainings API's
     throw error;
   }
   return body;
+}
+
+const TOKEN_MESSAGE =
+  "Starting a training needs the server's token: open the address `cartpole serve` printed (with ?token=)";
+
+// POST `body` as JSON. An answer that is not 2xx throws an Error with its one-line message, its
+// `status` and the `field` it is about (the trainings API names the input it refuses). 401 (no token
+// cookie) throws TOKEN_MESSAGE; the gate's plain-text refusals (403) throw their text.
+async function postJSON(url, body) {
+  const response = await fetch(url, {
+    method: "POST",
+    headers: { Accept: "application/json", "Content-Type": "application/json" },
+    body: JSON.stringify(body ?? {}),
+  });
+  const text = await response.text();
+  let parsed = null;
+  try {
+    parsed = text ? JSON.parse(text) : null;
+  } catch (_) {
+    parsed = null;
+  }
+  if (!response.ok) {
+    let message;
+    if (response.status === 401) message = TOKEN_MESSAGE;
+    else if (parsed && parsed.detail) message = typeof parsed.detail === "string" ? parsed.detail : parsed.detail.map(validationText).join("; ");
+    else message = text.trim().split("\n")[0] || response.statusText || `HTTP ${response.status}`;
+    const error = new Error(message);
+    error.status = response.status;
+    error.field = parsed && typeof parsed.field === "string" ? parsed.field : null;
+    throw error;
+  }
+  return parsed;
 }
 
 // One of FastAPI's validation errors as a sentence that names the field: "seed must be >= 0".
@@ -89,7 +123,7 @@ function emptyState(runsDir) {
   return `<div class="empty"><h2>No runs yet</h2>
     <p>Nothing has been trained in <code>${escapeHTML(runsDir || "runs")}</code>. Train an agent in a second terminal (about two seconds):</p>
     <pre>cartpole train cem${dir}</pre>
-    <p>It appears here by itself. Meanwhile, <a href="/play">play CartPole yourself</a>.</p></div>`;
+    <p>Or start one on the <a href="/train">Train page</a>. It appears here by itself. Meanwhile, <a href="/play">play CartPole yourself</a>.</p></div>`;
 }
 
 // Fetch `url` every `everyMs` and hand the body to `render` (only when it changed). When the server
@@ -126,4 +160,4 @@ function param(name) {
   return new URLSearchParams(window.location.search).get(name);
 }
 
-window.CP = { renderHeader, getJSON, validationText, escapeHTML, fmtInt, fmtNum, fmtDate, stateBadge, solvedBadge, emptyState, poll, param };
+window.CP = { renderHeader, getJSON, postJSON, TOKEN_MESSAGE, validationText, escapeHTML, fmtInt, fmtNum, fmtDate, stateBadge, solvedBadge, emptyState, poll, param };

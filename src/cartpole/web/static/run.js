@@ -1,4 +1,5 @@
-// Run page: the learning curve (live while training), checkpoints with Watch buttons, eval, config.
+// Run page: the learning curve (live while training), the newest policy playing (Now playing), the
+// training that makes it (Stop, Resume), checkpoints with Watch buttons, eval, config.
 "use strict";
 
 CP.renderHeader("Runs");
@@ -9,7 +10,7 @@ const RETURN_KEYS = [
   ["train/mean_return", "generation mean return"],
 ];
 
-const state = { detail: null, rows: [], offset: 0, plot: null, socket: null, returnKey: null };
+const state = { detail: null, rows: [], offset: 0, plot: null, socket: null, returnKey: null, ended: false };
 
 function setText(id, text) {
   document.getElementById(id).textContent = text;
@@ -30,7 +31,27 @@ function renderDetail(d) {
     ? `<div class="error">This run folder is ${CP.escapeHTML(d.state)}: ${CP.escapeHTML(d.problem)}</div>` : "";
   renderCheckpoints(d);
   renderEval(d.eval);
+  renderVerdict(d);
   renderConfig(d.config);
+  updateNowPlaying(d);
+  updateTrainAgain();
+}
+
+// The final verdict, large: written when training ends (the Evaluation panel has its numbers).
+function renderVerdict(d) {
+  const box = document.getElementById("verdict");
+  const verdict = d.eval && d.eval.verdict;
+  box.hidden = !verdict;
+  if (!verdict) return;
+  const solved = d.solved || String(verdict).startsWith("SOLVED");
+  box.className = `verdict ${solved ? "solved" : "not-solved"}`;
+  // "SOLVED: mean 500.0 ± 0.0 over ..." as the word, large, and the rule beside it.
+  const text = String(verdict);
+  const cut = text.indexOf(": ");
+  const head = cut > 0 ? text.slice(0, cut) : text;
+  const rest = cut > 0 ? text.slice(cut + 2) : "";
+  box.innerHTML = `<span class="verdict-head">${CP.escapeHTML(head)}</span> <span class="verdict-rule">${CP.escapeHTML(rest)}</span>`;
+  box.title = text;
 }
 
 function renderCheckpoints(d) {
@@ -182,25 +203,40 @@ function updateChart() {
   state.plot.setData(chartData());
 }
 
-window.addEventListener("resize", () => {
+function resizeChart() {
   if (!state.plot) return;
   const el = document.getElementById("chart");
   state.plot.setSize({ width: Math.max(280, el.clientWidth), height: el.clientWidth < 500 ? 260 : 340 });
+}
+
+window.addEventListener("resize", () => {
+  resizeChart();
+  drawNowPlaying();
 });
 
 // ------------------------------------------------------------------------------------------------
 // Live updates
 // ------------------------------------------------------------------------------------------------
 
-function follow() {
+// Follow the run's metrics and status through the WebSocket until it stops. `fromStart`: ask every
+// row again and replace the curve with them (a resume drops the rows logged after its checkpoint).
+function follow(fromStart = false) {
   const scheme = location.protocol === "https:" ? "wss" : "ws";
-  const url = `${scheme}://${location.host}/ws/runs/${encodeURIComponent(runName)}/metrics?offset=${state.offset}`;
+  const offset = fromStart ? 0 : state.offset;
+  const url = `${scheme}://${location.host}/ws/runs/${encodeURIComponent(runName)}/metrics?offset=${offset}`;
   const socket = new WebSocket(url);
   state.socket = socket;
+  state.ended = false;
+  let replace = fromStart;
   let lastState = state.detail ? state.detail.state : null;
   socket.onmessage = async (event) => {
     const message = JSON.parse(event.data);
     if (message.type === "metrics") {
+      if (replace && message.offset === 0) {
+        state.rows = [];
+        state.returnKey = null;
+      }
+      replace = false;
       state.rows.push(...message.rows);
       state.offset = message.offset + message.rows.length;
       updateChart();
@@ -212,11 +248,222 @@ function follow() {
       }
     } else if (message.type === "end") {
       setText("live", "");
+      state.ended = true;
+      // The run stopped: its last verdict and checkpoints; a training that is resumed follows it again.
+      renderDetail(await CP.getJSON(`/api/runs/${encodeURIComponent(runName)}`));
+      refreshTraining();
     }
   };
   socket.onclose = (event) => {
-    if (event.code !== 1000 && event.code !== 1008) setTimeout(follow, 3000); // server restarted: retry
+    if (state.socket === socket) state.socket = null;
+    if (event.code !== 1000 && event.code !== 1008) setTimeout(() => { if (!state.socket) follow(); }, 3000); // server restarted: retry
   };
+}
+
+// ------------------------------------------------------------------------------------------------
+// The training this run belongs to (started from the Train page): state, Stop, Resume
+// ------------------------------------------------------------------------------------------------
+
+const ACTIVE = new Set(["queued", "running"]);
+const training = { row: null, timer: null, busy: false };
+
+function updateTrainAgain() {
+  const link = document.getElementById("train-again");
+  link.hidden = false;
+  link.href = training.row
+    ? `/train?from=${encodeURIComponent(training.row.name)}`
+    : `/train?run=${encodeURIComponent(runName)}`;
+  link.title = training.row ? `the Train page, filled with training ${training.row.name}'s settings` : "the Train page, filled with this run's settings";
+}
+
+function renderTraining(row) {
+  const panel = document.getElementById("training-panel");
+  panel.hidden = !row;
+  updateTrainAgain();
+  if (!row) return;
+  const badge = document.getElementById("training-state");
+  badge.className = `badge ${row.state}`;
+  badge.textContent = row.state;
+  setText("training-queue", row.state === "queued" && row.queue_position ? `number ${row.queue_position} in the queue` : "");
+  const runs = row.runs.length > 1 ? ` (${row.runs.length} runs, seeds ${row.seeds ? row.seeds.join(", ") : "?"})` : "";
+  const notes = {
+    queued: "It starts when a running training ends.",
+    running: "Stop saves latest.pt (as Ctrl-C does); Resume goes on from it.",
+    stopped: "Stopped: Resume goes on from its latest checkpoint.",
+    failed: "Failed: Resume goes on from its latest checkpoint.",
+    finished: "Finished.",
+  };
+  setText("training-note", `Training ${row.name}${runs}, started from this app. ${notes[row.state] || ""}`);
+  document.getElementById("training-problem").innerHTML = row.problem
+    ? `<div class="error">${CP.escapeHTML(row.problem)}</div>` : "";
+  document.getElementById("stop").hidden = !ACTIVE.has(row.state);
+  document.getElementById("resume").hidden = !(row.state === "stopped" || row.state === "failed");
+  document.getElementById("stop").disabled = training.busy;
+  document.getElementById("resume").disabled = training.busy;
+}
+
+// Ask for the run's training; every second while it is queued or running, every 5 s otherwise.
+async function refreshTraining() {
+  clearTimeout(training.timer);
+  let wait = 5000;
+  try {
+    const rows = await CP.getJSON(`/api/trainings?run=${encodeURIComponent(runName)}`);
+    const row = rows.length ? rows[0] : null;
+    const before = training.row ? training.row.state : null;
+    training.row = row;
+    renderTraining(row);
+    if (row && ACTIVE.has(row.state)) wait = 1000;
+    // Resumed: once its process trains the run again (it has dropped any rows logged after the
+    // checkpoint it goes on from), follow the run again from its first row.
+    const again = row && row.state === "running" && state.ended && !state.socket;
+    if (again || (row && before && before !== row.state)) {
+      const detail = await CP.getJSON(`/api/runs/${encodeURIComponent(runName)}`);
+      renderDetail(detail);
+      if (again && detail.state === "running" && !state.socket) follow(true);
+    }
+  } catch (_) {
+    wait = 5000; // the run page says when the server is gone; ask again later
+  }
+  training.timer = setTimeout(refreshTraining, wait);
+}
+
+async function act(action) {
+  if (!training.row || training.busy) return;
+  training.busy = true;
+  renderTraining(training.row);
+  const box = document.getElementById("training-message");
+  box.innerHTML = "";
+  try {
+    const row = await CP.postJSON(`/api/trainings/${encodeURIComponent(training.row.name)}/${action}`, {});
+    training.row = row;
+  } catch (err) {
+    const message = err.status === 401
+      ? `${action === "stop" ? "Stopping" : "Resuming"} a training needs the server's token: open the address \`cartpole serve\` printed (with ?token=)`
+      : err.message;
+    box.innerHTML = `<div class="error">${CP.escapeHTML(message)}</div>`;
+  } finally {
+    training.busy = false;
+    renderTraining(training.row);
+  }
+  refreshTraining();
+}
+
+document.getElementById("stop").addEventListener("click", () => act("stop"));
+document.getElementById("resume").addEventListener("click", () => act("resume"));
+
+// ------------------------------------------------------------------------------------------------
+// Now playing: greedy episodes of the newest checkpoint while training, of the best one after
+// ------------------------------------------------------------------------------------------------
+
+const END_PAUSE_MS = 700;
+const np = {
+  checkpoint: null, // the checkpoint the next episode plays
+  shown: null, // the checkpoint the episode on screen plays
+  episode: null,
+  frame: 0,
+  seed: 0,
+  last: null,
+  endedAt: 0,
+  loading: false,
+  retryAt: 0,
+  retryMs: 1000,
+  running: false,
+};
+
+function playedCheckpoint(d) {
+  const names = (d.checkpoints || []).filter((c) => c.bytes !== null).map((c) => c.name);
+  const order = d.state === "finished" ? ["best", "latest"] : ["latest", "best"];
+  return order.find((name) => names.includes(name)) || null;
+}
+
+function updateNowPlaying(d) {
+  const checkpoint = d.watchable ? playedCheckpoint(d) : null;
+  np.checkpoint = checkpoint;
+  const panel = document.getElementById("now-playing-panel");
+  const show = Boolean(checkpoint);
+  if (panel.hidden === show) {
+    panel.hidden = !show;
+    document.getElementById("top-grid").classList.toggle("single", !show);
+    resizeChart();
+  }
+  if (!show) return;
+  if (!np.running) {
+    np.running = true;
+    requestAnimationFrame(npTick);
+  }
+  if (!np.episode) setText("now-playing-checkpoint", `checkpoint: ${checkpoint}`);
+}
+
+async function nextEpisode() {
+  if (np.loading || !np.checkpoint) return;
+  np.loading = true;
+  const checkpoint = np.checkpoint;
+  const note = document.getElementById("now-playing-note");
+  try {
+    const q = new URLSearchParams({ seed: String(np.seed) });
+    const url = `/api/runs/${encodeURIComponent(runName)}/checkpoints/${encodeURIComponent(checkpoint)}/episode?${q}`;
+    const episode = await CP.getJSON(url);
+    np.episode = episode;
+    np.shown = checkpoint;
+    np.frame = 0;
+    np.seed += 1;
+    np.retryMs = 1000;
+    setText("now-playing-checkpoint", `checkpoint: ${checkpoint}`);
+    setText("now-playing-seed", String(episode.seed));
+    note.textContent = checkpoint === "latest" && state.detail && state.detail.state === "running"
+      ? "The newest checkpoint's greedy policy, one episode after another (each from the next seed): new checkpoints show as they are written."
+      : `The ${checkpoint} checkpoint's greedy policy, one episode after another, each from the next seed.`;
+    drawNowPlaying();
+  } catch (err) {
+    note.textContent = `Cannot play ${checkpoint}: ${err.message}. Trying again.`;
+    np.retryAt = performance.now() + np.retryMs;
+    np.retryMs = Math.min(15000, np.retryMs * 2);
+  } finally {
+    np.loading = false;
+  }
+}
+
+function drawNowPlaying() {
+  const e = np.episode;
+  if (!e) return;
+  const canvas = document.getElementById("now-playing");
+  const i = Math.min(Math.floor(np.frame), e.length);
+  const st = e.states[i];
+  const action = i < e.length ? e.actions[i] : null;
+  const caption = `${e.agent ?? "agent"} · ${np.shown} · seed ${e.seed}`;
+  if (e.scene === "cartpole") {
+    CartPoleDraw.draw(canvas, st, {
+      xThreshold: e.limits.x_threshold,
+      thetaThreshold: e.limits.theta_threshold,
+      length: e.physics ? e.physics.length : undefined,
+      action,
+      nudge: 0,
+      caption,
+    });
+  } else if (SceneDraw[e.scene]) {
+    SceneDraw[e.scene](canvas, st, { limits: e.limits, action, caption });
+  }
+  setText("now-playing-step", String(i));
+  setText("now-playing-length", String(e.length));
+}
+
+function npTick(now) {
+  const e = np.episode;
+  const dt = np.last === null ? 0 : Math.min(0.1, (now - np.last) / 1000); // a hidden tab: no jump
+  np.last = now;
+  if (!np.checkpoint) {
+    np.running = false; // no checkpoint to play (any more): updateNowPlaying starts again
+    return;
+  }
+  if (e && np.frame < e.length) {
+    const shown = Math.floor(np.frame);
+    np.frame = Math.min(e.length, np.frame + dt * (e.limits.fps || 50));
+    if (np.frame >= e.length) np.endedAt = now;
+    if (Math.floor(np.frame) !== shown) drawNowPlaying();
+  } else if (!np.loading && now >= np.retryAt && (!e || now - np.endedAt >= END_PAUSE_MS)) {
+    nextEpisode();
+  }
+  requestAnimationFrame(npTick);
 }
 
 async function start() {
@@ -231,6 +478,7 @@ async function start() {
     state.offset = metrics.next_offset;
     updateChart();
     follow();
+    refreshTraining();
   } catch (err) {
     document.querySelector("main").innerHTML = `<p class="small"><a href="/">← all runs</a></p><div class="error">${CP.escapeHTML(err.message)}</div>`;
   }
