@@ -137,9 +137,12 @@ TABLES = [
         headline="Crash safety: kill -9 at a random moment, then `--resume`",
     ),
     Benchmark(
-        "web-latency", "web_latency.py", "--sessions 1 20 --watch-load 4", minutes=3, quick=True,
-        tiny="--steps 100 --sessions 1 4 --episodes 3 --watch-load 1", headline="Web app: play round-trip",
+        "web-latency", "web_latency.py", "--sessions 1 20 --watch-load 4 --trainings 2", minutes=5,
+        quick=True,
+        tiny="--steps 100 --sessions 1 4 --episodes 3 --watch-load 1 --trainings 1",
+        headline="Web app: play round-trip",
     ),
+    Benchmark("web-start", "web_start.py", "--trials 5", minutes=2, quick=True, tiny="--trials 1 --warmup 0"),
     Benchmark(
         "pixels", "pixels.py", "--agents ppo:pixels --seeds 8 --first-seed 9900 --population", minutes=30,
         tiny="--agents ppo:pixels --seeds 1 --first-seed 9900 --budget 2k", headline="CartPole from pixels",
