@@ -339,6 +339,15 @@ def assert_runs_in_the_background(pid: int) -> None:
     assert os.getpgid(pid) != os.getpgid(0)
 
 
+def test_a_stop_as_a_training_starts_is_not_lost(tmp_path: Path):
+    """Pressed before training has put up its signal handler (here, in a test runner's worker that may
+    ignore SIGINT, which its children inherit), a Stop still ends the training."""
+    with served(tmp_path) as client:
+        started = client.post("/api/trainings", json=LONG_DQN, headers=BEARER).json()
+        assert client.post(f"/api/trainings/{started['name']}/stop", headers=BEARER).status_code == 200
+        state_becomes(client, started["name"], "stopped", seconds=60)
+
+
 def test_a_queued_training_leaves_the_queue_when_stopped(tmp_path: Path):
     with served(tmp_path, max_trainings=1) as client:
         first = client.post("/api/trainings", json=LONG_DQN, headers=BEARER).json()

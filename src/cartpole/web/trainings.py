@@ -2,7 +2,7 @@
 
 A training is the command :func:`~cartpole.training.request.train_command` gives for a checked
 request, run as ``python -m cartpole train ...`` in the folder the server was started in: its run
-folders record that command, so the same run starts from a terminal. Stop sends it SIGINT (Ctrl-C:
+folders record that command, so the same run starts from a terminal. Stop sends it SIGTERM (as Ctrl-C:
 every seed saves ``latest.pt``); Resume runs ``cartpole train --resume RUN``. At most
 ``max_running`` run at once; later ones wait in a queue, in order.
 
@@ -158,7 +158,7 @@ class Trainings:
             return training
 
     def stop(self, name: str) -> Training:
-        """Stop a training: SIGINT to its process (which saves, as Ctrl-C does), or out of the queue."""
+        """Stop a training: STOP_SIGNAL to its process (which saves, as after Ctrl-C), or out of the queue."""
         with self.lock:
             training = self.get(name)
             if training.waiting is not None:
@@ -172,7 +172,7 @@ class Trainings:
             pid = self.other_process(training)
             if pid is None:
                 raise TrainingError(f"training {name} is not running (it is {self.state(training)})")
-            os.kill(pid, signal.SIGINT)  # started by an earlier server, still training
+            os.kill(pid, signal.SIGTERM)  # started by an earlier server, still training
             return training
 
     def resume(self, name: str) -> Training:
@@ -391,8 +391,11 @@ class Trainings:
             return sorted(rows, key=lambda r: (order.get(r["state"], 2), r["queue_position"] or 0))
 
 
-STOP_SIGNAL = getattr(signal, "CTRL_BREAK_EVENT", signal.SIGINT)
-"""What stops a training as Ctrl-C does: SIGINT; on Windows, Ctrl-Break to its process group."""
+STOP_SIGNAL = getattr(signal, "CTRL_BREAK_EVENT", signal.SIGTERM)
+"""What stops a training, which saves as after Ctrl-C: SIGTERM (on Windows, Ctrl-Break to its process
+group). Not SIGINT: a process started with SIGINT ignored (a background job of a shell, a test
+runner's worker) keeps ignoring it until training installs its handler, so a Stop pressed as it
+starts was lost; SIGTERM's default, before then, ends it."""
 
 
 def own_process_group() -> dict[str, Any]:
