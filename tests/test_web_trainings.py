@@ -450,6 +450,6 @@ def test_serve_prints_its_address_with_the_token(tmp_path: Path):
         assert server.stdout is not None
         line = server.stdout.readline()
     finally:
-        server.send_signal(signal.SIGINT)
+        server.send_signal(signal.SIGTERM)  # a test worker's children may ignore SIGINT
         server.wait(30)
     assert f"http://127.0.0.1:{port}/?token={TOKEN}" in line
