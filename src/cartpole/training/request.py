@@ -234,10 +234,8 @@ def check_seeds(seeds: tuple[int, ...]) -> None:
         raise InputError("no seeds to train: give one seed or more")
     if len(seeds) > MAX_SEEDS:
         raise InputError(f"more than {MAX_SEEDS} seeds; split them into several runs")
-    out_of_range = [s for s in seeds if not 0 <= s <= MAX_TRAIN_SEED]
-    if out_of_range:
-        raise InputError(f"seed {out_of_range[0]} is out of range; seeds are 0 to {MAX_TRAIN_SEED}")
-    repeated = sorted({s for s in seeds if seeds.count(s) > 1})
+    check_seed_range(list(seeds))
+    repeated = sorted(seed for seed, count in Counter(seeds).items() if count > 1)
     if repeated:
         raise InputError(f"seed {repeated[0]} is listed more than once; each seed trains once")
 
