@@ -110,9 +110,9 @@ def wait_cart_moves(page: object) -> None:
 
 
 def start_dqn_until_budget(desktop: Page) -> object:
-    """Start DQN on CartPole-v1 for 30k env steps without stopping at a solve; on its run page."""
+    """Start DQN on CartPole-v1 for 20k env steps without stopping at a solve; on its run page."""
     page = open_form(desktop, "dqn")
-    page.fill("#budget", "30k")  # type: ignore[attr-defined]
+    page.fill("#budget", "20k")  # type: ignore[attr-defined]
     page.uncheck("#set-stop_when_solved")  # type: ignore[attr-defined]
     assert "stop_when_solved" in page.inner_text("#changed-summary")  # type: ignore[attr-defined]
     page.click("#train")  # type: ignore[attr-defined]
@@ -243,7 +243,7 @@ def test_dqn_from_the_train_page_plays_stops_resumes_and_finishes(desktop: Page,
     )
     row = next(t for t in trainings(server) if run in t["runs"])  # type: ignore[operator]
     assert row["state"] == "finished"
-    assert row["request"]["budget"] == "30k"  # type: ignore[index]
+    assert row["request"]["budget"] == "20k"  # type: ignore[index]
     assert row["request"]["settings"] == {"stop_when_solved": False}  # type: ignore[index]
 
 
