@@ -355,8 +355,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         runs_dir = Path(tmp)
         dqn, cem = make_runs(runs_dir)
-        token = secrets.token_urlsafe(16)
-        options = ("--token", token, "--max-trainings", str(args.trainings)) if args.trainings else ()
+        token = secrets.token_hex(16)
+        options = (f"--token={token}", "--max-trainings", str(args.trainings)) if args.trainings else ()
         server, address = start_server(runs_dir, options)
         try:
             asyncio.run(play_benchmark(address, 1, 200, 0.0))  # warm-up

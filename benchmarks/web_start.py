@@ -96,8 +96,8 @@ class WebServer:
 
     def __init__(self, runs_dir: Path, cwd: Path):
         self.runs_dir = runs_dir
-        self.token = secrets.token_urlsafe(16)
-        self.server, address = start_server(runs_dir, ("--token", self.token, "--max-trainings", "2"), cwd)
+        self.token = secrets.token_hex(16)
+        self.server, address = start_server(runs_dir, (f"--token={self.token}", "--max-trainings", "2"), cwd)
         self.base = f"http://{address}/api/trainings"
         self.client = httpx.Client(timeout=120, headers={"Authorization": f"Bearer {self.token}"})
 

@@ -161,8 +161,9 @@ SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
 
 
 def new_token() -> str:
-    """A token no page can guess (as Jupyter's): 256 random bits."""
-    return secrets.token_urlsafe(32)
+    """A token no page can guess (as Jupyter's): 256 random bits, in hex, so that it never starts with '-'
+    and `--token TOKEN` takes it as it is printed."""
+    return secrets.token_hex(32)
 
 
 class TokenGate:
