@@ -19,7 +19,7 @@ from typing import Any, Protocol, runtime_checkable
 import gymnasium as gym
 import numpy as np
 
-from cartpole.envs import Simulator, env_info, make_eval_envs, resolve_simulator
+from cartpole.envs import EnvInfo, Simulator, as_env_info, describe_kwargs, make_eval_envs, resolve_simulator
 from cartpole.envs.params import CartPoleParams
 from cartpole.envs.shards import ShardedEnvs, gather_steps, step_playing
 
@@ -88,6 +88,10 @@ class EvalReport:
     seeds: list[int]
     threshold: float | None
     max_episode_steps: int | None
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    """The env's kwargs (``--env-kwargs``): a verdict on a changed env names them."""
+    wrappers: list[str] = field(default_factory=list)
+    """The wrappers the policy played through (``module:Class(kwargs)``); the returns are the env's own."""
     mean: float = field(init=False)
     std: float = field(init=False)
     min: float = field(init=False)
@@ -113,8 +117,9 @@ class EvalReport:
 
     @property
     def verdict(self) -> str:
-        """One line: solved or not, by which rule, on which env and simulator."""
-        where = f"{self.env_id}, {self.simulator} simulator"
+        """One line: solved or not, by which rule, on which env (with its kwargs and wrappers) and
+        simulator."""
+        where = f"{self.env_label}, {self.simulator} simulator"
         summary = f"mean {self.mean:.1f} ± {self.std:.1f} over {self.episodes} episodes"
         if self.threshold is None:
             return f"NO VERDICT: {summary}; {self.env_id} registers no reward_threshold ({where})"
@@ -127,6 +132,14 @@ class EvalReport:
         if self.solved:
             return f"SOLVED: {summary} >= {rule} ({where})"
         return f"NOT SOLVED: {summary} < {rule} ({where})"
+
+    @property
+    def env_label(self) -> str:
+        """The env with its kwargs and wrappers: ``CartPole-v1 (sutton_barto_reward=true)``."""
+        parts = [describe_kwargs(self.env_kwargs)] if self.env_kwargs else []
+        if self.wrappers:
+            parts.append("wrappers: " + ", ".join(self.wrappers) + "; the env's own reward")
+        return self.env_id + (f" ({'; '.join(parts)})" if parts else "")
 
     def _repr_html_(self) -> str:
         """The verdict as Jupyter shows it: the line, colored by the outcome, and the spread."""
@@ -144,6 +157,23 @@ class EvalReport:
         return data
 
     @classmethod
+    def played(
+        cls, env: EnvInfo, simulator: str, returns: list[float], lengths: list[int], seeds: list[int]
+    ) -> EvalReport:
+        """The report of episodes played on ``env`` (as configured) on ``simulator``."""
+        return cls(
+            env_id=env.env_id,
+            simulator=simulator,
+            returns=returns,
+            lengths=lengths,
+            seeds=seeds,
+            threshold=env.reward_threshold,
+            max_episode_steps=env.max_episode_steps,
+            env_kwargs=dict(env.kwargs),
+            wrappers=[wrapper.label for wrapper in env.wrappers],
+        )
+
+    @classmethod
     def from_dict(cls, data: dict[str, Any]) -> EvalReport:
         keys = (
             "env_id",
@@ -154,7 +184,8 @@ class EvalReport:
             "threshold",
             "max_episode_steps",
         )
-        return cls(**{k: data[k] for k in keys})
+        optional = {k: data[k] for k in ("env_kwargs", "wrappers") if k in data}  # newer than the rest
+        return cls(**{k: data[k] for k in keys}, **optional)
 
 
 def start_states(env_id: str, seeds: list[int]) -> np.ndarray:
@@ -170,11 +201,12 @@ def start_states(env_id: str, seeds: list[int]) -> np.ndarray:
         env.close()
 
 
-def _reset_to_seeds(env: gym.vector.VectorEnv | ShardedEnvs, env_id: str, seeds: list[int]) -> np.ndarray:
+def _reset_to_seeds(env: gym.vector.VectorEnv | ShardedEnvs, info: EnvInfo, seeds: list[int]) -> np.ndarray:
     """Reset ``env`` so that env i starts where Gymnasium's single env does for ``seeds[i]``."""
-    info = env_info(env_id)
     if isinstance(env, ShardedEnvs):  # Gymnasium's pictures, drawn by worker processes
         return env.reset(seed=seeds)[0]
+    if isinstance(env, gym.vector.SyncVectorEnv):  # single envs (wrapped, or any but CartPole): env i
+        return env.reset(seed=list[int | None](seeds))[0]  # seeded with seeds[i], as the single env
     base = env.unwrapped
     if info.pixels_of and hasattr(base, "restart_at"):  # our pixel renderer: Gymnasium's states, drawn
         env.reset(seed=seeds[0])
@@ -183,7 +215,7 @@ def _reset_to_seeds(env: gym.vector.VectorEnv | ShardedEnvs, env_id: str, seeds:
         observations, _ = env.reset(seed=seeds)  # type: ignore[arg-type]  # env i seeded with seeds[i]
         return observations
     env.reset(seed=seeds[0])
-    states = start_states(env_id, seeds)
+    states = start_states(info.env_id, seeds)
     if hasattr(base, "set_state"):  # our fast simulator
         base.set_state(states)
     else:  # Gymnasium's CartPoleVectorEnv keeps its state as [4, num_envs] float64
@@ -203,7 +235,7 @@ actor re-packs its weights a few times per evaluation, not once per block)."""
 
 def play_greedy_episodes(
     act: Callable[[np.ndarray], np.ndarray],
-    env_id: str,
+    env: str | EnvInfo,
     seeds: list[int],
     simulator: Simulator,
     workers: int = 1,
@@ -212,13 +244,13 @@ def play_greedy_episodes(
     it), all at once in one vector env, with ``act`` mapping observations ``[n, obs_dim]`` to
     actions ``[n]``; the returns and lengths ``[n]``. ``workers``: see :func:`play_greedy_blocks`."""
     return play_greedy_blocks(
-        lambda observations, _: act(observations), env_id, seeds, simulator, len(seeds), workers
+        lambda observations, _: act(observations), env, seeds, simulator, len(seeds), workers
     )
 
 
 def play_greedy_blocks(
     act: BlockActor,
-    env_id: str,
+    env: str | EnvInfo,
     seeds: list[int],
     simulator: Simulator,
     block_size: int,
@@ -239,12 +271,13 @@ def play_greedy_blocks(
         raise ValueError(f"{n} episodes do not split into blocks of {block_size}")
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
-    env = make_eval_envs(env_id, n, simulator=simulator, workers=workers)
+    info = as_env_info(env)
+    envs = make_eval_envs(info, n, simulator=simulator, workers=workers)
     try:
-        with _one_torch_thread_while_workers_draw(env):
-            return _play_blocks(act, env, env_id, seeds, block_size)
+        with _one_torch_thread_while_workers_draw(envs):
+            return _play_blocks(act, envs, info, seeds, block_size)
     finally:
-        env.close()
+        envs.close()
 
 
 @contextmanager
@@ -267,11 +300,11 @@ def _one_torch_thread_while_workers_draw(env: gym.vector.VectorEnv | ShardedEnvs
 
 
 def _play_blocks(
-    act: BlockActor, env: gym.vector.VectorEnv | ShardedEnvs, env_id: str, seeds: list[int], block_size: int
+    act: BlockActor, env: gym.vector.VectorEnv | ShardedEnvs, info: EnvInfo, seeds: list[int], block_size: int
 ) -> tuple[np.ndarray, np.ndarray]:
     """The loop of :func:`play_greedy_blocks` on its envs."""
     n = len(seeds)
-    observations = _reset_to_seeds(env, env_id, seeds)
+    observations = _reset_to_seeds(env, info, seeds)
     if (lengths := _played_by_the_actor(act, env, block_size)) is not None:
         return lengths.astype(np.float64), lengths  # +1 a step, the last included
     returns = np.zeros(n, dtype=np.float64)
@@ -337,7 +370,7 @@ class _PolicyActor:
 
 def evaluate(
     policy: Policy,
-    env_id: str = "CartPole-v1",
+    env: str | EnvInfo = "CartPole-v1",
     episodes: int = MIN_EPISODES_FOR_SOLVED,
     seed: int | None = None,
     *,
@@ -350,32 +383,26 @@ def evaluate(
     ``simulator="gymnasium"`` (default) uses Gymnasium's own env, so the verdict does not rest on our
     physics; ``"fast"`` uses our simulator for CartPole (same start states, same equations).
     ``workers``: how many processes draw Gymnasium's pictures for a pixel env (see
-    :func:`play_greedy_blocks`).
+    :func:`play_greedy_blocks`). ``env``: an id, or an env as configured (:func:`~cartpole.envs.env_info`
+    with kwargs and wrappers): the policy plays through its wrappers, but the returns are the env's
+    own reward over its own episodes (:mod:`cartpole.envs.judged`), so no wrapper changes the rule.
     """
     if not 1 <= episodes <= MAX_EPISODES:
         raise ValueError(f"episodes must be between 1 and {MAX_EPISODES:,}, got {episodes:,}")
-    info = env_info(env_id)
+    info = as_env_info(env)
     if seed is None:
         from cartpole.core.seeding import fresh_eval_seed
 
         seed = fresh_eval_seed()
-    used = resolve_simulator(env_id, simulator)
+    used = resolve_simulator(info, simulator)
     seeds = [seed + i for i in range(episodes)]
     returns: list[float] = []
     lengths: list[int] = []
     for start in range(0, episodes, MAX_ENVS_PER_BATCH):
         batch = seeds[start : start + MAX_ENVS_PER_BATCH]
         batch_returns, batch_lengths = play_greedy_blocks(
-            _PolicyActor(policy), env_id, batch, used, len(batch), workers
+            _PolicyActor(policy), info, batch, used, len(batch), workers
         )
         returns += batch_returns.tolist()
         lengths += batch_lengths.tolist()
-    return EvalReport(
-        env_id=env_id,
-        simulator=used,
-        returns=returns,
-        lengths=lengths,
-        seeds=seeds,
-        threshold=info.reward_threshold,
-        max_episode_steps=info.max_episode_steps,
-    )
+    return EvalReport.played(info, used, returns, lengths, seeds)

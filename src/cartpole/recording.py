@@ -20,7 +20,8 @@ import numpy as np
 
 from cartpole.core.errors import InputError
 from cartpole.core.memory import SHARE, describe_bytes, fits_in_memory
-from cartpole.envs import env_info, fast_env_id
+from cartpole.envs import EnvInfo, as_env_info, env_info, fast_env_id, registered_spec
+from cartpole.envs.judged import make_judged_env
 from cartpole.envs.registration import PIXEL_REFERENCE_IDS
 from cartpole.evaluation import Policy
 from cartpole.runs.atomic import replace_atomically
@@ -57,7 +58,7 @@ def _headless() -> None:
 
 def render_episodes(
     policy: Policy,
-    env_id: str,
+    env_id: str | EnvInfo,
     episodes: int,
     seed: int,
     *,
@@ -74,9 +75,14 @@ def render_episodes(
     _headless()
     import gymnasium as gym
 
+    info = as_env_info(env_id)
+    env_id = info.env_id
     gym_id = PIXEL_REFERENCE_IDS.get(fast_env_id(env_id)) or env_id.removeprefix("cartpole/")
     try:
-        env = gym.make(gym_id, render_mode="rgb_array")
+        if info.configured:  # through its wrappers, with the env's own reward (as its verdict plays it)
+            env = make_judged_env(info, render_mode="rgb_array")
+        else:
+            env = gym.make(registered_spec(gym_id), render_mode="rgb_array")
         if gym_id != env_id.removeprefix("cartpole/"):  # a pixel env: its agent sees the pictures
             env = seen_as_pixels(env, env_id)
     except gym.error.DependencyNotInstalled as err:

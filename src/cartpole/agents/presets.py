@@ -20,6 +20,8 @@ if TYPE_CHECKING:
 
 DEFAULT_PRESET = "default"
 BY_ENV = "by_env.toml"
+TABLE_SETTINGS = ("env_kwargs",)
+"""Settings whose value is a table: in a preset file they are settings, not a named preset."""
 
 
 def preset_table(agent: str) -> dict[str, dict[str, Any]]:
@@ -52,7 +54,7 @@ def read_preset_file(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"preset file {path} does not exist") from None
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
         raise ConfigError(f"preset file {path} is not readable TOML: {err}") from None
-    tables = [v for v in table.values() if isinstance(v, dict)]
+    tables = [v for k, v in table.items() if isinstance(v, dict) and k not in TABLE_SETTINGS]
     if tables and len(tables) == len(table):
         if len(tables) > 1:
             raise ConfigError(

@@ -68,7 +68,7 @@ class AgentSpec:
         simulator), so that one process training them all beats a process per seed. (Elsewhere a
         population steps each seed's Gymnasium envs in turn; ``compare`` runs such seeds in
         parallel processes instead.)"""
-        return resolve_simulator(env.env_id, config.simulator) == "fast"
+        return resolve_simulator(env, config.simulator) == "fast"
 
 
 def one_by_one_actor(policies: list[Policy]) -> BlockActor:
@@ -149,6 +149,16 @@ class OpenedPolicy:
     policy: Policy
     skipped: list[str]
     """One line per checkpoint of the run that could not be used, tried before ``path``."""
+
+    @property
+    def env(self) -> EnvInfo:
+        """The env the agent was trained on, as configured (its kwargs and wrappers)."""
+        return checkpoint_env(self.checkpoint)
+
+
+def checkpoint_env(checkpoint: Checkpoint) -> EnvInfo:
+    """The env ``checkpoint``'s agent was trained on, with the kwargs and wrappers it records."""
+    return env_info(checkpoint.env_id, checkpoint.env_kwargs, checkpoint.wrappers)
 
 
 def load_policy(path: str | Path) -> Policy:

@@ -6,6 +6,8 @@ import argparse
 import json
 from typing import Any
 
+from cartpole.cli.options import add_env_kwargs
+
 
 def add_parser(sub: Any) -> None:
     parser = sub.add_parser(
@@ -25,7 +27,13 @@ def add_parser(sub: Any) -> None:
         metavar="N",
         help="episode i starts from reset(seed=N+i); default: a fresh random seed",
     )
-    parser.add_argument("--env", metavar="ID", help="evaluate on another env id (default: the checkpoint's)")
+    parser.add_argument(
+        "--env",
+        metavar="ID",
+        help="evaluate on another env id (default: the checkpoint's, with the kwargs and wrappers its run "
+        "recorded)",
+    )
+    add_env_kwargs(parser)
     parser.add_argument(
         "--simulator",
         choices=["gymnasium", "fast"],
@@ -53,8 +61,10 @@ def run(args: argparse.Namespace) -> int:
     from cartpole.cli.errors import UsageError
     from cartpole.cli.record import eval_video_path, tell_skipped, write_eval_video
     from cartpole.core.seeding import fresh_eval_seed
+    from cartpole.envs import env_info
     from cartpole.evaluation import MAX_EPISODES, evaluate
     from cartpole.training.engine import picture_workers
+    from cartpole.training.request import parse_env_kwargs
 
     if not 1 <= args.episodes <= MAX_EPISODES:
         raise UsageError(
@@ -66,15 +76,18 @@ def run(args: argparse.Namespace) -> int:
     opened = open_policy(args.path, env_id=args.env)
     path, checkpoint, policy = opened.path, opened.checkpoint, opened.policy
     tell_skipped(opened.skipped, path)
-    env_id = args.env or checkpoint.env_id
+    env = opened.env
+    if args.env or args.env_kwargs:  # another env, or this one changed: as asked, without the run's own
+        env = env_info(args.env or checkpoint.env_id, parse_env_kwargs(args.env_kwargs))
+    env_id = env.label
     seed = fresh_eval_seed() if args.seed is None else args.seed
     out = None if args.render is None else eval_video_path(path, seed, args.render)  # checked before playing
     report = evaluate(
-        policy, env_id, args.episodes, seed=seed, simulator=args.simulator, workers=picture_workers()
+        policy, env, args.episodes, seed=seed, simulator=args.simulator, workers=picture_workers()
     )
     video: dict[str, str] = {}
     if out is not None:  # --render (issue 5)
-        video = {"video": str(write_eval_video(policy, env_id, seed, report.episodes, out))}
+        video = {"video": str(write_eval_video(policy, env, seed, report.episodes, out))}
     if args.json:
         print(json.dumps(report.to_dict() | {"checkpoint": str(path)} | video, indent=2))
         return 0

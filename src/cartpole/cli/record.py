@@ -5,7 +5,10 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from cartpole.envs import EnvInfo
 
 
 def add_parser(sub: Any) -> None:
@@ -37,13 +40,13 @@ def add_parser(sub: Any) -> None:
     parser.set_defaults(run=run)
 
 
-def load_saved_policy(path_text: str) -> tuple[Path, Any, str]:
-    """(checkpoint path, greedy policy, env id) of a run folder or checkpoint file."""
+def load_saved_policy(path_text: str) -> tuple[Path, Any, EnvInfo]:
+    """(checkpoint path, greedy policy, env as configured) of a run folder or checkpoint file."""
     from cartpole.agents.registry import open_policy
 
     opened = open_policy(path_text)
     tell_skipped(opened.skipped, opened.path)
-    return opened.path, opened.policy, opened.checkpoint.env_id
+    return opened.path, opened.policy, opened.env
 
 
 def run(args: argparse.Namespace) -> int:
@@ -67,16 +70,16 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--fps must be >= 1, got {args.fps}")
     if args.max_steps is not None and args.max_steps < 1:
         raise UsageError(f"--max-steps must be >= 1, got {args.max_steps}")
-    path, policy, env_id = load_saved_policy(args.path)
+    path, policy, env = load_saved_policy(args.path)
     seed = fresh_eval_seed() if args.seed is None else args.seed
     out = Path(args.out) if args.out else default_video_path(path, seed)
     console = Console(stderr=True)
     try:
         check_video_path(out)  # fail before playing, not after
-        with console.status(f"playing {args.episodes} episode(s) of {env_id} ..."):
+        with console.status(f"playing {args.episodes} episode(s) of {env.label} ..."):
             recording = render_episodes(
                 policy,
-                env_id,
+                env,
                 args.episodes,
                 seed,
                 caption=not args.no_caption,
@@ -88,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(str(err)) from None
     returns = ", ".join(f"{r:g}" for r in recording.returns)
     print(
-        f"wrote {out}: {args.episodes} episode(s) of {env_id} from seed {seed} "
+        f"wrote {out}: {args.episodes} episode(s) of {env.label} from seed {seed} "
         f"(returns {returns}), {len(recording.frames)} frames"
     )
     return 0
@@ -112,7 +115,7 @@ def eval_video_path(checkpoint: Path, seed: int, out_text: str) -> Path:
     return out
 
 
-def write_eval_video(policy: Any, env_id: str, seed: int, episodes: int, out: Path) -> Path:
+def write_eval_video(policy: Any, env_id: str | EnvInfo, seed: int, episodes: int, out: Path) -> Path:
     """The video of ``cartpole eval --render``: its first episodes, from the report's own seeds."""
     from cartpole.cli.errors import UsageError
     from cartpole.recording import RecordingError, render_episodes, write_video

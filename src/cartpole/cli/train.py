@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 from rich.console import Console
 
 from cartpole.agents.registry import DEFAULT_AGENT
+from cartpole.cli.options import add_env_kwargs, env_overrides
 
 if TYPE_CHECKING:
     from cartpole.runs import RunDir
@@ -56,8 +57,10 @@ def add_parser(sub: Any) -> None:
         "--env",
         default="CartPole-v1",
         metavar="ID",
-        help="Gymnasium env id with Box observations and Discrete actions (default: CartPole-v1)",
+        help="Gymnasium env id with Box observations and Discrete actions, or module:Id-vN for an env "
+        "that importing module registers (default: CartPole-v1)",
     )
+    add_env_kwargs(parser)
     parser.add_argument("--seed", type=int, default=0, metavar="N", help="training seed (default: 0)")
     parser.add_argument(
         "--preset",
@@ -182,8 +185,10 @@ def run(args: argparse.Namespace) -> int:
     if population:
         return run_population(args)
     if args.resume:
-        if args.agent or args.overrides or args.budget is not None:
-            raise UsageError("--resume continues a run with its recorded config; drop AGENT/--set/--budget")
+        if args.agent or args.overrides or args.env_kwargs or args.budget is not None:
+            raise UsageError(
+                "--resume continues a run with its recorded config; drop AGENT/--set/--env-kwargs/--budget"
+            )
         outcome = resume_unless_finished(resume, args, console)
         if outcome is None:
             return 0
@@ -194,7 +199,7 @@ def run(args: argparse.Namespace) -> int:
             args.env,
             seed=args.seed,
             preset=args.preset,
-            overrides=parse_overrides(args.overrides),
+            overrides=parse_overrides(args.overrides) | env_overrides(args),
             budget=args.budget,  # checked with every other choice (training/request.py)
             runs_dir=args.runs_dir,
             device=args.device,
@@ -295,7 +300,13 @@ def run_population(args: argparse.Namespace) -> int:
 
     console = Console(soft_wrap=True)
     if args.resume:
-        if args.agent or args.overrides or args.budget is not None or args.seeds is not None:
+        if (
+            args.agent
+            or args.overrides
+            or args.env_kwargs
+            or args.budget is not None
+            or args.seeds is not None
+        ):
             raise UsageError(
                 "--resume continues a population with its recorded config; drop AGENT/--set/--budget/--seeds"
             )
@@ -310,7 +321,7 @@ def run_population(args: argparse.Namespace) -> int:
             seeds,
             args.env,
             preset=args.preset,
-            overrides=parse_overrides(args.overrides),
+            overrides=parse_overrides(args.overrides) | env_overrides(args),
             budget=args.budget,
             runs_dir=args.runs_dir,
             device=args.device,

@@ -49,6 +49,8 @@ def _coerce(value: Any, annotation: Any, key: str) -> Any:
                 return _number(value, origin)
             elif origin is str:
                 return str(value)
+            elif origin is dict:
+                return dict(value if isinstance(value, dict) else _table(str(value)))
             elif origin in (list, tuple):
                 items = value if isinstance(value, list | tuple) else _items(str(value))
                 (item_type,) = typing.get_args(option)[:1] or (str,)
@@ -77,8 +79,19 @@ def setting_text(value: Any) -> str:
     if isinstance(value, float):
         return repr(value)
     if isinstance(value, list | tuple):
-        return "[" + ", ".join(json.dumps(item) for item in value) + "]"
+        return "[" + ", ".join(_toml_value(item) for item in value) + "]"
+    if isinstance(value, dict):
+        return _toml_value(value)
     return str(value)
+
+
+def _toml_value(value: Any) -> str:
+    """``value`` as TOML writes it inline (tables ``{key = value}``; strings, numbers as JSON)."""
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k} = {_toml_value(v)}" for k, v in value.items()) + "}"
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(_toml_value(item) for item in value) + "]"
+    return json.dumps(value)
 
 
 def _items(text: str) -> list[Any]:
@@ -86,13 +99,38 @@ def _items(text: str) -> list[Any]:
     ``[[16, 8, 4], [32, 3, 1]]`` (a TOML array); ValueError if it is neither."""
     if not text.strip().startswith("["):
         return text.split(",")
+    items = _toml_of(text, list)
+    assert isinstance(items, list)
+    return items
+
+
+def plain_value(text: str) -> Any:
+    """A value from the command line whose type no field gives (an env's keyword argument): what it
+    reads as in TOML (``5`` an int, ``0.5`` a float, ``true`` a bool, ``[1, 2]`` a list, ``"x"`` or
+    any other text a string)."""
     try:
-        items = tomllib.loads(f"items = {text}")["items"]
+        return tomllib.loads(f"value = {text}")["value"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def _table(text: str) -> dict[str, Any]:
+    """A table from the command line as TOML writes one inline: ``{gravity = 5.0, name = "x"}``;
+    ValueError if it is not one."""
+    table = _toml_of(text, dict)
+    assert isinstance(table, dict)
+    return table
+
+
+def _toml_of(text: str, kind: type) -> Any:
+    """``text`` read as a TOML value of ``kind`` (a list, a table); ValueError if it is not one."""
+    try:
+        value = tomllib.loads(f"value = {text}")["value"]
     except tomllib.TOMLDecodeError as err:
         raise ValueError(str(err)) from None
-    if not isinstance(items, list):
-        raise ValueError(f"not a list: {text!r}")
-    return items
+    if not isinstance(value, kind):
+        raise ValueError(f"not a {'list' if kind is list else 'table'}: {text!r}")
+    return value
 
 
 def _number(value: Any, kind: type) -> int | float:

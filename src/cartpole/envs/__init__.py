@@ -7,6 +7,10 @@ falls back to Gymnasium for any other env. Our pixel envs (``cartpole/CartPolePi
 drawn by our fast renderer on ``"fast"``, and on ``"gymnasium"`` are Gymnasium's own CartPole seen
 through :class:`~cartpole.envs.pixels.GymnasiumPixels` (its ``rgb_array`` pictures, preprocessed the
 same way), so their verdicts rest on Gymnasium's physics and drawing too.
+
+Each function takes an env id or an :class:`EnvInfo` (an env as configured: its kwargs and wrappers,
+:func:`env_info`); a configured env always runs on Gymnasium's implementation (our simulator takes
+neither Gymnasium's kwargs nor per-env wrappers), with its wrappers around each single env.
 """
 
 from __future__ import annotations
@@ -19,7 +23,18 @@ import numpy as np
 
 from cartpole.core.errors import ConfigError
 from cartpole.envs.registration import register_fast_envs, register_pixel_envs
-from cartpole.envs.spec import EnvInfo, UnsupportedEnvError, env_info
+from cartpole.envs.spec import (
+    EnvInfo,
+    UnsupportedEnvError,
+    WrapperSpec,
+    as_env_info,
+    check_kwargs,
+    check_wrappers,
+    describe_kwargs,
+    env_info,
+    make_env,
+    registered_spec,
+)
 
 if TYPE_CHECKING:
     from cartpole.envs.shards import ShardedEnvs
@@ -53,26 +68,41 @@ def check_simulator(name: str, setting: str = "simulator") -> Simulator:
     return name  # narrowed to Simulator by the check above
 
 
-def resolve_simulator(env_id: str, simulator: str) -> Simulator:
-    """The simulator that will really run ``env_id``: "fast" only exists for CartPole (and its pixels)."""
+def resolve_simulator(env: str | EnvInfo, simulator: str) -> Simulator:
+    """The simulator that will really run ``env``: "fast" only exists for CartPole (and its pixels),
+    as registered (no kwargs, no wrappers)."""
     checked = check_simulator(simulator)
-    info = env_info(env_id)
-    return "fast" if checked == "fast" and (info.is_cartpole or info.pixels_of) else "gymnasium"
+    info = as_env_info(env)
+    fast = (info.is_cartpole or info.pixels_of) and not info.configured
+    return "fast" if checked == "fast" and fast else "gymnasium"
 
 
 def make_vec_env(
-    env_id: str, num_envs: int, *, simulator: str = "gymnasium", dtype: type[np.floating[Any]] = FAST_DTYPE
+    env: str | EnvInfo,
+    num_envs: int,
+    *,
+    simulator: str = "gymnasium",
+    dtype: type[np.floating[Any]] = FAST_DTYPE,
 ) -> gym.vector.VectorEnv:
-    """A vector env of ``num_envs`` copies of ``env_id`` with Gymnasium's next-step autoreset; ``dtype``:
+    """A vector env of ``num_envs`` copies of ``env`` with Gymnasium's next-step autoreset; ``dtype``:
     what our fast simulator steps in."""
-    info = env_info(env_id)  # validates the id and its spaces with a clear message
-    if resolve_simulator(env_id, simulator) == "fast":
+    info = as_env_info(env)  # validates the id and its spaces with a clear message
+    if resolve_simulator(info, simulator) == "fast":
         return gym.make_vec(
-            fast_env_id(env_id), num_envs=num_envs, vectorization_mode="vector_entry_point", dtype=dtype
+            fast_env_id(info.env_id), num_envs=num_envs, vectorization_mode="vector_entry_point", dtype=dtype
         )
     if info.pixels_of:
+        if info.configured:
+            raise UnsupportedEnvError(f"{info.env_id} takes no env kwargs or wrappers: {info.label}")
         return gymnasium_pixels_vec_env(info.pixels_of, num_envs, info.obs_shape)
-    return gym.make_vec(env_id, num_envs=num_envs)
+    if info.wrappers:
+        return gym.vector.SyncVectorEnv([partial(make_env, info)] * num_envs)
+    return gym.make_vec(spec_of(info), num_envs=num_envs, **info.kwargs)
+
+
+def spec_of(info: EnvInfo) -> gym.envs.registration.EnvSpec:
+    """Gymnasium's spec of ``info``'s id (its module imported first, for a ``module:Id-vN``)."""
+    return registered_spec(info.env_id)
 
 
 def gymnasium_pixels_vec_env(
@@ -94,19 +124,24 @@ def make_gymnasium_pixels(reference_id: str, obs_shape: tuple[int, ...]) -> gym.
 
 
 def make_eval_envs(
-    env_id: str, num_envs: int, *, simulator: str = "gymnasium", workers: int = 1
+    env: str | EnvInfo, num_envs: int, *, simulator: str = "gymnasium", workers: int = 1
 ) -> gym.vector.VectorEnv | ShardedEnvs:
     """The envs an evaluation plays: :func:`make_vec_env`'s, except that Gymnasium's pictures (a
     pixel env on ``simulator="gymnasium"``) are drawn by ``workers`` processes when ``workers`` > 1
-    (:class:`~cartpole.envs.shards.ShardedEnvs`: the same episodes, sooner), and that our fast
-    CartPole steps in :data:`EVAL_DTYPE` (Gymnasium's bits)."""
-    info = env_info(env_id)
-    if workers > 1 and info.pixels_of and resolve_simulator(env_id, simulator) == "gymnasium":
+    (:class:`~cartpole.envs.shards.ShardedEnvs`: the same episodes, sooner), that our fast
+    CartPole steps in :data:`EVAL_DTYPE` (Gymnasium's bits), and that an env with wrappers reports
+    the env's own reward (:mod:`cartpole.envs.judged`)."""
+    info = as_env_info(env)
+    if workers > 1 and info.pixels_of and resolve_simulator(info, simulator) == "gymnasium":
         from cartpole.envs.shards import ShardedEnvs
 
         return ShardedEnvs(partial(make_gymnasium_pixels, info.pixels_of, info.obs_shape), num_envs, workers)
+    if info.wrappers:
+        from cartpole.envs.judged import make_judged_env
+
+        return gym.vector.SyncVectorEnv([partial(make_judged_env, info)] * num_envs)
     return make_vec_env(
-        env_id, num_envs, simulator=simulator, dtype=EVAL_DTYPE if info.is_cartpole else FAST_DTYPE
+        info, num_envs, simulator=simulator, dtype=EVAL_DTYPE if info.is_cartpole else FAST_DTYPE
     )
 
 
@@ -115,10 +150,17 @@ __all__ = [
     "EnvInfo",
     "Simulator",
     "UnsupportedEnvError",
+    "WrapperSpec",
+    "as_env_info",
+    "check_kwargs",
     "check_simulator",
+    "check_wrappers",
+    "describe_kwargs",
     "env_info",
     "fast_env_id",
+    "make_env",
     "make_eval_envs",
     "make_vec_env",
+    "registered_spec",
     "resolve_simulator",
 ]

@@ -14,20 +14,23 @@ Gymnasium's vector envs are saved; a checkpoint holds, as plain JSON data:
   private). Per env, ``env.unwrapped.state`` and ``env.unwrapped.np_random``'s bit-generator state are
   saved; the clock's elapsed steps and pending reset are set from the learner's own counters.
 
-An env whose state is not reachable this way (e.g. Box2D envs, whose ``unwrapped.state`` does not
-exist) cannot be saved: :func:`vector_env_state` returns None and the learner starts fresh episodes.
+An env whose state is not reachable this way (e.g. Box2D envs such as LunarLander, whose
+``unwrapped.state`` does not exist, and any env inside wrappers, which may keep state of their own)
+cannot be saved: :func:`vector_env_state` returns None and the learner starts fresh episodes on
+resume (the resume says so).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
+from collections.abc import Callable
 from typing import Any, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
 
-from cartpole.envs import Simulator, env_info, make_vec_env
+from cartpole.envs import EnvInfo, Simulator, as_env_info, make_env, make_vec_env, registered_spec
 
 
 class EpisodeClock(gym.Wrapper[Any, Any, Any, Any]):
@@ -61,17 +64,38 @@ class EpisodeClock(gym.Wrapper[Any, Any, Any, Any]):
         return self.env.reset(seed=seed, options=options)
 
 
-def make_resumable_vec_env(env_id: str, num_envs: int, simulator: Simulator) -> gym.vector.VectorEnv:
-    """A vector env of ``num_envs`` copies of ``env_id`` (next-step autoreset) that
-    :func:`restore_vector_env_state` can put back mid-episode."""
-    info = env_info(env_id)
-    if info.is_cartpole:  # batched CartPole, ours or Gymnasium's: both keep their per-env state public
-        return make_vec_env(env_id, num_envs, simulator=simulator)
+def make_resumable_vec_env(env: str | EnvInfo, num_envs: int, simulator: Simulator) -> gym.vector.VectorEnv:
+    """A vector env of ``num_envs`` copies of ``env`` (next-step autoreset) that
+    :func:`restore_vector_env_state` can put back mid-episode (where its state is public)."""
+    info = as_env_info(env)
+    if info.is_cartpole and not info.wrappers:  # batched CartPole, ours or Gymnasium's: both keep
+        return make_vec_env(info, num_envs, simulator=simulator)  # their per-env state public
     if info.pixels_of:  # Gymnasium's CartPole seen through its pictures: frame stacks are not public
-        return make_vec_env(env_id, num_envs, simulator=simulator)  # state, so a resume starts afresh
-    without_limit = dataclasses.replace(gym.spec(env_id), max_episode_steps=None)
+        return make_vec_env(info, num_envs, simulator=simulator)  # state, so a resume starts afresh
+    without_limit = dataclasses.replace(registered_spec(info.env_id), max_episode_steps=None)
     clock = functools.partial(EpisodeClock, max_episode_steps=info.max_episode_steps)
-    return gym.make_vec(without_limit, num_envs, vectorization_mode="sync", wrappers=[clock])
+    wrappers: list[Callable[[gym.Env[Any, Any]], gym.Wrapper[Any, Any, Any, Any]]] = [
+        clock
+    ]  # where TimeLimit was,
+    wrappers += [wrapper.wrap for wrapper in info.wrappers]  # below the env's own wrappers
+    return gym.make_vec(without_limit, num_envs, vectorization_mode="sync", wrappers=wrappers, **info.kwargs)
+
+
+def why_episodes_restart(env: EnvInfo) -> str | None:
+    """Why a resume of a run on ``env`` (not CartPole, not pixels) starts fresh episodes rather than
+    the ones in progress: its wrappers, or an env whose state is not public (Box2D's); None when it
+    continues them."""
+    if (env.is_cartpole and not env.wrappers) or env.pixels_of:
+        return None
+    if env.wrappers:
+        return "wrappers may keep state of their own"
+    made = make_env(env)
+    try:
+        made.reset(seed=0)
+        state = getattr(made.unwrapped, "state", None)
+    finally:
+        made.close()
+    return None if isinstance(state, np.ndarray | tuple) else f"{env.env_id} keeps no public state"
 
 
 def vector_env_state(envs: gym.vector.VectorEnv) -> dict[str, Any] | None:

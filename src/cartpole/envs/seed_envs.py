@@ -75,11 +75,11 @@ class SeedEnvs(Protocol):
 def make_seed_envs(env: EnvInfo, simulator: str, seeds: list[int], num_envs: int) -> SeedEnvs:
     """``num_envs`` envs of ``env`` for each seed of ``seeds``, on ``simulator`` where it runs that env."""
     limit = env.max_episode_steps or LONGEST_EPISODE_WITHOUT_TIME_LIMIT
-    if resolve_simulator(env.env_id, simulator) == "fast":
+    if resolve_simulator(env, simulator) == "fast":
         if env.pixels_of:
             return PixelSeedEnvs(FastSeedEnvs(seeds, num_envs, limit), env.obs_shape)
         return FastSeedEnvs(seeds, num_envs, limit)
-    return GymnasiumSeedEnvs(env.env_id, seeds, num_envs)
+    return GymnasiumSeedEnvs(env, seeds, num_envs)
 
 
 def env_rows(row: int, num_envs: int) -> slice:
@@ -226,12 +226,12 @@ def as_observations(observations: Any) -> np.ndarray:
 class GymnasiumSeedEnvs:
     """One Gymnasium vector env per seed (any env with Box observations), stepped in turn."""
 
-    def __init__(self, env_id: str, seeds: list[int], num_envs: int):
+    def __init__(self, env: str | EnvInfo, seeds: list[int], num_envs: int):
         self.num_envs = num_envs
         self.envs: list[gym.vector.VectorEnv] = []
         self.current: list[np.ndarray] = []
         for seed in seeds:
-            envs = make_resumable_vec_env(env_id, num_envs, "gymnasium")
+            envs = make_resumable_vec_env(env, num_envs, "gymnasium")
             self.envs.append(envs)
             self.current.append(as_observations(envs.reset(seed=seed)[0]))
         n = len(seeds) * num_envs

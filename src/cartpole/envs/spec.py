@@ -1,15 +1,25 @@
-"""What we need to know about an environment, read from Gymnasium's registry.
+"""What we need to know about an environment, read from Gymnasium's registry and the env as configured.
 
 The "solved" threshold and the episode limit are never written in our code: they come from
 ``gymnasium.spec(env_id)``, so CartPole-v0 (195 over 200 steps) and CartPole-v1 (475 over 500)
 each get their own rule.
+
+An env is its id as Gymnasium takes it (``CartPole-v1``, or ``module:Id-vN``, whose module is
+imported first: it registers the id), the keyword arguments ``gymnasium.make`` passes to its
+constructor, and the wrappers put around it (each ``module:Class``, with its own keyword arguments).
+:func:`env_info` reads spaces, threshold and episode limit from the env made that way, so what it says
+is keyed by all three; :func:`make_env` makes one of it.
 """
 
 from __future__ import annotations
 
+import importlib
+import json
 import math
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from functools import cache
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -24,8 +34,87 @@ class UnsupportedEnvError(InputError, ValueError):
 
 
 @dataclass(frozen=True)
+class WrapperSpec:
+    """A Gymnasium wrapper to put around an env: ``name`` is its import path ``module:Class``."""
+
+    name: str
+    kwargs: dict[str, Any] = field(default_factory=dict, hash=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        """As a preset file and config.json write it: ``{"name": ..., "kwargs": {...}}``."""
+        return {"name": self.name, "kwargs": dict(self.kwargs)}
+
+    @property
+    def label(self) -> str:
+        """``module:Class`` with its arguments, as a verdict line names it."""
+        return self.name + (f"({describe_kwargs(self.kwargs)})" if self.kwargs else "")
+
+    def load(self) -> type[gym.Wrapper[Any, Any, Any, Any]]:
+        """The wrapper class; UnsupportedEnvError when it cannot be imported."""
+        module_name, _, class_name = self.name.partition(":")
+        try:
+            found = getattr(importlib.import_module(module_name), class_name)
+        except (ImportError, AttributeError) as err:
+            raise UnsupportedEnvError(f"cannot import wrapper {self.name!r}: {err}") from None
+        if not (isinstance(found, type) and issubclass(found, gym.Wrapper)):
+            raise UnsupportedEnvError(f"wrapper {self.name!r} is not a gymnasium.Wrapper class")
+        return found
+
+    def wrap(self, env: gym.Env[Any, Any]) -> gym.Wrapper[Any, Any, Any, Any]:
+        """``env`` inside this wrapper; UnsupportedEnvError when the wrapper refuses its arguments."""
+        wrapper = self.load()
+        try:
+            return wrapper(env, **self.kwargs)
+        except Exception as err:  # the wrapper's own code: anything it raises means it cannot wrap
+            args = f" with kwargs {describe_kwargs(self.kwargs)}" if self.kwargs else ""
+            raise UnsupportedEnvError(
+                f"wrapper {self.name}{args} cannot wrap {env.spec.id if env.spec else env}: "
+                f"{type(err).__name__}: {err}"
+            ) from None
+
+
+def check_wrappers(value: Any, setting: str = "wrappers") -> tuple[WrapperSpec, ...]:
+    """Wrappers as a preset file lists them, each ``"module:Class"`` or ``{name = "module:Class",
+    kwargs = {...}}`` (or already WrapperSpecs); ConfigError naming ``setting`` otherwise. The
+    classes are not imported here."""
+    if not isinstance(value, list | tuple):
+        raise UnsupportedEnvError(f"{setting} must be a list of wrappers, got {value!r}")
+    specs = []
+    for item in value:
+        if isinstance(item, WrapperSpec):
+            specs.append(item)
+            continue
+        if isinstance(item, str):
+            item = {"name": item}
+        if not isinstance(item, Mapping) or set(item) - {"name", "kwargs"} or "name" not in item:
+            raise UnsupportedEnvError(
+                f'{setting}: each wrapper is "module:Class" or {{name = "module:Class", kwargs = {{...}}}}, '
+                f"got {item!r}"
+            )
+        name, kwargs = item["name"], item.get("kwargs", {})
+        if not isinstance(name, str) or ":" not in name.strip(":"):
+            raise UnsupportedEnvError(
+                f"{setting}: a wrapper's name is an import path module:Class, got {name!r}"
+            )
+        specs.append(WrapperSpec(name, dict(check_kwargs(kwargs, f"{setting}: {name}'s kwargs"))))
+    return tuple(specs)
+
+
+def check_kwargs(value: Any, setting: str = "env_kwargs") -> dict[str, Any]:
+    """Keyword arguments as plain data (a table of names to values); UnsupportedEnvError otherwise."""
+    if not isinstance(value, Mapping) or not all(isinstance(k, str) and k.isidentifier() for k in value):
+        raise UnsupportedEnvError(f"{setting} must be a table of keyword names to values, got {value!r}")
+    return dict(value)
+
+
+def describe_kwargs(kwargs: Mapping[str, Any]) -> str:
+    """``key=value, ...`` in the order given, values as JSON writes them."""
+    return ", ".join(f"{k}={json.dumps(v)}" for k, v in kwargs.items())
+
+
+@dataclass(frozen=True)
 class EnvInfo:
-    """Spaces and limits of one registered Gymnasium environment."""
+    """Spaces and limits of one Gymnasium environment as configured (its id, kwargs and wrappers)."""
 
     env_id: str
     obs_dim: int
@@ -39,10 +128,28 @@ class EnvInfo:
     obs_shape: tuple[int, ...] = ()
     """Shape of one observation: ``(obs_dim,)`` flat, ``(channels, height, width)`` for images, as
     agents choose their network by it."""
+    kwargs: dict[str, Any] = field(default_factory=dict, hash=False)
+    """What ``gymnasium.make`` passes to the env's constructor (``--env-kwargs``)."""
+    wrappers: tuple[WrapperSpec, ...] = ()
+    """Put around the env in this order (a preset's ``wrappers``)."""
 
     def __post_init__(self) -> None:
         if not self.obs_shape:
             object.__setattr__(self, "obs_shape", (self.obs_dim,))
+
+    @property
+    def configured(self) -> bool:
+        """True when the env is not its id's plain env: kwargs or wrappers change it."""
+        return bool(self.kwargs or self.wrappers)
+
+    @property
+    def label(self) -> str:
+        """The id with its kwargs and wrappers, as verdict lines name the env:
+        ``CartPole-v1 (sutton_barto_reward=true; wrappers: mypkg:Scale)``."""
+        parts = [describe_kwargs(self.kwargs)] if self.kwargs else []
+        if self.wrappers:
+            parts.append("wrappers: " + ", ".join(w.label for w in self.wrappers))
+        return self.env_id + (f" ({'; '.join(parts)})" if parts else "")
 
     @property
     def is_image(self) -> bool:
@@ -61,24 +168,78 @@ class EnvInfo:
         return PIXEL_REFERENCE_IDS.get("cartpole/" + self.env_id.removeprefix("cartpole/"))
 
 
-@cache
-def env_info(env_id: str) -> EnvInfo:
-    """Read spaces, threshold and episode limit of ``env_id``; raise UnsupportedEnvError if unusable."""
+def env_info(env_id: str, kwargs: Mapping[str, Any] | None = None, wrappers: Sequence[Any] = ()) -> EnvInfo:
+    """Read spaces, threshold and episode limit of ``env_id`` made with ``kwargs`` inside
+    ``wrappers`` (see :func:`check_wrappers`); UnsupportedEnvError (one line) if it is unusable."""
+    checked = check_wrappers(list(wrappers))
+    key = json.dumps(
+        {"kwargs": check_kwargs(kwargs or {}), "wrappers": [w.to_dict() for w in checked]}, sort_keys=True
+    )
+    return _env_info(env_id, key)
+
+
+def as_env_info(env: str | EnvInfo) -> EnvInfo:
+    """``env`` itself, or the plain env of the id ``env``."""
+    return env if isinstance(env, EnvInfo) else env_info(env)
+
+
+def registered_spec(env_id: str) -> gym.envs.registration.EnvSpec:
+    """Gymnasium's spec of ``env_id``, importing the module of a ``module:Id-vN`` id first (it
+    registers the id, as ``gymnasium.make`` does it); UnsupportedEnvError otherwise."""
+    module, _, name = env_id.rpartition(":")
+    if module:
+        try:
+            importlib.import_module(module)
+        except Exception as err:  # the user's module: anything it raises means it cannot be used
+            raise UnsupportedEnvError(
+                f"cannot import {module!r} for environment {env_id!r}: {type(err).__name__}: {err} "
+                "(is its package installed, or on PYTHONPATH?)"
+            ) from None
     try:
-        spec = gym.spec(env_id)
+        return gym.spec(name)
     except Exception as err:  # gymnasium raises several error types for unknown ids
+        if module:
+            raise UnsupportedEnvError(
+                f"unknown environment {env_id!r}: importing {module} registers no {name!r}"
+            ) from err
         raise UnsupportedEnvError(
             f"unknown environment {env_id!r}: use a registered Gymnasium id such as CartPole-v1, "
-            "CartPole-v0 or Acrobot-v1"
+            "CartPole-v0 or Acrobot-v1, or module:Id-vN for an env that a module registers"
         ) from err
+
+
+def make_env(env: EnvInfo, **make_args: Any) -> gym.Env[Any, Any]:
+    """One env of ``env`` as configured: ``gymnasium.make`` of its id with its kwargs (and
+    ``make_args``, e.g. ``render_mode``), inside its wrappers."""
+    made = gym.make(registered_spec(env.env_id), **make_args, **env.kwargs)
+    for wrapper in env.wrappers:
+        made = wrapper.wrap(made)
+    return made
+
+
+@cache
+def _env_info(env_id: str, key: str) -> EnvInfo:
+    configuration = json.loads(key)
+    kwargs = configuration["kwargs"]
+    wrappers = check_wrappers(configuration["wrappers"])
+    spec = registered_spec(env_id)
+    plain = EnvInfo(env_id, 0, 0, None, None, (), (), kwargs=kwargs, wrappers=wrappers)
     try:
-        env = gym.make(spec)
+        env = make_env(plain)
+    except UnsupportedEnvError:
+        raise
+    except TypeError as err:
+        reason = str(err).split(" was raised from the environment creator")[0]  # gymnasium adds the kwargs
+        raise UnsupportedEnvError(
+            f"{env_id} does not take env kwargs {describe_kwargs(kwargs)}: {reason}"
+        ) from None
     except Exception as err:
         raise UnsupportedEnvError(
             f"cannot create environment {env_id!r}: {err} (is its extra installed?)"
         ) from err
     try:
         obs_space, act_space = env.observation_space, env.action_space
+        limit = env.spec.max_episode_steps if env.spec is not None else spec.max_episode_steps
     finally:
         env.close()
     if not isinstance(obs_space, gym.spaces.Box) or len(obs_space.shape) not in (1, 3):
@@ -101,8 +262,10 @@ def env_info(env_id: str) -> EnvInfo:
         obs_dim=math.prod(shape),
         n_actions=int(act_space.n),
         reward_threshold=spec.reward_threshold,
-        max_episode_steps=spec.max_episode_steps,
+        max_episode_steps=limit,
         obs_low=tuple(float(v) for v in low),
         obs_high=tuple(float(v) for v in high),
         obs_shape=shape,
+        kwargs=kwargs,
+        wrappers=wrappers,
     )

@@ -179,8 +179,8 @@ class Experiment:
         from cartpole.training.config import resolve_config
 
         spec = get_agent(entry.agent)
-        config, _ = resolve_config(entry.agent, spec.config_cls, entry.preset)
-        return spec.batches(config, env_info(self.env_id))
+        config, settings = resolve_config(entry.agent, spec.config_cls, entry.preset)
+        return spec.batches(config, env_info(self.env_id, settings.env_kwargs, settings.wrappers))
 
     def job(self, entry: Entry, seeds: list[int], population: bool) -> Job:
         """Train ``seeds`` of ``entry``: one seed, or (``population``) all of them as one population."""

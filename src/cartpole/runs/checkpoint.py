@@ -58,6 +58,22 @@ class Checkpoint:
     def env_id(self) -> str:
         return self._text("env_id")
 
+    @property
+    def env_kwargs(self) -> dict[str, Any]:
+        """The kwargs the agent's env was made with (none recorded: none)."""
+        kwargs = self.meta.get("env_kwargs") or {}
+        if not isinstance(kwargs, dict):
+            raise CheckpointError("the checkpoint's metadata records env_kwargs that are not a table")
+        return kwargs
+
+    @property
+    def wrappers(self) -> list[Any]:
+        """The wrappers the agent's env was put in, as its preset listed them (none recorded: none)."""
+        wrappers = self.meta.get("wrappers") or []
+        if not isinstance(wrappers, list):
+            raise CheckpointError("the checkpoint's metadata records wrappers that are not a list")
+        return wrappers
+
     def _text(self, key: str) -> str:
         value = self.meta.get(key)
         if not isinstance(value, str):

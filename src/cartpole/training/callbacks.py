@@ -178,7 +178,7 @@ def screened_evaluation(
     benchmarks judge other libraries' agents.)"""
 
     def play(seeds: list[int], first: list[int], episodes: int, simulator: Simulator) -> list[EvalReport]:
-        return [evaluate(policy, env.env_id, episodes, seed=first[0], simulator=simulator)]
+        return [evaluate(policy, env, episodes, seed=first[0], simulator=simulator)]
 
     return screened_reports([(seed, index)], play, env, settings)[seed]
 

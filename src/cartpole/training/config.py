@@ -7,13 +7,13 @@ config dataclass or of :class:`TrainSettings`; anything else is an error that na
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 from cartpole.agents.presets import preset_values
 from cartpole.core.config import build_valid_config, require
 from cartpole.core.errors import ConfigError
-from cartpole.envs import check_simulator
+from cartpole.envs import check_kwargs, check_simulator, check_wrappers
 from cartpole.training.budget import parse_budget
 
 
@@ -48,6 +48,12 @@ class TrainSettings:
     """Env steps between writes of checkpoints/latest.pt at the most (0: no step-based cadence)."""
     stop_when_solved: bool = True
     """End training at the first verified solve."""
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    """Keyword arguments of the env's constructor, as ``gymnasium.make(env_id, **env_kwargs)`` passes
+    them (``--env-kwargs KEY=VALUE``), for training, evaluations and the verdict."""
+    wrappers: list[dict[str, Any] | str] = field(default_factory=list)
+    """Gymnasium wrappers put around every env, in order: each "module:Class" or {name = "module:Class",
+    kwargs = {...}}; the verdict's return stays the env's own reward."""
 
     @property
     def final_simulator(self) -> str:
@@ -64,6 +70,8 @@ class TrainSettings:
         require(0 < self.checkpoint_fraction <= 1, "checkpoint_fraction must be in (0, 1]")
         require(0 < self.checkpoint_seconds < float("inf"), "checkpoint_seconds must be > 0")
         require(self.checkpoint_every >= 0, "checkpoint_every must be >= 0 (0: off)")
+        check_kwargs(self.env_kwargs, "env_kwargs")
+        check_wrappers(self.wrappers)
 
 
 def resolve_config(
@@ -74,7 +82,10 @@ def resolve_config(
     ``preset`` is a preset name of the agent or a path to a ``.toml`` preset file.
     """
     values = preset_values(agent, preset)
-    values.update(overrides or {})
+    overrides = dict(overrides or {})
+    if isinstance(values.get("env_kwargs"), dict) and isinstance(overrides.get("env_kwargs"), dict):
+        overrides["env_kwargs"] = values["env_kwargs"] | overrides["env_kwargs"]  # the preset's, updated
+    values.update(overrides)
     agent_keys = {f.name for f in fields(config_cls)}
     train_keys = {f.name for f in fields(TrainSettings)}
     unknown = sorted(set(values) - agent_keys - train_keys)

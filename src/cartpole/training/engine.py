@@ -139,17 +139,15 @@ class PopulationEvaluations:
         episode_seeds = [[first + i for i in range(episodes)] for first in first_seeds]
         flat = [s for row in episode_seeds for s in row]
         returns, lengths = play_greedy_blocks(
-            self.population.greedy_actor(seeds), self.env.env_id, flat, simulator, episodes, picture_workers()
+            self.population.greedy_actor(seeds), self.env, flat, simulator, episodes, picture_workers()
         )
         return [
-            EvalReport(
-                env_id=self.env.env_id,
-                simulator=simulator,
-                returns=returns[i * episodes : (i + 1) * episodes].tolist(),
-                lengths=lengths[i * episodes : (i + 1) * episodes].tolist(),
-                seeds=row,
-                threshold=self.env.reward_threshold,
-                max_episode_steps=self.env.max_episode_steps,
+            EvalReport.played(
+                self.env,
+                simulator,
+                returns[i * episodes : (i + 1) * episodes].tolist(),
+                lengths[i * episodes : (i + 1) * episodes].tolist(),
+                row,
             )
             for i, row in enumerate(episode_seeds)
         ]
@@ -378,21 +376,14 @@ def play_final_episodes(members: list[Member], checkpoint: CheckpointName) -> di
     flat_seeds = [s for row in episode_seeds for s in row]
     returns, lengths = (
         x.reshape(len(members), episodes)
-        for x in play_greedy_blocks(act, first.env.env_id, flat_seeds, simulator, episodes, picture_workers())
+        for x in play_greedy_blocks(act, first.env, flat_seeds, simulator, episodes, picture_workers())
     )
-    reports = {}
-    for i, member in enumerate(members):
-        report = EvalReport(
-            env_id=first.env.env_id,
-            simulator=simulator,
-            returns=returns[i].tolist(),
-            lengths=lengths[i].tolist(),
-            seeds=episode_seeds[i],
-            threshold=first.env.reward_threshold,
-            max_episode_steps=first.env.max_episode_steps,
+    return {
+        member.seed: EvalReport.played(
+            first.env, simulator, returns[i].tolist(), lengths[i].tolist(), episode_seeds[i]
         )
-        reports[member.seed] = report
-    return reports
+        for i, member in enumerate(members)
+    }
 
 
 # ----------------------------------------------------------------------------------------------

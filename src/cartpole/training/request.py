@@ -15,14 +15,14 @@ from __future__ import annotations
 
 import re
 from collections import Counter
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field, fields
 from typing import Any
 
 from cartpole.agents.presets import resolve_preset
 from cartpole.agents.registry import AgentSpec, agent_names, get_agent
-from cartpole.core.config import config_to_dict, field_docs, setting_text
+from cartpole.core.config import config_to_dict, field_docs, plain_value, setting_text
 from cartpole.core.errors import ConfigError, InputError
 from cartpole.core.memory import SHARE, describe_bytes, fits_in_memory
 from cartpole.core.seeding import MAX_TRAIN_SEED, describe_seeds
@@ -87,6 +87,10 @@ def plan_training(
         except InputError as err:
             err.field = err.field or setting_named(str(err), spec)
             raise
+    if settings.env_kwargs or settings.wrappers:
+        with about("env_kwargs" if settings.env_kwargs else "wrappers"):
+            env = env_info(env_id, settings.env_kwargs, settings.wrappers)  # the env as configured
+            spec.check_env(env)
     if stop_when_solved is not None:
         settings.stop_when_solved = stop_when_solved
     with about("budget"):
@@ -214,10 +218,35 @@ class TrainRequest:
         return len(self.seeds) > 1
 
 
+NOT_FROM_THE_APP = ("env_kwargs", "wrappers")
+"""Settings the web app neither shows nor takes: they would make the server import or pass what the
+app does not list (an env's constructor arguments, wrapper classes); the command line takes them."""
+
+
+def parse_env_kwargs(pairs: Sequence[str]) -> dict[str, Any]:
+    """``--env-kwargs KEY=VALUE ...`` as a table: each value read as ``--set`` reads text
+    (:func:`~cartpole.core.config.plain_value`); InputError for a pair that is not KEY=VALUE."""
+    kwargs: dict[str, Any] = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key.strip().isidentifier():
+            raise InputError(f"--env-kwargs expects KEY=VALUE with KEY a keyword name, got {pair!r}")
+        kwargs[key.strip()] = plain_value(value.strip())
+    return kwargs
+
+
 def check_request(request: TrainRequest) -> TrainPlan:
-    """``plan_training`` for ``request``, after the checks of its seeds; InputError tagged with its input."""
+    """``plan_training`` for ``request``, after the checks of its seeds and settings; InputError tagged
+    with its input."""
     with about("seeds"):
         check_seeds(request.seeds)
+    for name in NOT_FROM_THE_APP:
+        if name in request.settings:
+            error = InputError(
+                f"{name} cannot be set from the web app: use cartpole train with a preset file"
+            )
+            error.field = name
+            raise error
     return plan_training(
         request.agent,
         request.env_id,
@@ -295,8 +324,8 @@ def preset_settings(agent: str, env_id: str, preset: str | None) -> PresetForm:
     for cls, values in ((plan.spec.config_cls, plan.config), (TrainSettings, plan.settings)):
         docs, kinds = field_docs(cls), {f.name: f.type for f in fields(cls)}
         for name, value in config_to_dict(values).items():
-            if cls is TrainSettings and name == "budget":
-                continue  # the form's budget field
+            if cls is TrainSettings and name in ("budget", *NOT_FROM_THE_APP):
+                continue  # the form's budget field; what the app does not take
             shown.append(Setting(name, value, kind_of(str(kinds[name])), docs[name]))
     return PresetForm(plan.preset, plan.settings.budget, shown)
 

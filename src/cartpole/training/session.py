@@ -23,6 +23,8 @@ from cartpole.agents.registry import build_population
 from cartpole.core.errors import ConfigError, InputError
 from cartpole.core.names import CheckpointName, RunState, StopReason
 from cartpole.core.seeding import MAX_TRAIN_SEED
+from cartpole.envs import EnvInfo
+from cartpole.envs.resumable_envs import why_episodes_restart
 from cartpole.evaluation import EvalReport
 from cartpole.runs import (
     Checkpoint,
@@ -286,6 +288,9 @@ def resume_members(
             setup.run.truncate_metrics_after(state.env_steps if state else 0)
         if not quiet:
             print(resume_line(setups, states), file=stream or sys.stderr)
+            fresh = fresh_episodes_line(first.env) if first.spec.iteration != "generation" else None
+            if fresh and any(states.values()):  # (a generation's episodes all end within it)
+                print(fresh, file=stream or sys.stderr)
         found = {seed: state for seed, state in states.items() if state is not None}
         return run_members(learner, setups, found, quiet, stream, callbacks)
 
@@ -352,6 +357,14 @@ def resume_line(setups: list[RunSetup], states: dict[int, LoopState | None]) -> 
         f"resuming {len(setups)} seed(s) of the population from env step {where} "
         "(each seed's checkpoints/latest.pt)"
     )
+
+
+def fresh_episodes_line(env: EnvInfo) -> str | None:
+    """What a resume says when it cannot continue the episodes in progress (resumable_envs), else None."""
+    reason = why_episodes_restart(env)
+    if reason is None:
+        return None
+    return f"the episodes in progress start afresh: their state cannot be saved ({reason})"
 
 
 def load_latest(latest: Path) -> Checkpoint:

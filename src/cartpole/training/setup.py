@@ -88,7 +88,8 @@ class RunSetup:
             settings=settings,
             budget=budget,
             tensorboard=bool(record.get("tensorboard", False)),
-            meta={k: record[k] for k in ("agent", "env_id", "seed", "preset", "config")},
+            meta={k: record[k] for k in ("agent", "env_id", "seed", "preset", "config")}
+            | {"env_kwargs": settings.env_kwargs, "wrappers": settings.wrappers},
         )
 
     @classmethod
@@ -102,13 +103,14 @@ class RunSetup:
         if not 0 <= record["seed"] <= MAX_TRAIN_SEED:
             raise ConfigError(f"{run.path / 'config.json'} records seed {record['seed']}, out of range")
         spec = get_agent(record["agent"])
+        settings = build_valid_config(TrainSettings, record["settings"])
         return cls.of(
             run,
             record,
             spec,
-            env_info(record["env_id"]),
+            env_info(record["env_id"], settings.env_kwargs, settings.wrappers),
             build_valid_config(spec.config_cls, record["config"]),
-            build_valid_config(TrainSettings, record["settings"]),
+            settings,
             Budget.from_dict(record["budget"]),
         )
 

@@ -75,7 +75,7 @@ class LinearPopulation:
         if self.shared_env is None or self.shared_env.num_envs != count:
             if self.shared_env is not None:
                 self.shared_env.close()
-            self.shared_env = make_vec_env(self.env_info.env_id, count, simulator="fast")
+            self.shared_env = make_vec_env(self.env_info, count, simulator="fast")
         return self.shared_env
 
     def learn(self) -> dict[int, LearnResult]:

@@ -99,7 +99,7 @@ class LinearSearch:
         self.best = self.rng.uniform(-config.init_range, config.init_range, self.size)
         self.best_score = -np.inf
         n_envs = config.population * config.episodes_per_candidate
-        self.vec_env: gym.vector.VectorEnv = make_vec_env(env.env_id, n_envs, simulator=config.simulator)
+        self.vec_env: gym.vector.VectorEnv = make_vec_env(env, n_envs, simulator=config.simulator)
 
     def policy(self) -> LinearPolicy:
         return LinearPolicy(self.best, self.env.obs_dim, self.env.n_actions, self.config.bias, self.scaling)
@@ -274,7 +274,7 @@ def linear_spec(cls: type[LinearSearch], summary: str) -> AgentSpec:
     ) -> LinearPopulation:
         config.validate()
         searches: dict[int, Search] = {seed: cls(config, env, seed) for seed in seeds}
-        return LinearPopulation(searches, env, resolve_simulator(env.env_id, config.simulator) == "fast")
+        return LinearPopulation(searches, env, resolve_simulator(env, config.simulator) == "fast")
 
     return AgentSpec(
         name=cls.name,
