@@ -337,3 +337,41 @@ def test_a_user_env_run_is_shown_in_the_web_app(tmp_path: Path):
     assert detail["threshold"] == 19.0 and detail["max_episode_steps"] == 20
     assert "lit=0" in detail["eval"]["verdict"]
     assert client.get(f"/api/runs/{run.name}/metrics").status_code == 200
+
+
+def test_compare_env_kwargs_reach_every_entry_and_fix_the_experiment(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+):
+    runs = tmp_path / "runs"
+    args = ["compare", "cem", "--env", ENV, "--seeds", "2", "--budget", "8gen", "--runs-dir", str(runs)]
+    assert main([*args, "--env-kwargs", "lit=0", "--name", "dark"]) == 0
+    folder = runs / "experiments" / "dark"
+    assert json.loads((folder / "experiment.json").read_text())["env_kwargs"] == {"lit": 0}
+    verdicts = [verdict(path) for path in (folder / "runs").iterdir()]
+    assert [v["env_kwargs"] for v in verdicts] == [{"lit": 0}] * 2 and all(v["solved"] for v in verdicts)
+    capsys.readouterr()
+    assert main([*args, "--env-kwargs", "lit=1", "--name", "dark"]) == 2  # would mix two envs' results
+    err = capsys.readouterr().err
+    assert "was run with --env-kwargs" in err and len(err.strip().splitlines()) == 1
+
+
+def test_sweep_env_kwargs_reach_its_trials_and_its_best_preset(tmp_path: Path):
+    runs = tmp_path / "runs"
+    args = ["sweep", "cem", "--env", ENV, "--env-kwargs", "lit=0", "--trials", "1", "--seeds", "1"]
+    assert main([*args, "--study", "dark", "--budget", "8gen", "--runs-dir", str(runs)]) == 0
+    best = runs / "sweeps" / "dark" / "best.toml"
+    assert (
+        "env_kwargs = {lit = 0}" in best.read_text().replace("\n", " ") or "[env_kwargs]" in best.read_text()
+    )
+    (run,) = (runs / "sweeps" / "dark" / "runs").iterdir()
+    assert verdict(run)["env_kwargs"] == {"lit": 0}
+    again = cem(tmp_path / "again", "--preset", str(best))  # the best preset trains on the sweep's env
+    assert verdict(again)["env_kwargs"] == {"lit": 0}
+
+
+def test_a_user_env_is_recorded_from_its_rgb_array_frames(tmp_path: Path, capsys: pytest.CaptureFixture[str]):
+    run = cem(tmp_path, "--env-kwargs", "lit=0")
+    out = tmp_path / "lights.gif"
+    assert main(["record", str(run), "--episodes", "1", "--seed", "0", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert out.stat().st_size > 0 and "returns 20" in printed and "lit=0" in printed

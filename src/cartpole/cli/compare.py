@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from cartpole.cli.options import add_env_kwargs
 from cartpole.experiments.storage import DEFAULT_CLAIM_TIMEOUT
 
 
@@ -45,8 +46,13 @@ def add_parser(sub: Any) -> None:
     )
     parser.add_argument("--jobs", type=int, default=1, metavar="J", help="runs at a time (default: 1)")
     parser.add_argument(
-        "--env", default="CartPole-v1", metavar="ID", help="Gymnasium env id (default: CartPole-v1)"
+        "--env",
+        default="CartPole-v1",
+        metavar="ID",
+        help="Gymnasium env id, or module:Id-vN for an env that importing module registers (default: "
+        "CartPole-v1)",
     )
+    add_env_kwargs(parser)
     parser.add_argument("--budget", metavar="B", help="budget of every run (default: each preset's own)")
     parser.add_argument(
         "--name", metavar="NAME", help="experiment name (default: the entries joined by '_vs_')"
@@ -148,6 +154,7 @@ def train_and_report(args: argparse.Namespace) -> int:
     from cartpole.experiments.entries import parse_entries
     from cartpole.experiments.report import Results, write_report
     from cartpole.experiments.shared import SharedComparison
+    from cartpole.training.request import parse_env_kwargs
     from cartpole.training.session import parse_seeds
 
     seeds = parse_seeds(args.seeds, args.first_seed)
@@ -160,6 +167,7 @@ def train_and_report(args: argparse.Namespace) -> int:
         args.env,
         args.budget,
         command=["cartpole", *sys.argv[1:]],
+        env_kwargs=parse_env_kwargs(args.env_kwargs),
     )
     shared = None
     if args.storage:

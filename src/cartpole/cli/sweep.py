@@ -6,6 +6,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from cartpole.cli.options import add_env_kwargs
+
 
 def add_parser(sub: Any) -> None:
     parser = sub.add_parser(
@@ -55,7 +57,10 @@ def add_parser(sub: Any) -> None:
     parser.add_argument("--budget", metavar="B", help="budget of every run (default: the preset's)")
     parser.add_argument("--space", metavar="FILE.toml", help="search space (default: the agent's own)")
     parser.add_argument("--sampler-seed", type=int, default=0, metavar="S", help="TPE seed (default: 0)")
-    parser.add_argument("--env", default="CartPole-v1", metavar="ID", help="(default: CartPole-v1)")
+    parser.add_argument(
+        "--env", default="CartPole-v1", metavar="ID", help="env id or module:Id-vN (default: CartPole-v1)"
+    )
+    add_env_kwargs(parser)
     parser.add_argument("--runs-dir", default="runs", metavar="DIR", help="(default: runs)")
     parser.set_defaults(run=run)
 
@@ -64,6 +69,7 @@ def run(args: argparse.Namespace) -> int:
     from rich.console import Console
 
     from cartpole.experiments.sweep import make_spec, prepare_sweep, run_sweep
+    from cartpole.training.request import parse_env_kwargs
 
     spec = make_spec(
         Path(args.runs_dir),
@@ -77,6 +83,7 @@ def run(args: argparse.Namespace) -> int:
         space_file=args.space,
         storage=args.storage,
         sampler_seed=args.sampler_seed,
+        env_kwargs=parse_env_kwargs(args.env_kwargs),
     )
     study = prepare_sweep(spec, args.workers)
     console = Console(soft_wrap=True, stderr=True)

@@ -33,6 +33,8 @@ def best_preset(spec: SweepSpec, trial: Any) -> dict[str, Any]:
     values = preset_values(spec.agent, spec.preset) | {k: resolved[k] for k in trial.params}
     if spec.budget:
         values["budget"] = spec.budget
+    if spec.env_kwargs:  # the env the trials trained on: a train with this preset trains there too
+        values["env_kwargs"] = resolved["env_kwargs"] | spec.env_kwargs
     values = {k: "none" if v is None else v for k, v in values.items()}
     description = (
         f"cartpole sweep {spec.name} ({spec.agent}, from preset {Path(spec.preset).name}): trial "

@@ -28,7 +28,7 @@ from cartpole.agents.registry import get_agent
 from cartpole.core.file_names import is_portable_name
 from cartpole.experiments.entries import Entry, ExperimentError
 from cartpole.experiments.processes import Job, python_module, run_job_source, run_jobs
-from cartpole.experiments.shared import SharedComparison, new_owner
+from cartpole.experiments.shared import SETUP_FLAGS, SharedComparison, new_owner
 from cartpole.experiments.worker import FINISHED, Task, read_record
 from cartpole.runs.atomic import write_json_atomic
 from cartpole.runs.run_dir import read_json
@@ -61,6 +61,8 @@ class Experiment:
     env_id: str
     budget: str | None
     command: list[str] = field(default_factory=list)
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    """``--env-kwargs``: every entry's env made with them (over its preset's own ``env_kwargs``)."""
 
     @classmethod
     def open(
@@ -72,6 +74,7 @@ class Experiment:
         env_id: str = "CartPole-v1",
         budget: str | None = None,
         command: list[str] | None = None,
+        env_kwargs: dict[str, Any] | None = None,
     ) -> Experiment:
         """Check the request, and that it matches what ``NAME`` was run with before."""
         if not seeds:
@@ -85,9 +88,9 @@ class Experiment:
                 raise ExperimentError(str(err)) from None
         from cartpole.envs import env_info
 
-        env_info(env_id)  # an unsupported env is bad input before anything is written
+        env_info(env_id, env_kwargs)  # an unsupported env is bad input before anything is written
         folder = runs_dir / "experiments" / check_name(name, "experiment")
-        experiment = cls(folder, entries, list(seeds), env_id, budget)
+        experiment = cls(folder, entries, list(seeds), env_id, budget, env_kwargs=dict(env_kwargs or {}))
         experiment.command = command or []
         experiment.check_same_setup()
         return experiment
@@ -115,12 +118,15 @@ class Experiment:
             seeds.add(int(record["seed"]))
         experiment = cls(folder, entries, sorted(seeds), str(setup.get("env_id")), setup.get("budget"))
         experiment.command = list(setup.get("command") or [])
+        experiment.env_kwargs = dict(setup.get("env_kwargs") or {})
         return experiment
 
     @property
     def setup(self) -> dict[str, Any]:
-        """What every run of the experiment shares; a re-run with other values would mix results."""
-        return {"env_id": self.env_id, "budget": self.budget}
+        """What every run of the experiment shares; a re-run with other values would mix results.
+        (``env_kwargs`` only when given, so experiments from before them are joined as before.)"""
+        kwargs = {"env_kwargs": self.env_kwargs} if self.env_kwargs else {}
+        return {"env_id": self.env_id, "budget": self.budget} | kwargs
 
     def check_same_setup(self) -> None:
         path = self.folder / "experiment.json"
@@ -130,9 +136,9 @@ class Experiment:
             before = read_json(path)
         except (OSError, ValueError) as err:
             raise ExperimentError(f"{path} is unreadable ({err}); use another --name") from None
-        for key, value in self.setup.items():
-            if before.get(key) != value:
-                flag = {"env_id": "--env", "budget": "--budget"}[key]
+        for key, value in (self.setup | {"env_kwargs": self.env_kwargs}).items():
+            if (before.get(key) or ({} if key == "env_kwargs" else None)) != value:
+                flag = SETUP_FLAGS[key]
                 raise ExperimentError(
                     f"experiment {self.folder.name} was run with {flag} {before.get(key)}, not {value}; "
                     "use the same value or another --name"
@@ -179,8 +185,13 @@ class Experiment:
         from cartpole.training.config import resolve_config
 
         spec = get_agent(entry.agent)
-        config, settings = resolve_config(entry.agent, spec.config_cls, entry.preset)
+        config, settings = resolve_config(entry.agent, spec.config_cls, entry.preset, self.overrides)
         return spec.batches(config, env_info(self.env_id, settings.env_kwargs, settings.wrappers))
+
+    @property
+    def overrides(self) -> dict[str, Any]:
+        """The settings every entry's runs take over their presets': ``--env-kwargs``'."""
+        return {"env_kwargs": self.env_kwargs} if self.env_kwargs else {}
 
     def job(self, entry: Entry, seeds: list[int], population: bool) -> Job:
         """Train ``seeds`` of ``entry``: one seed, or (``population``) all of them as one population."""
@@ -192,6 +203,7 @@ class Experiment:
             seed=seed,
             env_id=self.env_id,
             budget=self.budget,
+            overrides=self.overrides,
             runs_dir=str(self.folder / "runs"),
             record=str(self.record_path(entry, seed)),
             command=self.command,

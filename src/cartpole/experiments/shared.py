@@ -331,11 +331,16 @@ class SharedComparison:
         return sorted({row.seed for row in self.rows()})
 
 
+SETUP_FLAGS = {"env_id": "--env", "budget": "--budget", "env_kwargs": "--env-kwargs"}
+"""The flag that sets each value of a comparison's setup, for the message that refuses another."""
+
+
 def check_setup(name: str, stored: dict[str, Any], asked: dict[str, Any]) -> None:
-    """A comparison joined with another env or budget would mix results: refuse, naming the flag."""
-    for key, value in asked.items():
-        if stored.get(key) != value:
-            flag = {"env_id": "--env", "budget": "--budget"}.get(key, key)
+    """A comparison joined with another env, its kwargs or budget would mix results: refuse, naming
+    the flag (kwargs none and kwargs absent are the same)."""
+    for key, value in (asked | {"env_kwargs": asked.get("env_kwargs") or {}}).items():
+        if (stored.get(key) or ({} if key == "env_kwargs" else None)) != value:
+            flag = SETUP_FLAGS.get(key, key)
             raise ExperimentError(
                 f"comparison {name} in the storage was run with {flag} {stored.get(key)}, not {value}; "
                 "use the same value or another --name"
@@ -366,4 +371,12 @@ def database_seconds(db: Any) -> float:
     return float(db.execute(query).scalar_one())
 
 
-__all__ = ["DEFAULT_CLAIM_TIMEOUT", "Claim", "Progress", "RowState", "SharedComparison", "new_owner"]
+__all__ = [
+    "DEFAULT_CLAIM_TIMEOUT",
+    "SETUP_FLAGS",
+    "Claim",
+    "Progress",
+    "RowState",
+    "SharedComparison",
+    "new_owner",
+]

@@ -63,6 +63,7 @@ def make_spec(
     space_file: str | None = None,
     storage: str | None = None,
     sampler_seed: int = 0,
+    env_kwargs: dict[str, Any] | None = None,
 ) -> SweepSpec:
     """Check every input (one line each if wrong) before anything is written."""
     from cartpole.agents.registry import agent_names, get_agent
@@ -81,7 +82,7 @@ def make_spec(
             check_budget_unit(parse_budget(budget), agent, get_agent(agent).iteration)
         except ValueError as err:
             raise ExperimentError(str(err)) from None
-    env_info(env_id)
+    env_info(env_id, env_kwargs)
     entry = parse_entry(f"{agent}:{preset or ''}", env_id)
     preset = str(Path(entry.preset).resolve()) if entry.preset.endswith(".toml") else entry.preset
     space, text = load_space(agent, preset, space_file)
@@ -98,6 +99,7 @@ def make_spec(
         storage=storage,
         folder=str(runs_dir / "sweeps" / name),
         sampler_seed=sampler_seed,
+        env_kwargs=dict(env_kwargs or {}),
         space=space_description(space),
     )
 
@@ -289,7 +291,7 @@ def trial_cost(spec: SweepSpec, trial: Any, params: dict[str, Any], stop: list[i
         spec.trial_seeds,
         spec.env_id,
         preset=spec.preset,
-        overrides=params,
+        overrides=params | ({"env_kwargs": spec.env_kwargs} if spec.env_kwargs else {}),
         budget=spec.budget,
         runs_dir=spec.path / "runs",
         device="cpu",

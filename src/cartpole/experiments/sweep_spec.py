@@ -29,6 +29,8 @@ class SweepSpec:
     space: dict[str, Any] = field(default_factory=dict)
     seeds: list[int] = field(default_factory=list)
     """The seeds every trial trains (``--seeds``); none recorded (sweeps before it): 0..K-1."""
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    """``--env-kwargs``: every trial's env made with them (over the preset's own ``env_kwargs``)."""
 
     @property
     def trial_seeds(self) -> list[int]:
@@ -42,8 +44,13 @@ class SweepSpec:
     @property
     def identity(self) -> dict[str, Any]:
         """What a study records about the sweep; a sweep that differs must not join it. (Its seeds
-        only where they are not 0..K-1, so studies made before ``--seeds`` are joined as before.)"""
-        named = {} if self.trial_seeds == list(range(self.seeds_per_trial)) else {"seeds": self.trial_seeds}
+        only where they are not 0..K-1, and its env kwargs only where given, so studies made before
+        ``--seeds`` and ``--env-kwargs`` are joined as before.)"""
+        named: dict[str, Any] = {}
+        if self.trial_seeds != list(range(self.seeds_per_trial)):
+            named["seeds"] = self.trial_seeds
+        if self.env_kwargs:
+            named["env_kwargs"] = self.env_kwargs
         return {
             "agent": self.agent,
             "preset": self.preset,

@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -64,6 +64,8 @@ class Task:
     """The command that asked for the run (recorded in its config.json)."""
     population: dict[int, str] | None = None
     """Seed -> record file of every seed trained as one population (``seed``/``record`` name the first)."""
+    overrides: dict[str, Any] = field(default_factory=dict)
+    """Settings over the preset's (the comparison's ``--env-kwargs``)."""
 
     @classmethod
     def load(cls, path: Path) -> Task:
@@ -124,6 +126,7 @@ def run_task(task: Task) -> dict[str, Any]:
             task.env_id,
             seed=task.seed,
             preset=task.preset,
+            overrides=task.overrides,
             budget=task.budget,
             runs_dir=task.runs_dir,
             device="cpu",
@@ -188,6 +191,7 @@ def run_population_task(task: Task, records: dict[int, str]) -> dict[str, Any]:
                 sorted(todo),
                 task.env_id,
                 preset=task.preset,
+                overrides=task.overrides,
                 budget=task.budget,
                 runs_dir=task.runs_dir,
                 device="cpu",
