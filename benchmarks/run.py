@@ -132,6 +132,13 @@ TABLES = [
         headline="MountainCar-v0",
     ),
     Benchmark(
+        "lunarlander", "time_to_solve.py",
+        "--env LunarLander-v3 --agents ppo,dqn --seeds 5 --first-seed 10500 --sb3 ppo --jobs 2", minutes=90,
+        tiny="--env LunarLander-v3 --agents ppo --seeds 1 --first-seed 10500 --max-seconds-per-run 10 "
+        "--sb3 ppo --sb3-steps 20000",
+        headline="LunarLander-v3",
+    ),
+    Benchmark(
         "crash-safety", "kill_resume.py", "", minutes=15,
         tiny="--agents cem,ppo-population --trials 2 --seed 1",
         headline="Crash safety: kill -9 at a random moment, then `--resume`",
@@ -456,6 +463,9 @@ README_ROWS: dict[str, Callable[[dict[str, Any]], list[Row]]] = {
     "tutorial-presets": solve_rate_rows("The tutorials' agents within their own budgets"),
     "acrobot": solve_rate_rows("Acrobot-v1, each agent's preset"),
     "mountaincar": solve_rate_rows("MountainCar-v0, each agent's `mountaincar` preset"),
+    "lunarlander": lambda summary: [
+        row | {"measure": f"LunarLander-v3, {row['measure']}"} for row in time_to_solve_rows(summary)
+    ],
     "crash-safety": crash_safety_rows,
     "web-latency": web_latency_rows,
 }

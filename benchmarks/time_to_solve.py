@@ -69,6 +69,21 @@ SB3_ZOO_ON_POLICY: dict[str, tuple[int, int, dict[str, Any]]] = {
     }),
     "a2c": (8, 500_000, {"ent_coef": 0.0}),
 }  # fmt: skip
+# The zoo's settings for other envs, where it has them (its "LunarLander-v2", on Gymnasium's v3).
+SB3_ZOO_ON_POLICY_BY_ENV: dict[str, dict[str, tuple[int, int, dict[str, Any]]]] = {
+    "LunarLander-v3": {
+        "ppo": (16, 1_000_000, {
+            "n_steps": 1024, "batch_size": 64, "gae_lambda": 0.98, "gamma": 0.999, "n_epochs": 4,
+            "ent_coef": 0.01,
+        }),
+    },
+}  # fmt: skip
+
+
+def sb3_zoo_on_policy(algo: str, env_id: str) -> tuple[int, int, dict[str, Any]]:
+    """The RL Zoo's settings of SB3's ``algo`` for ``env_id`` (its CartPole-v1 ones where it lists none)."""
+    return SB3_ZOO_ON_POLICY_BY_ENV.get(env_id, {}).get(algo) or SB3_ZOO_ON_POLICY[algo]
+
 
 TIANSHOU_AGENTS = ("dqn", "ppo")
 TIANSHOU_PRESET = "test-0.5.1"
@@ -267,7 +282,8 @@ def run_sb3(seed: int, max_seconds: float | None, env_id: str, eval_every: int, 
 
 def run_sb3_on_policy(algo: str, seed: int, max_seconds: float | None, env_id: str, eval_every: int,
                       screen: int, total_steps: int | None) -> dict[str, Any]:  # fmt: skip
-    """SB3 PPO or A2C with the RL Zoo's CartPole-v1 hyperparameters, judged exactly like our agents."""
+    """SB3 PPO or A2C with the RL Zoo's hyperparameters for the env (:func:`sb3_zoo_on_policy`), judged
+    exactly like our agents (with our agent's preset for the env: its cadence, screen and rule)."""
     import dataclasses
 
     import numpy as np
@@ -276,6 +292,7 @@ def run_sb3_on_policy(algo: str, seed: int, max_seconds: float | None, env_id: s
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.env_util import make_vec_env
 
+    from cartpole.agents.presets import env_preset
     from cartpole.agents.registry import get_agent
     from cartpole.envs import env_info
     from cartpole.evaluation import evaluate
@@ -283,10 +300,10 @@ def run_sb3_on_policy(algo: str, seed: int, max_seconds: float | None, env_id: s
     from cartpole.training.config import resolve_config
 
     torch.set_num_threads(1)
-    _, settings = resolve_config(algo, get_agent(algo).config_cls, "default")
+    _, settings = resolve_config(algo, get_agent(algo).config_cls, env_preset(algo, env_id))
     settings = dataclasses.replace(settings, eval_every=eval_every, eval_screen_episodes=screen)
     env = env_info(env_id)
-    n_envs, zoo_steps, zoo = SB3_ZOO_ON_POLICY[algo]
+    n_envs, zoo_steps, zoo = sb3_zoo_on_policy(algo, env_id)
     total_steps = total_steps or zoo_steps
     kwargs = {k: _sb3_zoo_value(v) for k, v in zoo.items()}
 
@@ -737,7 +754,7 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(result))
         return 0
 
-    from cartpole.agents.presets import is_preset_file, preset_names
+    from cartpole.agents.presets import env_preset, is_preset_file, preset_names
     from cartpole.agents.registry import get_agent
     from cartpole.training.config import resolve_config
 
@@ -765,7 +782,8 @@ def main(argv: list[str] | None = None) -> int:
             for sb3_agent in [a.strip() for a in args.sb3.split(",") if a.strip()]:
                 if sb3_agent not in SB3_AGENTS:
                     parser.error(f"--sb3 takes {', '.join(SB3_AGENTS)}; got {sb3_agent!r}")
-                _, settings = resolve_config(sb3_agent, get_agent(sb3_agent).config_cls, "default")
+                preset = env_preset(sb3_agent, args.env)  # our agent's cadence and rule on this env
+                _, settings = resolve_config(sb3_agent, get_agent(sb3_agent).config_cls, preset)
                 every = args.sb3_eval_every or settings.eval_every
                 base = {"agent": f"sb3-{sb3_agent}", "preset": "rl-zoo", "env": args.env,
                         "max_seconds": args.max_seconds_per_run, "eval_every": every,

@@ -375,3 +375,17 @@ def test_a_user_env_is_recorded_from_its_rgb_array_frames(tmp_path: Path, capsys
     assert main(["record", str(run), "--episodes", "1", "--seed", "0", "--out", str(out)]) == 0
     printed = capsys.readouterr().out
     assert out.stat().st_size > 0 and "returns 20" in printed and "lit=0" in printed
+
+
+def test_the_web_app_replays_a_user_env_run_from_its_rgb_array_frames(tmp_path: Path):
+    pytest.importorskip("fastapi")
+    sys.path.insert(0, str(Path(__file__).parent))
+    from conftest_web import local_client
+
+    run = cem(tmp_path, "--env-kwargs", "lit=0")
+    client = local_client(tmp_path / "runs")
+    assert not client.get(f"/api/runs/{run.name}").json()["watchable"]  # Watch draws only its own envs
+    gif = client.get(f"/api/runs/{run.name}/checkpoints/best/replay.gif", params={"seed": 3})
+    assert gif.status_code == 200 and gif.headers["content-type"] == "image/gif"
+    assert gif.content.startswith(b"GIF8")
+    assert client.get(f"/api/runs/{run.name}/checkpoints/nope/replay.gif").status_code == 404

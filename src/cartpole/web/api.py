@@ -11,6 +11,7 @@ from fastapi.responses import Response
 from pydantic import BaseModel, Field
 
 from cartpole.agents.registry import get_agent
+from cartpole.core.errors import InputError
 from cartpole.core.names import RunState
 from cartpole.core.version import __version__
 from cartpole.envs import env_info
@@ -24,6 +25,7 @@ from cartpole.web.physics import (
     default_physics,
     scene_of,
 )
+from cartpole.web.replay import ReplayBusy, Replays
 from cartpole.web.runs_folder import NotFound, RunsFolder
 
 router = APIRouter(prefix="/api")
@@ -213,6 +215,7 @@ def nudges_from_query(steps: list[int], changes: list[float], max_steps: int) ->
     return nudges
 
 
+StartSeed = Annotated[int, Query(ge=0, le=MAX_SEED, description="start state = Gymnasium reset(seed)")]
 NudgeSteps = Annotated[list[int] | None, Query(description="steps before which the pole is pushed")]
 NudgeChanges = Annotated[list[float] | None, Query(description="rad/s added to the pole's angular velocity")]
 
@@ -230,7 +233,7 @@ async def episode(
     request: Request,
     name: str,
     checkpoint: str,
-    seed: Annotated[int, Query(ge=0, le=MAX_SEED, description="start state = Gymnasium reset(seed)")] = 0,
+    seed: StartSeed = 0,
     gravity: Annotated[float | None, physics_query("gravity")] = None,
     length: Annotated[float | None, physics_query("length")] = None,
     masspole: Annotated[float | None, physics_query("masspole")] = None,
@@ -270,6 +273,40 @@ async def episode(
     except EpisodesBusy as err:
         raise HTTPException(503, str(err), headers={"Retry-After": "1"}) from err
     return Response(body, media_type="application/json")
+
+
+@router.get(
+    "/runs/{name}/checkpoints/{checkpoint}/replay.gif",
+    response_class=Response,
+    responses={
+        200: {"content": {"image/gif": {}}, "description": "a GIF of the episode's rgb_array frames"},
+        404: {"description": "no such run or checkpoint"},
+        409: {"description": "the checkpoint cannot be loaded, or its env draws no frames"},
+        503: {"description": "a replay is being made already: retry"},
+    },
+)
+async def replay(
+    request: Request,
+    name: str,
+    checkpoint: str,
+    seed: StartSeed = 0,
+) -> Response:
+    """A GIF of the checkpoint's greedy episode from a seed's start state, from the env's own
+    ``rgb_array`` frames (its first steps: REPLAY_STEPS), played as its verdict plays it: for runs on
+    envs that Watch does not draw, such as a user's ``module:Id`` env."""
+    run = open_run(request, name)
+    try:
+        path = folder(request).checkpoint(run, checkpoint)
+    except NotFound as err:
+        raise HTTPException(404, str(err)) from err
+    replays: Replays = request.app.state.replays
+    try:
+        body = await replays.gif(path, seed)
+    except (CheckpointError, InputError) as err:
+        raise HTTPException(409, f"no replay of {checkpoint}: {err}") from err
+    except ReplayBusy as err:
+        raise HTTPException(503, str(err), headers={"Retry-After": "1"}) from err
+    return Response(body, media_type="image/gif")
 
 
 def score_label(agent: str | None) -> str:

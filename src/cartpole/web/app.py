@@ -24,6 +24,7 @@ from cartpole.core.version import __version__
 from cartpole.web import api, experiments_api, live, trainings_api
 from cartpole.web.episodes import EpisodeWorkers
 from cartpole.web.experiments_folder import ExperimentsFolder
+from cartpole.web.replay import Replays
 from cartpole.web.runs_folder import RunsFolder
 from cartpole.web.security import (
     SameOriginWebSockets,
@@ -78,6 +79,7 @@ def create_app(
     app.state.runs = RunsFolder(Path(runs_dir))
     app.state.experiments = ExperimentsFolder(Path(runs_dir))
     app.state.episodes = EpisodeWorkers.shared()
+    app.state.replays = Replays()
     app.state.token = token or new_token()
     app.state.trainings = (
         None if read_only else Trainings(Path(runs_dir), max_trainings or default_max_trainings())

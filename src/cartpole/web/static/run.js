@@ -61,15 +61,35 @@ function renderCheckpoints(d) {
     return;
   }
   const note = d.watchable ? "" :
-    `<p class="notice">Watch draws CartPole, Acrobot-v1 and MountainCar-v0; this run trains ${CP.escapeHTML(d.env_id ?? "another env")}, so only its curves are shown.</p>`;
+    `<p class="notice">Watch draws CartPole, Acrobot-v1 and MountainCar-v0; this run trains ${CP.escapeHTML(d.env_id ?? "another env")}: Replay shows its policy in the env's own pictures (a GIF of an episode's first steps, where the env draws them).</p><div id="replay"></div>`;
   const seed = d.eval && d.eval.seeds && d.eval.seeds.length ? d.eval.seeds[0] : 0;
   const rows = d.checkpoints.map((c) => {
     const href = `/watch?run=${encodeURIComponent(d.name)}&checkpoint=${encodeURIComponent(c.name)}&seed=${seed}`;
-    const button = d.watchable ? `<a class="button primary" href="${href}">▶ Watch</a>` : "";
+    const gif = `/api/runs/${encodeURIComponent(d.name)}/checkpoints/${encodeURIComponent(c.name)}/replay.gif?seed=${seed}`;
+    const button = d.watchable ? `<a class="button primary" href="${href}">▶ Watch</a>` :
+      `<button class="button primary replay" data-gif="${CP.escapeHTML(gif)}">▶ Replay</button>`;
     return `<tr><td><b>${CP.escapeHTML(c.name)}</b></td><td class="muted small">${CP.fmtDate(c.modified)}</td>
       <td class="num small muted hide-narrow">${(c.bytes / 1024).toFixed(1)} KiB</td><td class="num">${button}</td></tr>`;
   });
   box.innerHTML = `${note}<table>${rows.join("")}</table>`;
+  box.querySelectorAll("button.replay").forEach((button) => {
+    button.addEventListener("click", () => showReplay(button.dataset.gif));
+  });
+}
+
+async function showReplay(url) {
+  const box = document.getElementById("replay");
+  box.innerHTML = '<p class="muted">Playing the episode ...</p>';
+  const response = await fetch(url);
+  if (!response.ok) {
+    const body = await response.json().catch(() => ({}));
+    box.innerHTML = `<p class="notice">${CP.escapeHTML(body.detail ?? `replay failed (${response.status})`)}</p>`;
+    return;
+  }
+  const image = document.createElement("img");
+  image.alt = "the policy's greedy episode, as the env draws it";
+  image.src = URL.createObjectURL(await response.blob());
+  box.replaceChildren(image);
 }
 
 function renderEval(report) {
