@@ -133,8 +133,10 @@ TABLES = [
     ),
     Benchmark(
         "lunarlander", "time_to_solve.py",
-        "--env LunarLander-v3 --agents ppo,dqn --seeds 5 --first-seed 10500 --sb3 ppo --jobs 2", minutes=90,
-        tiny="--env LunarLander-v3 --agents ppo --seeds 1 --first-seed 10500 --max-seconds-per-run 10 "
+        "--env LunarLander-v3 --agents ppo,dqn --presets lunarlander --seeds 5 --first-seed 10500 --sb3 ppo "
+        "--jobs 2", minutes=60,
+        tiny="--env LunarLander-v3 --agents ppo --presets lunarlander --seeds 1 --first-seed 10500 "
+        "--max-seconds-per-run 10 "
         "--sb3 ppo --sb3-steps 20000",
         headline="LunarLander-v3",
     ),
