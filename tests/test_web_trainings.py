@@ -197,6 +197,8 @@ def test_a_bad_choice_gets_the_clis_message_for_its_field_and_nothing_starts(
         ({"agent": "dqn", "seeds": [1, 1]}, "seeds"),
         ({"agent": "dqn", "seeds": [-1]}, "seeds"),
         ({"agent": "dqn", "seeds": []}, "seeds"),
+        ({"agent": "cem", "settings": {"wrappers": ["os:system"]}}, "wrappers"),  # no import paths
+        ({"agent": "cem", "settings": {"env_kwargs": "lit=0"}}, "env_kwargs"),
     ],
 )
 def test_only_the_apps_own_choices_are_taken(tmp_path: Path, body: dict[str, Any], field: str):
@@ -253,6 +255,7 @@ def test_the_form_lists_every_setting_of_the_preset_with_its_value_and_doc(tmp_p
     assert settings["lr"]["kind"] == "float" and settings["double_dqn"]["kind"] == "bool"
     assert all(s["doc"] and "\n" not in s["doc"] for s in settings.values())
     assert "confirm_solves" in settings and "budget" not in settings
+    assert "env_kwargs" not in settings and "wrappers" not in settings  # the command line's only
     assert options["envs"][0] == "CartPole-v1" and "cartpole/CartPolePixels-v1" in options["envs"]
     pixels = client.get(
         "/api/training-options", params={"agent": "ppo", "env_id": "cartpole/CartPolePixels-v1"}
