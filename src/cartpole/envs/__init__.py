@@ -97,12 +97,7 @@ def make_vec_env(
         return gymnasium_pixels_vec_env(info.pixels_of, num_envs, info.obs_shape)
     if info.wrappers:
         return gym.vector.SyncVectorEnv([partial(make_env, info)] * num_envs)
-    return gym.make_vec(spec_of(info), num_envs=num_envs, **info.kwargs)
-
-
-def spec_of(info: EnvInfo) -> gym.envs.registration.EnvSpec:
-    """Gymnasium's spec of ``info``'s id (its module imported first, for a ``module:Id-vN``)."""
-    return registered_spec(info.env_id)
+    return gym.make_vec(registered_spec(info.env_id), num_envs=num_envs, **info.kwargs)
 
 
 def gymnasium_pixels_vec_env(

@@ -211,8 +211,14 @@ def registered_spec(env_id: str) -> gym.envs.registration.EnvSpec:
 def make_env(env: EnvInfo, **make_args: Any) -> gym.Env[Any, Any]:
     """One env of ``env`` as configured: ``gymnasium.make`` of its id with its kwargs (and
     ``make_args``, e.g. ``render_mode``), inside its wrappers."""
-    made = gym.make(registered_spec(env.env_id), **make_args, **env.kwargs)
-    for wrapper in env.wrappers:
+    return _make(env.env_id, env.kwargs, env.wrappers, **make_args)
+
+
+def _make(
+    env_id: str, kwargs: Mapping[str, Any], wrappers: Sequence[WrapperSpec], **make_args: Any
+) -> gym.Env[Any, Any]:
+    made = gym.make(registered_spec(env_id), **make_args, **kwargs)
+    for wrapper in wrappers:
         made = wrapper.wrap(made)
     return made
 
@@ -223,9 +229,8 @@ def _env_info(env_id: str, key: str) -> EnvInfo:
     kwargs = configuration["kwargs"]
     wrappers = check_wrappers(configuration["wrappers"])
     spec = registered_spec(env_id)
-    plain = EnvInfo(env_id, 0, 0, None, None, (), (), kwargs=kwargs, wrappers=wrappers)
     try:
-        env = make_env(plain)
+        env = _make(env_id, kwargs, wrappers)
     except UnsupportedEnvError:
         raise
     except TypeError as err:
