@@ -92,6 +92,9 @@ class EvalReport:
     """The env's kwargs (``--env-kwargs``): a verdict on a changed env names them."""
     wrappers: list[str] = field(default_factory=list)
     """The wrappers the policy played through (``module:Class(kwargs)``); the returns are the env's own."""
+    simulator_only: list[str] = field(default_factory=list)
+    """The kwargs that Gymnasium's own env does not take (CartPole's physics constants): the
+    episodes were played on our simulator, whatever was asked."""
     mean: float = field(init=False)
     std: float = field(init=False)
     min: float = field(init=False)
@@ -120,6 +123,8 @@ class EvalReport:
         """One line: solved or not, by which rule, on which env (with its kwargs and wrappers) and
         simulator."""
         where = f"{self.env_label}, {self.simulator} simulator"
+        if self.simulator_only:
+            where += f": Gymnasium's {self.env_id} does not take {', '.join(self.simulator_only)}"
         summary = f"mean {self.mean:.1f} ± {self.std:.1f} over {self.episodes} episodes"
         if self.threshold is None:
             return f"NO VERDICT: {summary}; {self.env_id} registers no reward_threshold ({where})"
@@ -160,10 +165,11 @@ class EvalReport:
     def played(
         cls, env: EnvInfo, simulator: str, returns: list[float], lengths: list[int], seeds: list[int]
     ) -> EvalReport:
-        """The report of episodes played on ``env`` (as configured) on ``simulator``."""
+        """The report of episodes played on ``env`` (as configured) on ``simulator`` (the one that
+        really ran them: see :func:`~cartpole.envs.resolve_simulator`)."""
         return cls(
             env_id=env.env_id,
-            simulator=simulator,
+            simulator=resolve_simulator(env, simulator),
             returns=returns,
             lengths=lengths,
             seeds=seeds,
@@ -171,6 +177,7 @@ class EvalReport:
             max_episode_steps=env.max_episode_steps,
             env_kwargs=dict(env.kwargs),
             wrappers=[wrapper.label for wrapper in env.wrappers],
+            simulator_only=list(env.simulator_only),
         )
 
     @classmethod
@@ -184,7 +191,9 @@ class EvalReport:
             "threshold",
             "max_episode_steps",
         )
-        optional = {k: data[k] for k in ("env_kwargs", "wrappers") if k in data}  # newer than the rest
+        optional = {
+            k: data[k] for k in ("env_kwargs", "wrappers", "simulator_only") if k in data
+        }  # newer than the rest
         return cls(**{k: data[k] for k in keys}, **optional)
 
 

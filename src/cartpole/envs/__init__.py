@@ -9,8 +9,9 @@ through :class:`~cartpole.envs.pixels.GymnasiumPixels` (its ``rgb_array`` pictur
 same way), so their verdicts rest on Gymnasium's physics and drawing too.
 
 Each function takes an env id or an :class:`EnvInfo` (an env as configured: its kwargs and wrappers,
-:func:`env_info`); a configured env always runs on Gymnasium's implementation (our simulator takes
-neither Gymnasium's kwargs nor per-env wrappers), with its wrappers around each single env.
+:func:`env_info`); a configured env runs on Gymnasium's implementation, with its wrappers around
+each single env, except CartPole with kwargs that only our simulator takes (its physics constants,
+:attr:`EnvInfo.simulator_only`), which runs on ours everywhere, verdicts included.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import gymnasium as gym
 import numpy as np
 
 from cartpole.core.errors import ConfigError
-from cartpole.envs.registration import register_fast_envs, register_pixel_envs
+from cartpole.envs.registration import fast_env_id, register_fast_envs, register_pixel_envs
 from cartpole.envs.spec import (
     EnvInfo,
     UnsupportedEnvError,
@@ -53,11 +54,6 @@ it plays Gymnasium's own episodes bit for bit (its equations, its start states, 
 and cosine), at the speed of our simulator."""
 
 
-def fast_env_id(env_id: str) -> str:
-    """The id under which our fast simulator registers the CartPole env ``env_id``."""
-    return "cartpole/" + env_id.removeprefix("cartpole/")
-
-
 def check_simulator(name: str, setting: str = "simulator") -> Simulator:
     """``name`` as a :data:`Simulator`: the one check of simulator names (configs and envs use it).
 
@@ -70,9 +66,12 @@ def check_simulator(name: str, setting: str = "simulator") -> Simulator:
 
 def resolve_simulator(env: str | EnvInfo, simulator: str) -> Simulator:
     """The simulator that will really run ``env``: "fast" only exists for CartPole (and its pixels),
-    as registered (no kwargs, no wrappers)."""
+    as registered (no kwargs, no wrappers); and CartPole with kwargs only our simulator takes
+    (:attr:`EnvInfo.simulator_only`) runs on it whatever ``simulator`` asks."""
     checked = check_simulator(simulator)
     info = as_env_info(env)
+    if info.simulator_only:
+        return "fast"
     fast = (info.is_cartpole or info.pixels_of) and not info.configured
     return "fast" if checked == "fast" and fast else "gymnasium"
 
@@ -87,16 +86,21 @@ def make_vec_env(
     """A vector env of ``num_envs`` copies of ``env`` with Gymnasium's next-step autoreset; ``dtype``:
     what our fast simulator steps in."""
     info = as_env_info(env)  # validates the id and its spaces with a clear message
-    if resolve_simulator(info, simulator) == "fast":
-        return gym.make_vec(
-            fast_env_id(info.env_id), num_envs=num_envs, vectorization_mode="vector_entry_point", dtype=dtype
-        )
-    if info.pixels_of:
-        if info.configured:
-            raise UnsupportedEnvError(f"{info.env_id} takes no env kwargs or wrappers: {info.label}")
-        return gymnasium_pixels_vec_env(info.pixels_of, num_envs, info.obs_shape)
+    used = resolve_simulator(info, simulator)
+    if info.pixels_of and info.configured:
+        raise UnsupportedEnvError(f"{info.env_id} takes no env kwargs or wrappers: {info.label}")
     if info.wrappers:
         return gym.vector.SyncVectorEnv([partial(make_env, info)] * num_envs)
+    if used == "fast":
+        return gym.make_vec(
+            fast_env_id(info.env_id),
+            num_envs=num_envs,
+            vectorization_mode="vector_entry_point",
+            dtype=dtype,
+            **info.kwargs,
+        )
+    if info.pixels_of:
+        return gymnasium_pixels_vec_env(info.pixels_of, num_envs, info.obs_shape)
     return gym.make_vec(registered_spec(info.env_id), num_envs=num_envs, **info.kwargs)
 
 

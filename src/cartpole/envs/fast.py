@@ -78,9 +78,12 @@ both flags False. The single env is truncated by the ``TimeLimit`` wrapper ``gym
 | ``kinematics_integrator`` | "euler" | or "semi-implicit euler" (velocities first) |
 
 ``total_mass`` and ``polemass_length`` are derived properties. Pass ``params=CartPoleParams(...)`` to
-either env, or change them on a live env with ``env.set_params(dataclasses.replace(env.params,
-gravity=20.0))``; the next step uses them. The thresholds define the observation space, so they are
-fixed for an env's lifetime (make a new env to change them).
+either env, or the constants by name (``gym.make("cartpole/CartPole-v1", gravity=5.0)``, as
+``--env-kwargs gravity=5.0`` does: Gymnasium's own CartPole takes no such keyword, so such an env
+trains and is judged on our simulator, and its verdict says so), or change them on a live env with
+``env.set_params(dataclasses.replace(env.params, gravity=20.0))``; the next step uses them. The
+thresholds define the observation space, so they are fixed for an env's lifetime (make a new env to
+change them).
 
 ## Setting the state
 
@@ -144,7 +147,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 from numpy.typing import ArrayLike, DTypeLike, NDArray
 
-from cartpole.envs.params import CartPoleParams, KinematicsIntegrator
+from cartpole.envs.params import CartPoleParams, KinematicsIntegrator, with_physics
 from cartpole.envs.registration import REFERENCE_IDS, register_fast_envs
 
 #: Gymnasium's bounds for the uniform start state (``reset`` without options).
@@ -221,13 +224,15 @@ def step_cartpole(
     return np.ascontiguousarray(columns.T), terminated
 
 
-def step_cartpole_columns(columns: NDArray[np.floating[Any]], action: NDArray[np.int64]) -> NDArray[np.bool_]:
+def step_cartpole_columns(
+    columns: NDArray[np.floating[Any]], action: NDArray[np.int64], params: CartPoleParams | None = None
+) -> NDArray[np.bool_]:
     """:func:`step_cartpole` in place, for callers that keep their states as the kernel's columns:
-    ``columns`` ``(4, N)`` (C-contiguous float32 or float64) advance one step under Gymnasium's
-    parameters; ``action`` ``(N,)`` int64 of 0/1. Returns ``terminated`` ``(N,)``."""
+    ``columns`` ``(4, N)`` (C-contiguous float32 or float64) advance one step under ``params``
+    (None: Gymnasium's); ``action`` ``(N,)`` int64 of 0/1. Returns ``terminated`` ``(N,)``."""
     terminated = np.empty(columns.shape[1], dtype=np.bool_)
     if not _kernels().step_states(
-        columns, action, packed_params(_check_params(None), columns.dtype), terminated
+        columns, action, packed_params(_check_params(params), columns.dtype), terminated
     ):
         raise ValueError("actions must be 0 (push left) or 1 (push right)")
     return terminated
@@ -364,8 +369,10 @@ class CartPoleVectorEnv(_Physics, VectorEnv[NDArray[np.float32], NDArray[np.int6
         *,
         params: CartPoleParams | None = None,
         dtype: DTypeLike = np.float64,
+        **physics: Any,
     ) -> None:
-        """``max_episode_steps`` defaults to CartPole-v1's (``gymnasium.make_vec`` passes the id's)."""
+        """``max_episode_steps`` defaults to CartPole-v1's (``gymnasium.make_vec`` passes the id's);
+        ``physics``: constants of :class:`CartPoleParams` by name (``gravity=5.0``), over ``params``."""
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
         if max_episode_steps is None:
@@ -385,7 +392,7 @@ class CartPoleVectorEnv(_Physics, VectorEnv[NDArray[np.float32], NDArray[np.int6
         self.render_mode = render_mode
         self._renderer: Any = None
         self._sutton_barto_reward = bool(sutton_barto_reward)
-        self._init_physics(params, dtype)
+        self._init_physics(with_physics(params, physics), dtype)
 
         self.single_action_space = spaces.Discrete(2)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
@@ -587,14 +594,16 @@ class CartPoleEnv(_Physics, gym.Env[NDArray[np.float32], int]):
         *,
         params: CartPoleParams | None = None,
         dtype: DTypeLike = np.float64,
+        **physics: Any,
     ) -> None:
+        """``physics``: constants of :class:`CartPoleParams` by name (``gravity=5.0``), over ``params``."""
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
                 f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}"
             )
         self.render_mode = render_mode
         self._sutton_barto_reward = bool(sutton_barto_reward)
-        self._init_physics(params, dtype)
+        self._init_physics(with_physics(params, physics), dtype)
         # Gymnasium types Env.action_space as Space[int]; Discrete samples np.int64 (as in its own CartPole).
         self.action_space = spaces.Discrete(2)  # type: ignore[assignment]
         high = self._params.observation_high()

@@ -3,9 +3,11 @@ uses them (:mod:`cartpole.envs.fast`) so its numba kernels can read them without
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, fields
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -74,4 +76,22 @@ class CartPoleParams:
         return np.array([self.x_threshold * 2, inf, self.theta_threshold_radians * 2, inf], dtype=np.float32)
 
 
-__all__ = ["CartPoleParams", "KinematicsIntegrator"]
+PHYSICS_KWARGS: tuple[str, ...] = tuple(f.name for f in fields(CartPoleParams))
+"""The constants our CartPole envs take as keyword arguments (``--env-kwargs gravity=5``); Gymnasium's
+own CartPole takes none of them."""
+
+
+def with_physics(params: CartPoleParams | None, physics: Mapping[str, Any]) -> CartPoleParams | None:
+    """``params`` (None: the defaults) with the constants named in ``physics`` changed; TypeError for a
+    name that is not one (as a constructor refuses an unknown keyword), ValueError for a bad value."""
+    if not physics:
+        return params
+    unknown = [name for name in physics if name not in PHYSICS_KWARGS]
+    if unknown:
+        raise TypeError(
+            f"unexpected keyword argument {unknown[0]!r} (physics constants: {', '.join(PHYSICS_KWARGS)})"
+        )
+    return dataclasses.replace(params or CartPoleParams(), **physics)
+
+
+__all__ = ["PHYSICS_KWARGS", "CartPoleParams", "KinematicsIntegrator", "with_physics"]

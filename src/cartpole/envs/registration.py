@@ -16,6 +16,11 @@ REFERENCE_IDS: tuple[str, ...] = ("CartPole-v0", "CartPole-v1")
 _NAMESPACE = "cartpole"
 
 
+def fast_env_id(env_id: str) -> str:
+    """The id under which our fast simulator registers the CartPole env ``env_id``."""
+    return f"{_NAMESPACE}/" + env_id.removeprefix(f"{_NAMESPACE}/")
+
+
 def pixel_env_id(reference_id: str) -> str:
     """The id of the pixel env that shows Gymnasium's ``reference_id`` (``CartPole-v1`` ->
     ``cartpole/CartPolePixels-v1``)."""

@@ -72,7 +72,7 @@ def make_resumable_vec_env(env: str | EnvInfo, num_envs: int, simulator: Simulat
         return make_vec_env(info, num_envs, simulator=simulator)  # their per-env state public
     if info.pixels_of:  # Gymnasium's CartPole seen through its pictures: frame stacks are not public
         return make_vec_env(info, num_envs, simulator=simulator)  # state, so a resume starts afresh
-    without_limit = dataclasses.replace(registered_spec(info.env_id), max_episode_steps=None)
+    without_limit = dataclasses.replace(registered_spec(info.made_id), max_episode_steps=None)
     clock = functools.partial(EpisodeClock, max_episode_steps=info.max_episode_steps)
     wrappers: list[Callable[[gym.Env[Any, Any]], gym.Wrapper[Any, Any, Any, Any]]] = [
         clock

@@ -32,6 +32,7 @@ from gymnasium.utils.seeding import np_random
 
 from cartpole.envs import EnvInfo, resolve_simulator
 from cartpole.envs.fast import DEFAULT_RESET_HIGH, DEFAULT_RESET_LOW, step_cartpole_columns
+from cartpole.envs.params import with_physics
 from cartpole.envs.resumable_envs import make_resumable_vec_env, restore_vector_env_state, vector_env_state
 
 LONGEST_EPISODE_WITHOUT_TIME_LIMIT = 10_000
@@ -78,7 +79,8 @@ def make_seed_envs(env: EnvInfo, simulator: str, seeds: list[int], num_envs: int
     if resolve_simulator(env, simulator) == "fast":
         if env.pixels_of:
             return PixelSeedEnvs(FastSeedEnvs(seeds, num_envs, limit), env.obs_shape)
-        return FastSeedEnvs(seeds, num_envs, limit)
+        if not env.wrappers:
+            return FastSeedEnvs(seeds, num_envs, limit, env.kwargs)
     return GymnasiumSeedEnvs(env, seeds, num_envs)
 
 
@@ -96,7 +98,13 @@ class FastSeedEnvs:
     """S x N CartPoles of the fast simulator, stepped by one kernel call; their states are kept as
     the kernel's ``(4, S * N)`` columns."""
 
-    def __init__(self, seeds: list[int], num_envs: int, max_episode_steps: int):
+    def __init__(
+        self, seeds: list[int], num_envs: int, max_episode_steps: int, kwargs: dict[str, Any] | None = None
+    ):
+        """``kwargs``: what our CartPole env takes (its physics constants, ``sutton_barto_reward``)."""
+        kwargs = dict(kwargs or {})
+        self.sutton_barto_reward = bool(kwargs.pop("sutton_barto_reward", False))
+        self.params = with_physics(None, kwargs)  # TypeError for anything else, as the env says
         self.num_envs, self.max_episode_steps = num_envs, max_episode_steps
         self.rngs = [np_random(seed)[0] for seed in seeds]
         draws = [rng.uniform(DEFAULT_RESET_LOW, DEFAULT_RESET_HIGH, size=(4, num_envs)) for rng in self.rngs]
@@ -110,10 +118,13 @@ class FastSeedEnvs:
         return self.columns.T.copy()  # a new array: the columns step in place
 
     def step(self, actions: np.ndarray) -> Step:
-        terminated = step_cartpole_columns(self.columns, actions.astype(np.int64, copy=False))
+        terminated = step_cartpole_columns(self.columns, actions.astype(np.int64, copy=False), self.params)
         self.steps += 1
         truncated = self.steps >= self.max_episode_steps
-        rewards = np.ones(len(self.steps), dtype=np.float32)
+        if self.sutton_barto_reward:  # 0 per step, -1 for the step that fails (Sutton and Barto's)
+            rewards = -terminated.astype(np.float32)
+        else:
+            rewards = np.ones(len(self.steps), dtype=np.float32)
         if self.pending.any():
             resets = np.flatnonzero(self.pending)
             owners = resets // self.num_envs

@@ -8,7 +8,9 @@ An env is its id as Gymnasium takes it (``CartPole-v1``, or ``module:Id-vN``, wh
 imported first: it registers the id), the keyword arguments ``gymnasium.make`` passes to its
 constructor, and the wrappers put around it (each ``module:Class``, with its own keyword arguments).
 :func:`env_info` reads spaces, threshold and episode limit from the env made that way, so what it says
-is keyed by all three; :func:`make_env` makes one of it.
+is keyed by all three; :func:`make_env` makes one of it. A CartPole id with kwargs that only our
+simulator takes (its physics constants, ``gravity=5.0``: Gymnasium's CartPole refuses them) is made
+on our simulator, and its :attr:`EnvInfo.simulator_only` names them.
 """
 
 from __future__ import annotations
@@ -25,7 +27,8 @@ import gymnasium as gym
 import numpy as np
 
 from cartpole.core.errors import InputError
-from cartpole.envs.registration import PIXEL_REFERENCE_IDS
+from cartpole.envs.params import PHYSICS_KWARGS
+from cartpole.envs.registration import PIXEL_REFERENCE_IDS, REFERENCE_IDS, fast_env_id
 
 
 class UnsupportedEnvError(InputError, ValueError):
@@ -132,10 +135,18 @@ class EnvInfo:
     """What ``gymnasium.make`` passes to the env's constructor (``--env-kwargs``)."""
     wrappers: tuple[WrapperSpec, ...] = ()
     """Put around the env in this order (a preset's ``wrappers``)."""
+    simulator_only: tuple[str, ...] = ()
+    """The kwargs that Gymnasium's own env does not take and our simulator does (CartPole's physics
+    constants): every env of this one, training's and the verdict's, is our simulator's."""
 
     def __post_init__(self) -> None:
         if not self.obs_shape:
             object.__setattr__(self, "obs_shape", (self.obs_dim,))
+
+    @property
+    def made_id(self) -> str:
+        """The id ``gymnasium.make`` is given: ours (``cartpole/...``) where :attr:`simulator_only`."""
+        return fast_env_id(self.env_id) if self.simulator_only else self.env_id
 
     @property
     def configured(self) -> bool:
@@ -210,8 +221,9 @@ def registered_spec(env_id: str) -> gym.envs.registration.EnvSpec:
 
 def make_env(env: EnvInfo, **make_args: Any) -> gym.Env[Any, Any]:
     """One env of ``env`` as configured: ``gymnasium.make`` of its id with its kwargs (and
-    ``make_args``, e.g. ``render_mode``), inside its wrappers."""
-    return _make(env.env_id, env.kwargs, env.wrappers, **make_args)
+    ``make_args``, e.g. ``render_mode``), inside its wrappers; on our simulator where
+    :attr:`EnvInfo.simulator_only`."""
+    return _make(env.made_id, env.kwargs, env.wrappers, **make_args)
 
 
 def _make(
@@ -229,8 +241,9 @@ def _env_info(env_id: str, key: str) -> EnvInfo:
     kwargs = configuration["kwargs"]
     wrappers = check_wrappers(configuration["wrappers"])
     spec = registered_spec(env_id)
+    simulator_only = _simulator_only(env_id, kwargs)
     try:
-        env = _make(env_id, kwargs, wrappers)
+        env = _make(fast_env_id(env_id) if simulator_only else env_id, kwargs, wrappers)
     except UnsupportedEnvError:
         raise
     except TypeError as err:
@@ -238,6 +251,8 @@ def _env_info(env_id: str, key: str) -> EnvInfo:
         raise UnsupportedEnvError(
             f"{env_id} does not take env kwargs {describe_kwargs(kwargs)}: {reason}"
         ) from None
+    except ValueError as err:
+        raise UnsupportedEnvError(f"{env_id} refuses env kwargs {describe_kwargs(kwargs)}: {err}") from None
     except Exception as err:
         raise UnsupportedEnvError(
             f"cannot create environment {env_id!r}: {err} (is its extra installed?)"
@@ -273,4 +288,19 @@ def _env_info(env_id: str, key: str) -> EnvInfo:
         obs_shape=shape,
         kwargs=kwargs,
         wrappers=wrappers,
+        simulator_only=simulator_only,
     )
+
+
+def _simulator_only(env_id: str, kwargs: Mapping[str, Any]) -> tuple[str, ...]:
+    """The physics constants among ``kwargs`` of a CartPole id that Gymnasium's own CartPole refuses
+    (all of them, today: asked of Gymnasium, not assumed); () when there are none."""
+    reference = env_id.removeprefix(fast_env_id(""))
+    physics = {k: v for k, v in kwargs.items() if k in PHYSICS_KWARGS}
+    if reference not in REFERENCE_IDS or not physics:
+        return ()
+    try:
+        gym.make(reference, **physics).close()
+    except TypeError:
+        return tuple(physics)
+    return ()
