@@ -187,6 +187,25 @@ def test_a_corrupt_report_is_a_listed_problem(tmp_path: Path, damage: str, words
     assert str(tmp_path) not in detail.text
 
 
+def test_rliables_figures_and_numbers_are_shown(tmp_path: Path):
+    make_experiment(tmp_path, "rliable")
+    folder = tmp_path / "experiments" / "rliable"
+    for figure in ("performance_profile", "improvement"):
+        shutil.copy(folder / "curves.png", folder / f"{figure}.png")
+    report = json.loads((folder / "report.json").read_text("utf-8"))
+    report["scores"] = {"score": "final", "entries": ["cem", "dqn"], "seeds": [0], "matrix": [[500.0, None]]}
+    report["probability_of_improvement"] = [{"x": "cem", "y": "dqn", "probability": 0.7, "ci95": [0.5, 0.9]}]
+    (folder / "report.json").write_text(json.dumps(report), "utf-8")
+    client = local_client(tmp_path)
+    body = client.get("/api/experiments/rliable").json()
+    assert body["figures"] == ["curves", "solve_steps", "performance_profile", "improvement"]
+    assert body["report"]["scores"]["matrix"] == [[500.0, None]]
+    assert body["report"]["probability_of_improvement"][0]["ci95"] == [0.5, 0.9]
+    for figure in ("performance_profile", "improvement"):
+        png = client.get(f"/api/experiments/rliable/figures/{figure}.png")
+        assert png.status_code == 200 and png.content.startswith(b"\x89PNG")
+
+
 def test_an_experiment_without_its_report_yet_says_so(tmp_path: Path):
     (tmp_path / "experiments" / "running").mkdir(parents=True)
     (tmp_path / "experiments" / "running" / "experiment.json").write_text("{}", "utf-8")
@@ -339,9 +358,11 @@ def test_a_shared_comparison_is_shown_live_from_its_database(tmp_path: Path):
                               "running": 0, "pending": 2}  # fmt: skip
     [entry] = body["report"]["entries"]
     assert entry["runs"] == 1 and entry["solved"] == 1 and entry["run_folders"] == ["r0"]
-    assert body["figures"] == ["curves", "solve_steps"]
-    png = client.get("/api/experiments/shared-cmp/figures/curves.png")
-    assert png.status_code == 200 and png.content.startswith(b"\x89PNG")
+    assert body["figures"] == ["curves", "solve_steps", "performance_profile"]  # one entry: no pairs
+    assert body["report"]["scores"]["matrix"] == [[500.0]]
+    for figure in body["figures"]:
+        png = client.get(f"/api/experiments/shared-cmp/figures/{figure}.png")
+        assert png.status_code == 200 and png.content.startswith(b"\x89PNG")
     assert not (runs_dir / "experiments" / "shared-cmp" / "curves.png").exists()  # nothing written there
 
     shared.claim("m", 1, {"cem": False}, set(), ["cem"], [1])
