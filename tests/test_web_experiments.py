@@ -11,7 +11,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 sys.path.insert(0, str(Path(__file__).parent))
-from conftest_web import local_client, make_experiment, make_sweep
+from conftest_web import local_client, make_experiment, make_reported_experiment, make_sweep
 
 EXPERIMENT = "cem-vs-dqn"
 SWEEP = "dqn-2seeds"
@@ -188,21 +188,17 @@ def test_a_corrupt_report_is_a_listed_problem(tmp_path: Path, damage: str, words
 
 
 def test_rliables_figures_and_numbers_are_shown(tmp_path: Path):
-    make_experiment(tmp_path, "rliable")
-    folder = tmp_path / "experiments" / "rliable"
-    for figure in ("performance_profile", "improvement"):
-        shutil.copy(folder / "curves.png", folder / f"{figure}.png")
-    report = json.loads((folder / "report.json").read_text("utf-8"))
-    report["scores"] = {"score": "final", "entries": ["cem", "dqn"], "seeds": [0], "matrix": [[500.0, None]]}
-    report["probability_of_improvement"] = [{"x": "cem", "y": "dqn", "probability": 0.7, "ci95": [0.5, 0.9]}]
-    (folder / "report.json").write_text(json.dumps(report), "utf-8")
+    name = make_reported_experiment(tmp_path)
     client = local_client(tmp_path)
-    body = client.get("/api/experiments/rliable").json()
+    body = client.get(f"/api/experiments/{name}").json()
+    assert body["problem"] is None
     assert body["figures"] == ["curves", "solve_steps", "performance_profile", "improvement"]
-    assert body["report"]["scores"]["matrix"] == [[500.0, None]]
-    assert body["report"]["probability_of_improvement"][0]["ci95"] == [0.5, 0.9]
+    assert body["report"]["scores"]["entries"] == ["cem", "dqn"]
+    assert body["report"]["scores"]["matrix"][1] == [497.5, 350.0]
+    (pair,) = body["report"]["probability_of_improvement"]
+    assert (pair["x"], pair["y"]) == ("cem", "dqn") and pair["probability"] == pytest.approx(12 / 16)
     for figure in ("performance_profile", "improvement"):
-        png = client.get(f"/api/experiments/rliable/figures/{figure}.png")
+        png = client.get(f"/api/experiments/{name}/figures/{figure}.png")
         assert png.status_code == 200 and png.content.startswith(b"\x89PNG")
 
 
