@@ -157,6 +157,49 @@ def make_experiment(runs_dir: Path, name: str = "cem-vs-dqn") -> str:
     return name
 
 
+def make_reported_experiment(runs_dir: Path, name: str = "cem-vs-dqn-finals") -> str:
+    """An experiment folder whose report `cartpole compare` wrote from records of finished runs (their
+    final verdicts made up, no training): every figure, rliable's views included."""
+    import numpy as np
+
+    from cartpole.experiments.entries import Entry
+    from cartpole.experiments.figures import EvalCurve
+    from cartpole.experiments.report import Results, write_report
+
+    finals = {Entry("cem"): [500.0, 497.5, 430.0, 500.0], Entry("dqn"): [480.0, 350.0, 500.0, 210.0]}
+    records = {
+        entry: [
+            {
+                "agent": entry.agent,
+                "preset": entry.preset,
+                "seed": seed,
+                "run": f"{entry.slug}-s{seed}",
+                "state": "finished",
+                "solved_in_training": final >= 475,
+                "solve_steps": 20000,
+                "solve_cpu_seconds": 1.0,
+                "solve_wall_seconds": 1.0,
+                "env_steps": 50000,
+                "cpu_seconds": 2.0,
+                "wall_seconds": 2.0,
+                "final_mean": final,
+                "final_solved": final >= 475,
+            }
+            for seed, final in enumerate(values)
+        ]
+        for entry, values in finals.items()
+    }
+    curve = EvalCurve(np.array([0.0, 20000.0, 50000.0]), np.array([20.0, 300.0, 500.0]), True, 475.0)
+    folder = runs_dir / "experiments" / name
+    folder.mkdir(parents=True)
+    write_report(Results("CartPole-v1", None, [0, 1, 2, 3], records, {e: [curve] for e in finals}), folder)
+    command = ["cartpole", "compare", "cem", "dqn", "--seeds", "4", "--name", name]
+    (folder / "experiment.json").write_text(
+        json.dumps({"env_id": "CartPole-v1", "budget": None, "command": command}), "utf-8"
+    )
+    return name
+
+
 def make_sweep(runs_dir: Path, name: str = "dqn-2seeds") -> str:
     """A sweep folder as `cartpole sweep` leaves it: sweep.json, an Optuna journal with a complete, a
     pruned and a failed trial, and best.toml (made with Optuna's API, no training)."""

@@ -492,6 +492,36 @@ def test_tensorboard_mirrors_the_metric_rows(run):
     assert "train/loss" in events.Tags()["scalars"]
 
 
+def test_tensorboard_logs_the_settings_at_a_new_start_only(run, tmp_path):
+    """A resume (a loop that goes on from a step) keeps the hyperparameters and command its run
+    started with, and adds none: TensorBoard would show one run's settings twice."""
+    pytest.importorskip("tensorboard")
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    record = {"agent": "cem", "seed": 0, "config": {"population": 8}, "command": ["cartpole", "train", "cem"]}
+    metrics = MetricsCallback(run)
+    run_until_stopped(
+        TrainingLoop(FakeLearner(), [StopAfter(2), metrics, TensorBoardCallback(run, metrics, record)])
+    )
+    metrics = MetricsCallback(run)
+    resumed = TensorBoardCallback(run, metrics, record | {"command": ["cartpole", "train", "--resume"]})
+    run_until_stopped(TrainingLoop(FakeLearner(), [StopAfter(4), metrics, resumed], LoopState(env_steps=20)))
+    events = EventAccumulator(str(run.path / "tensorboard"))
+    events.Reload()
+    assert list(events.PluginTagToContent("hparams")) == [
+        "_hparams_/experiment", "_hparams_/session_start_info", "_hparams_/session_end_info"
+    ]  # fmt: skip
+    (command,) = events.Tensors("command/text_summary")
+    assert command.tensor_proto.string_val == [b"    cartpole train cem"]
+    other = RunDir.create(tmp_path / "other", "CartPole-v1", "cem", 1)
+    metrics = MetricsCallback(other)
+    run_until_stopped(
+        TrainingLoop(FakeLearner(), [StopAfter(1), metrics, TensorBoardCallback(other, metrics)])
+    )
+    with pytest.raises(KeyError):  # no record given: no settings
+        EventAccumulator(str(other.path / "tensorboard")).Reload().PluginTagToContent("hparams")
+
+
 def test_tensorboard_missing_gives_the_install_line(monkeypatch, run):
     import builtins
 

@@ -34,12 +34,14 @@ from conftest_web import (  # noqa: E402
     make_cem_run,
     make_experiment,
     make_pixel_run,
+    make_reported_experiment,
     make_single_generation_run,
     make_sweep,
     make_web_runs,
 )
 
 EXPERIMENT = "cem-vs-dqn"
+RLIABLE = "cem-vs-dqn-finals"
 SWEEP = "dqn-2seeds"
 
 
@@ -47,6 +49,7 @@ SWEEP = "dqn-2seeds"
 def web_runs(tmp_path_factory: pytest.TempPathFactory) -> WebRuns:
     runs = make_web_runs(tmp_path_factory.mktemp("browser"))
     make_experiment(runs.root, EXPERIMENT)
+    make_reported_experiment(runs.root, RLIABLE)
     make_sweep(runs.root, SWEEP)
     return runs
 
@@ -327,6 +330,16 @@ def test_experiment_page_shows_counts_cis_and_the_curves(desktop: Page):
         page.wait_for_function(f"() => document.querySelector('#figure-{figure}').naturalWidth > 100")
     assert "cartpole compare cem dqn" in page.inner_text("#made")
     assert f"--runs-dir runs/experiments/{EXPERIMENT}/runs" in page.inner_text("#made")
+
+
+def test_experiment_page_shows_the_performance_profile_and_the_probability_of_improvement(desktop: Page):
+    page = desktop.goto(f"/experiment?name={RLIABLE}")
+    page.locator("#report-table").wait_for()
+    for figure in ("performance_profile", "improvement"):
+        page.locator(f"#figure-{figure}").wait_for()
+        page.wait_for_function(f"() => document.querySelector('#figure-{figure}').naturalWidth > 100")
+    captions = page.inner_text("#figures")
+    assert "Performance profile (rliable)" in captions and "Probability of improvement (rliable)" in captions
 
 
 def test_sweep_page_shows_trials_best_preset_and_dashboard(desktop: Page):

@@ -11,7 +11,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 sys.path.insert(0, str(Path(__file__).parent))
-from conftest_web import local_client, make_experiment, make_sweep
+from conftest_web import local_client, make_experiment, make_reported_experiment, make_sweep
 
 EXPERIMENT = "cem-vs-dqn"
 SWEEP = "dqn-2seeds"
@@ -187,6 +187,21 @@ def test_a_corrupt_report_is_a_listed_problem(tmp_path: Path, damage: str, words
     assert str(tmp_path) not in detail.text
 
 
+def test_rliables_figures_and_numbers_are_shown(tmp_path: Path):
+    name = make_reported_experiment(tmp_path)
+    client = local_client(tmp_path)
+    body = client.get(f"/api/experiments/{name}").json()
+    assert body["problem"] is None
+    assert body["figures"] == ["curves", "solve_steps", "performance_profile", "improvement"]
+    assert body["report"]["scores"]["entries"] == ["cem", "dqn"]
+    assert body["report"]["scores"]["matrix"][1] == [497.5, 350.0]
+    (pair,) = body["report"]["probability_of_improvement"]
+    assert (pair["x"], pair["y"]) == ("cem", "dqn") and pair["probability"] == pytest.approx(12 / 16)
+    for figure in ("performance_profile", "improvement"):
+        png = client.get(f"/api/experiments/{name}/figures/{figure}.png")
+        assert png.status_code == 200 and png.content.startswith(b"\x89PNG")
+
+
 def test_an_experiment_without_its_report_yet_says_so(tmp_path: Path):
     (tmp_path / "experiments" / "running").mkdir(parents=True)
     (tmp_path / "experiments" / "running" / "experiment.json").write_text("{}", "utf-8")
@@ -339,9 +354,11 @@ def test_a_shared_comparison_is_shown_live_from_its_database(tmp_path: Path):
                               "running": 0, "pending": 2}  # fmt: skip
     [entry] = body["report"]["entries"]
     assert entry["runs"] == 1 and entry["solved"] == 1 and entry["run_folders"] == ["r0"]
-    assert body["figures"] == ["curves", "solve_steps"]
-    png = client.get("/api/experiments/shared-cmp/figures/curves.png")
-    assert png.status_code == 200 and png.content.startswith(b"\x89PNG")
+    assert body["figures"] == ["curves", "solve_steps", "performance_profile"]  # one entry: no pairs
+    assert body["report"]["scores"]["matrix"] == [[500.0]]
+    for figure in body["figures"]:
+        png = client.get(f"/api/experiments/shared-cmp/figures/{figure}.png")
+        assert png.status_code == 200 and png.content.startswith(b"\x89PNG")
     assert not (runs_dir / "experiments" / "shared-cmp" / "curves.png").exists()  # nothing written there
 
     shared.claim("m", 1, {"cem": False}, set(), ["cem"], [1])

@@ -82,6 +82,13 @@ def add_parser(sub: Any) -> None:
         f"worker's claims are taken over (default: {DEFAULT_CLAIM_TIMEOUT:g})",
     )
     parser.add_argument(
+        "--tensorboard",
+        action="store_true",
+        help="also log every run as TensorBoard events in its RUN/tensorboard/, as train does: metrics, "
+        "settings as hyperparameters with the final verdict as their metric, the command (`tensorboard "
+        "--logdir RUNS_DIR/experiments/NAME/runs`; needs the tensorboard extra)",
+    )
+    parser.add_argument(
         "--report",
         action="store_true",
         help="train nothing: write the report of experiment NAME from its records (with --storage: from "
@@ -168,6 +175,7 @@ def train_and_report(args: argparse.Namespace) -> int:
         args.budget,
         command=["cartpole", *sys.argv[1:]],
         env_kwargs=parse_env_kwargs(args.env_kwargs),
+        tensorboard=args.tensorboard,
     )
     shared = None
     if args.storage:

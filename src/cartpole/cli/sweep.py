@@ -62,6 +62,13 @@ def add_parser(sub: Any) -> None:
     )
     add_env_kwargs(parser)
     parser.add_argument("--runs-dir", default="runs", metavar="DIR", help="(default: runs)")
+    parser.add_argument(
+        "--tensorboard",
+        action="store_true",
+        help="also log every trial's runs as TensorBoard events in their RUN/tensorboard/, as train does: "
+        "metrics, settings as hyperparameters with the final verdict as their metric, the command "
+        "(`tensorboard --logdir RUNS_DIR/sweeps/STUDY/runs`; needs the tensorboard extra)",
+    )
     parser.set_defaults(run=run)
 
 
@@ -84,6 +91,7 @@ def run(args: argparse.Namespace) -> int:
         storage=args.storage,
         sampler_seed=args.sampler_seed,
         env_kwargs=parse_env_kwargs(args.env_kwargs),
+        tensorboard=args.tensorboard,
     )
     study = prepare_sweep(spec, args.workers)
     console = Console(soft_wrap=True, stderr=True)

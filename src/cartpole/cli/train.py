@@ -121,7 +121,8 @@ def add_parser(sub: Any) -> None:
     parser.add_argument(
         "--tensorboard",
         action="store_true",
-        help="also log metrics as TensorBoard events in RUN/tensorboard/ (needs the tensorboard extra)",
+        help="also log metrics as TensorBoard events in RUN/tensorboard/, with the run's settings as "
+        "hyperparameters (the final verdict their metric) and its command (needs the tensorboard extra)",
     )
     # --- population training (run_population below) ---
     parser.add_argument(

@@ -63,6 +63,8 @@ class Experiment:
     command: list[str] = field(default_factory=list)
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     """``--env-kwargs``: every entry's env made with them (over its preset's own ``env_kwargs``)."""
+    tensorboard: bool = False
+    """``--tensorboard``: the runs this command trains also log TensorBoard events in their folders."""
 
     @classmethod
     def open(
@@ -75,10 +77,15 @@ class Experiment:
         budget: str | None = None,
         command: list[str] | None = None,
         env_kwargs: dict[str, Any] | None = None,
+        tensorboard: bool = False,
     ) -> Experiment:
         """Check the request, and that it matches what ``NAME`` was run with before."""
         if not seeds:
             raise ExperimentError("an experiment needs at least one seed")
+        if tensorboard:
+            from cartpole.training.callbacks import require_tensorboard
+
+            require_tensorboard()  # in one line, before any worker starts
         if budget is not None:
             try:
                 parsed = parse_budget(budget)
@@ -90,7 +97,15 @@ class Experiment:
 
         env_info(env_id, env_kwargs)  # an unsupported env is bad input before anything is written
         folder = runs_dir / "experiments" / check_name(name, "experiment")
-        experiment = cls(folder, entries, list(seeds), env_id, budget, env_kwargs=dict(env_kwargs or {}))
+        experiment = cls(
+            folder,
+            entries,
+            list(seeds),
+            env_id,
+            budget,
+            env_kwargs=dict(env_kwargs or {}),
+            tensorboard=tensorboard,
+        )
         experiment.command = command or []
         experiment.check_same_setup()
         return experiment
@@ -208,6 +223,7 @@ class Experiment:
             record=str(self.record_path(entry, seed)),
             command=self.command,
             population=records,
+            tensorboard=self.tensorboard,
         )
         name = f"{entry.slug}__s{seed}" if len(seeds) == 1 else f"{entry.slug}__s{seed}-{seeds[-1]}"
         path = self.folder / "tasks" / f"{name}.json"

@@ -1,4 +1,5 @@
-"""The experiment's two figures: learning curves per entry with a 95% CI band, and solve steps per entry."""
+"""The experiment's figures: learning curves per entry with a 95% CI band, solve steps per entry, and
+rliable's views of the final returns: performance profiles and the probability of improvement."""
 
 from __future__ import annotations
 
@@ -158,6 +159,62 @@ def plot_solve_steps(
     ax.set_yscale("log")
     ax.set_title("Solve steps per run (black bar: median; hollow: unsolved, censored at its budget)")
     ax.grid(True, axis="y", alpha=0.3)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(out, dpi=120)
+    return out
+
+
+def plot_performance_profile(view: dict[str, Any], out: Path) -> Path | None:
+    """rliable's performance profile: per entry, the fraction of runs whose final verdict mean return
+    is above each tau, with a pointwise 95% bootstrap CI band; the solved threshold as a line."""
+    from matplotlib.figure import Figure
+
+    profiles = view["entries"]
+    if not profiles or not view["taus"]:
+        return None
+    figure = Figure(figsize=(9, 5), layout="constrained")
+    ax = figure.add_subplot()
+    taus = np.asarray(view["taus"])
+    for index, (label, profile) in enumerate(profiles.items()):
+        color = COLORS[index % len(COLORS)]
+        low, high = profile["ci95_low"], profile["ci95_high"]  # a step at each run's score
+        ax.fill_between(taus, low, high, step="post", color=color, alpha=0.2, linewidth=0)
+        ax.plot(taus, profile["fraction"], drawstyle="steps-post", color=color, linewidth=2, label=label)
+    if view.get("threshold") is not None:
+        ax.axvline(view["threshold"], color="0.3", linestyle="--", linewidth=1,
+                   label=f"solved threshold {view['threshold']:g}")  # fmt: skip
+    ax.set_xlabel("final verdict mean return (tau)")
+    ax.set_ylabel("fraction of runs with score > tau")
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_title(f"Performance profile: {CONFIDENCE:.0%} bootstrap CI")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="lower left", fontsize=9)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(out, dpi=120)
+    return out
+
+
+def plot_improvement(pairs: list[dict[str, Any]], out: Path) -> Path | None:
+    """rliable's probability of improvement: for each pair of entries, P(X > Y) (a run of X scores above
+    a run of Y, ties half) with its 95% bootstrap CI; 0.5 is no difference."""
+    from matplotlib.figure import Figure
+
+    shown = [p for p in pairs if p["probability"] is not None]
+    if not shown:
+        return None
+    figure = Figure(figsize=(9, 1.4 + 0.5 * len(shown)), layout="constrained")
+    ax = figure.add_subplot()
+    rows = np.arange(len(shown))[::-1]
+    for row, pair in zip(rows, shown, strict=True):
+        low, high = pair["ci95"] or (pair["probability"], pair["probability"])
+        ax.barh(row, high - low, left=low, height=0.6, color="C0", alpha=0.35)
+        ax.plot([pair["probability"]] * 2, [row - 0.3, row + 0.3], color="C0", linewidth=2)
+    ax.set_yticks(rows, [f"P({p['x']} > {p['y']})" for p in shown])
+    ax.axvline(0.5, color="0.3", linestyle="--", linewidth=1)
+    ax.set_xlim(0, 1)
+    ax.set_xlabel("probability of improvement (final verdict mean return)")
+    ax.set_title(f"Probability of improvement: {CONFIDENCE:.0%} bootstrap CI")
+    ax.grid(True, axis="x", alpha=0.3)
     out.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(out, dpi=120)
     return out

@@ -10,7 +10,14 @@ from cartpole.experiments.compare import Experiment
 from cartpole.experiments.entries import Entry
 from cartpole.experiments.figures import EvalCurve
 from cartpole.experiments.shared import SharedComparison
-from cartpole.experiments.stats import CONFIDENCE, censored_summary, iqm_summary
+from cartpole.experiments.stats import (
+    CONFIDENCE,
+    censored_summary,
+    improvement_summary,
+    iqm_summary,
+    performance_profile,
+    profile_taus,
+)
 from cartpole.runs.atomic import write_json_atomic, write_text_atomic
 
 TIMES = (
@@ -84,6 +91,53 @@ class Results:
         )
 
 
+SCORE = "final_mean"
+"""The score of a run in the rliable views: its final verdict's mean return (the kept best policy on
+100 fresh episodes), as it is: one task needs no normalizing across tasks, and a threshold's ratio
+would turn over on envs whose returns are negative."""
+
+
+def score_matrix(results: Results) -> dict[str, Any]:
+    """Every run's score as rliable reads it: a matrix of runs (rows, one per seed in ``seeds``) by
+    entries (columns, in ``entries``' order), None where a seed of an entry has not finished."""
+    scores = {e.label: {int(r["seed"]): float(r[SCORE]) for r in rs} for e, rs in results.records.items()}
+    found = {seed for by_seed in scores.values() for seed in by_seed}
+    seeds = [s for s in results.seeds if s in found] + sorted(found - set(results.seeds))
+    return {
+        "score": "each run's final verdict mean return (100 fresh episodes of the kept best policy)",
+        "entries": list(scores),
+        "seeds": seeds,
+        "matrix": [[by_seed.get(seed) for by_seed in scores.values()] for seed in seeds],
+    }
+
+
+def threshold_of(results: Results) -> float | None:
+    """The env's solved threshold, as the runs' curves record it (None if none does)."""
+    return next((c.threshold for cs in results.curves.values() for c in cs if c.threshold is not None), None)
+
+
+def rliable_views(results: Results) -> dict[str, Any]:
+    """The score matrix, each entry's performance profile (fraction of runs above each score tau) and
+    the probability of improvement of each entry over each later one, all with 95% bootstrap CIs."""
+    scores = {e.label: [float(r[SCORE]) for r in rs] for e, rs in results.records.items()}
+    threshold = threshold_of(results)
+    taus = profile_taus([v for vs in scores.values() for v in vs], [] if threshold is None else [threshold])
+    labels = list(scores)
+    return {
+        "scores": score_matrix(results),
+        "performance_profile": {
+            "taus": [float(t) for t in taus],
+            "threshold": threshold,
+            "entries": {label: performance_profile(values, taus) for label, values in scores.items()},
+        },
+        "probability_of_improvement": [
+            {"x": x, "y": y} | improvement_summary(scores[x], scores[y])
+            for i, x in enumerate(labels)
+            for y in labels[i + 1 :]
+        ],
+    }
+
+
 def build_report(results: Results) -> dict[str, Any]:
     records = results.records
     return {
@@ -95,10 +149,13 @@ def build_report(results: Results) -> dict[str, Any]:
             "medians and IQRs of times to the first verified solve (a full 100-episode evaluation at the "
             "threshold), unsolved runs counted censored at what they used (their budget); final return: "
             "interquartile mean of each run's final verdict (the kept best policy on 100 fresh episodes); "
-            "95% CIs: percentile bootstrap (scipy.stats.bootstrap, 4000 resamples) over runs"
+            "95% CIs: percentile bootstrap (scipy.stats.bootstrap, 4000 resamples) over runs; performance "
+            "profiles (the fraction of runs whose final verdict mean return is above each tau) and the "
+            "probability of improvement P(X > Y) (Mann-Whitney U / (n m), the runs of X and Y resampled "
+            "independently) as rliable defines them (Agarwal et al., 2021), from the score matrix"
         ),
         "entries": [entry_summary(entry, rs) for entry, rs in records.items()],
-    }
+    } | rliable_views(results)
 
 
 def _number(value: float, digits: int) -> str:
@@ -158,19 +215,44 @@ def markdown(report: dict[str, Any], figures: list[str]) -> str:
         f"run's final verdict (its kept best policy on 100 fresh episodes). {seed_range(report['seeds'])}",
         "",
     ]
+    lines += improvement_lines(report["probability_of_improvement"])
     lines += [f"![{Path(f).stem}]({Path(f).name})" for f in figures]
     return "\n".join(lines) + "\n"
 
 
+def improvement_lines(pairs: list[dict[str, Any]]) -> list[str]:
+    """The probability of improvement of each pair, in words, for ``report.md``."""
+    shown = [p for p in pairs if p["probability"] is not None]
+    if not shown:
+        return []
+    lines = [
+        "Probability of improvement: the chance that a run of X ends with a higher final verdict mean "
+        "return than a run of Y (ties count half; 0.5: no difference) [95% bootstrap CI]. Every run's "
+        "score is in report.json's `scores` (runs x entries, as rliable reads it).",
+        "",
+    ]
+    for p in shown:
+        ci = f" [{p['ci95'][0]:.2f}, {p['ci95'][1]:.2f}]" if p["ci95"] else ""
+        lines.append(f"- P({p['x']} > {p['y']}) = {p['probability']:.2f}{ci}")
+    return [*lines, ""]
+
+
 def write_report(results: Results, folder: Path) -> tuple[dict[str, Any], list[Path]]:
-    """Write report.json, report.md and the two PNGs into ``folder``; return the report and the files."""
-    from cartpole.experiments.figures import plot_curves, plot_solve_steps
+    """Write report.json, report.md and the PNGs into ``folder``; return the report and the files."""
+    from cartpole.experiments.figures import (
+        plot_curves,
+        plot_improvement,
+        plot_performance_profile,
+        plot_solve_steps,
+    )
 
     report = build_report(results)
     groups = {entry.label: curves for entry, curves in results.curves.items()}
     figures = [
         plot_curves(groups, folder / "curves.png", report["env_id"]),
         plot_solve_steps(report["entries"], results.records, folder / "solve_steps.png"),
+        plot_performance_profile(report["performance_profile"], folder / "performance_profile.png"),
+        plot_improvement(report["probability_of_improvement"], folder / "improvement.png"),
     ]
     written = [p for p in figures if p is not None]
     write_json_atomic(folder / "report.json", report)

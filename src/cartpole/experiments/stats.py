@@ -79,3 +79,94 @@ def iqm_summary(values: Sequence[float]) -> dict[str, Any]:
         "min": float(data.min()),
         "max": float(data.max()),
     }
+
+
+# ----------------------------------------------------------------------------------------------
+# rliable's views of the runs: performance profiles and the probability of improvement
+# ----------------------------------------------------------------------------------------------
+# Written here with NumPy and scipy after rliable's own definitions (Agarwal et al. 2021; rliable's
+# library.create_performance_profile and metrics.probability_of_improvement): rliable itself pins
+# arch==5.3.0, which has no wheels for the Pythons we support, so it cannot be in the lock.
+
+PROFILE_POINTS = 101
+"""Thresholds (tau) a performance profile is given at."""
+
+
+def profile_taus(scores: Sequence[float], marks: Sequence[float] = ()) -> np.ndarray:
+    """``PROFILE_POINTS`` thresholds from just below the lowest score (every run above it) to the
+    highest (none above it), widened to take in ``marks`` (the solved threshold, say)."""
+    values = np.asarray([*scores, *marks], dtype=np.float64)
+    if values.size == 0:
+        return np.zeros(0)
+    low, high = float(values.min()), float(values.max())
+    margin = (high - low) * 0.02 or 1.0
+    return np.linspace(low - margin, high, PROFILE_POINTS)
+
+
+def performance_profile(scores: Sequence[float], taus: np.ndarray) -> dict[str, list[float]]:
+    """An entry's performance profile (rliable's run score distribution): at each tau, the fraction of
+    its runs with a score > tau, and a pointwise percentile bootstrap 95% CI over runs (rliable's
+    stratified bootstrap, with one task)."""
+    data = np.asarray(scores, dtype=np.float64)
+    above = (data[None, :] > taus[:, None]).astype(np.float64)  # [tau, run]
+    fraction = above.mean(axis=1) if data.size else np.zeros(len(taus))
+    low, high = fraction, fraction
+    if data.size >= 2 and not np.all(data == data[0]):
+        from scipy.stats import bootstrap
+
+        result = bootstrap(
+            (above,),
+            np.mean,
+            axis=1,
+            confidence_level=CONFIDENCE,
+            n_resamples=RESAMPLES,
+            method="percentile",
+            vectorized=True,
+            random_state=np.random.default_rng(BOOTSTRAP_SEED),
+        )
+        interval = result.confidence_interval  # NaN where every resample agrees: the value itself
+        low = np.where(np.isnan(interval.low), fraction, interval.low)
+        high = np.where(np.isnan(interval.high), fraction, interval.high)
+    return {
+        "fraction": [float(v) for v in fraction],
+        "ci95_low": [float(v) for v in low],
+        "ci95_high": [float(v) for v in high],
+    }
+
+
+def improvement_probability(x: np.ndarray, y: np.ndarray, axis: int = -1) -> Any:
+    """P(X > Y): the chance that a run of X scores above a run of Y, ties counting half; the
+    Mann-Whitney U statistic of X over Y divided by n*m (the rank-sum form, vectorized)."""
+    from scipy.stats import rankdata
+
+    x, y = np.moveaxis(np.asarray(x), axis, -1), np.moveaxis(np.asarray(y), axis, -1)
+    n, m = x.shape[-1], y.shape[-1]
+    ranks = rankdata(np.concatenate((x, y), axis=-1), axis=-1)
+    u = ranks[..., :n].sum(axis=-1) - n * (n + 1) / 2
+    return u / (n * m)
+
+
+def improvement_summary(x: Sequence[float], y: Sequence[float]) -> dict[str, Any]:
+    """P(X > Y) with a percentile bootstrap 95% CI, X's and Y's runs resampled independently
+    (rliable's StratifiedIndependentBootstrap, one task); None without runs on either side."""
+    a, b = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    if a.size == 0 or b.size == 0:
+        return {"probability": None, "ci95": None}
+    point = float(improvement_probability(a, b))
+    ci = None
+    if a.size >= 2 and b.size >= 2:
+        from scipy.stats import bootstrap
+
+        result = bootstrap(
+            (a, b),
+            improvement_probability,
+            confidence_level=CONFIDENCE,
+            n_resamples=RESAMPLES,
+            method="percentile",
+            vectorized=True,
+            paired=False,
+            random_state=np.random.default_rng(BOOTSTRAP_SEED),
+        )
+        interval = result.confidence_interval
+        ci = [point if np.isnan(v) else float(v) for v in (interval.low, interval.high)]
+    return {"probability": point, "ci95": ci}

@@ -64,6 +64,7 @@ def make_spec(
     storage: str | None = None,
     sampler_seed: int = 0,
     env_kwargs: dict[str, Any] | None = None,
+    tensorboard: bool = False,
 ) -> SweepSpec:
     """Check every input (one line each if wrong) before anything is written."""
     from cartpole.agents.registry import agent_names, get_agent
@@ -83,6 +84,10 @@ def make_spec(
         except ValueError as err:
             raise ExperimentError(str(err)) from None
     env_info(env_id, env_kwargs)
+    if tensorboard:
+        from cartpole.training.callbacks import require_tensorboard
+
+        require_tensorboard()
     entry = parse_entry(f"{agent}:{preset or ''}", env_id)
     preset = str(Path(entry.preset).resolve()) if entry.preset.endswith(".toml") else entry.preset
     space, text = load_space(agent, preset, space_file)
@@ -101,6 +106,7 @@ def make_spec(
         sampler_seed=sampler_seed,
         env_kwargs=dict(env_kwargs or {}),
         space=space_description(space),
+        tensorboard=tensorboard,
     )
 
 
@@ -297,6 +303,7 @@ def trial_cost(spec: SweepSpec, trial: Any, params: dict[str, Any], stop: list[i
         device="cpu",
         quiet=True,
         command=["cartpole", "sweep", spec.agent, "--study", spec.name, f"(trial {trial.number})"],
+        tensorboard=spec.tensorboard,
         callbacks=[reporter],
     )
     for seed, run in outcome.runs.items():

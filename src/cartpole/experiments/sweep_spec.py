@@ -31,6 +31,9 @@ class SweepSpec:
     """The seeds every trial trains (``--seeds``); none recorded (sweeps before it): 0..K-1."""
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     """``--env-kwargs``: every trial's env made with them (over the preset's own ``env_kwargs``)."""
+    tensorboard: bool = False
+    """``--tensorboard``: this command's trials log TensorBoard events in their run folders (not part of
+    the study's identity: it changes no result)."""
 
     @property
     def trial_seeds(self) -> list[int]:

@@ -66,6 +66,8 @@ class Task:
     """Seed -> record file of every seed trained as one population (``seed``/``record`` name the first)."""
     overrides: dict[str, Any] = field(default_factory=dict)
     """Settings over the preset's (the comparison's ``--env-kwargs``)."""
+    tensorboard: bool = False
+    """``--tensorboard``: new runs also log TensorBoard events (a resumed run keeps what it had)."""
 
     @classmethod
     def load(cls, path: Path) -> Task:
@@ -132,6 +134,7 @@ def run_task(task: Task) -> dict[str, Any]:
             device="cpu",
             quiet=True,
             command=task.command,
+            tensorboard=task.tensorboard,
             callbacks=[clock],
         )
     record = make_record(task, outcome, clock)
@@ -197,6 +200,7 @@ def run_population_task(task: Task, records: dict[int, str]) -> dict[str, Any]:
                 device="cpu",
                 quiet=True,
                 command=task.command,
+                tensorboard=task.tensorboard,
             )
         cpu_share = (time.process_time() - cpu_start) / len(outcome.runs)
         owned = [seed for seed in outcome.runs if seed in todo]  # a resumed population may hold others

@@ -133,6 +133,7 @@ def train(
     runs_dir: str | Path = "runs",
     device: str = "auto",
     progress: bool = True,
+    tensorboard: bool = False,
     **settings: Any,
 ) -> Run:
     """Train ``agent`` on ``env`` as ``cartpole train`` does (a new run folder under ``runs_dir``,
@@ -141,9 +142,11 @@ def train(
     ``preset`` None takes the agent's preset for ``env`` (``cartpole presets`` lists them), as
     ``cartpole train`` without ``--preset`` does. ``settings`` override the preset's, as ``--set``
     does (``train("dqn", lr=1e-3)``); ``budget`` as ``--budget`` ("50k" env steps, "300ep", "20gen",
-    "90s"). ``progress``: a progress bar in a
-    notebook, plain lines elsewhere. torch computes with ``cartpole train``'s default thread count
-    while it trains (one thread on state observations), and with the caller's again after.
+    "90s"). ``progress``: a progress bar in a notebook, plain lines elsewhere. ``tensorboard`` as
+    ``--tensorboard``: the metrics, the settings as hyperparameters (the final verdict their metric)
+    and the command in ``<run>/tensorboard/`` (needs the tensorboard extra). torch computes with
+    ``cartpole train``'s default thread count while it trains (one thread on state observations),
+    and with the caller's again after.
     """
     from cartpole.training import train as train_run
     from cartpole.training.threads import default_torch_threads, torch_threads
@@ -159,6 +162,7 @@ def train(
             runs_dir=runs_dir,
             device=device,
             quiet=not progress,
+            tensorboard=tensorboard,
         )
     return Run(outcome.run.path)
 

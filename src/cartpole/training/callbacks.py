@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import html
+import json
 import math
+import shlex
 import sys
 import time
 from collections.abc import Callable
@@ -425,15 +427,19 @@ class TensorBoardCallback(Callback):
     """Mirrors the metric rows as TensorBoard scalars in ``<run>/tensorboard/``.
 
     It writes exactly what :class:`MetricsCallback` writes (same keys, x = env steps), so the two
-    never disagree. Needs the ``tensorboard`` package (the ``tensorboard`` extra).
+    never disagree. Given the run's ``record`` (its ``config.json``), a new run also gets its settings
+    as hyperparameters (:func:`hparams_of`, for TensorBoard's HParams tab, whose metrics are the final
+    verdict's: :func:`write_verdict` logs them) and its command as text. Needs the ``tensorboard``
+    package (the ``tensorboard`` extra).
     """
 
     DIR = "tensorboard"
     SKIP = ("step", "episode", "time")
 
-    def __init__(self, run: RunDir, metrics: MetricsCallback):
+    def __init__(self, run: RunDir, metrics: MetricsCallback, record: dict[str, Any] | None = None):
         require_tensorboard()
         self.log_dir = run.path / self.DIR
+        self.record = record
         self.writer: Any = None
         metrics.listeners.append(self.write_rows)
 
@@ -443,6 +449,8 @@ class TensorBoardCallback(Callback):
         # On a resume, drop events logged after the checkpoint, as metrics.jsonl drops its rows.
         purge = loop.state.env_steps + 1 if loop.state.env_steps else None
         self.writer = SummaryWriter(log_dir=str(self.log_dir), purge_step=purge)
+        if self.record is not None and purge is None:  # a resume keeps those of its start
+            write_settings(self.writer, self.record)
 
     def write_rows(self, rows: list[dict[str, Any]]) -> None:
         if self.writer is None:
@@ -459,6 +467,58 @@ class TensorBoardCallback(Callback):
         if self.writer is not None:
             self.writer.close()
             self.writer = None
+
+
+HPARAM_SECTIONS = ("agent", "env_id", "seed", "preset", "device", "config", "settings", "budget")
+"""What of a run's ``config.json`` TensorBoard gets as hyperparameters (``config/lr``, ...)."""
+VERDICT_METRICS = ("verdict/mean_return", "verdict/solved")
+"""The hyperparameters' metrics: the final verdict's mean return, and 1 if it solved."""
+HParam = bool | int | float | str
+
+
+def hparams_of(record: dict[str, Any]) -> dict[str, HParam]:
+    """A run's settings as TensorBoard takes hyperparameters: nested tables flattened into
+    ``section/key`` names, lists written as JSON text, and None (a setting left unset) left out."""
+    flat: dict[str, HParam] = {}
+
+    def add(name: str, value: Any) -> None:
+        if isinstance(value, dict):
+            for key, inner in value.items():
+                add(f"{name}/{key}", inner)
+        elif isinstance(value, bool | int | float | str):
+            flat[name] = value
+        elif value is not None:
+            flat[name] = json.dumps(value, default=str)
+
+    for section in HPARAM_SECTIONS:
+        if section in record:
+            add(section, record[section])
+    return flat
+
+
+def write_settings(writer: Any, record: dict[str, Any]) -> None:
+    """The run's settings as hyperparameters, whose metrics are :data:`VERDICT_METRICS`, and its
+    command as text (the same three summaries as torch's ``add_hparams``, in the run's own folder)."""
+    from torch.utils.tensorboard.summary import hparams
+
+    for summary in hparams(hparams_of(record), dict.fromkeys(VERDICT_METRICS, 0.0)):
+        writer.file_writer.add_summary(summary)
+    command = record.get("command") or []
+    writer.add_text("command", "    " + shlex.join(str(part) for part in command))  # a code block
+    writer.flush()
+
+
+def write_verdict(run: RunDir, report: EvalReport, step: int) -> None:
+    """Log the final verdict's :data:`VERDICT_METRICS` at ``step`` in ``<run>/tensorboard/``: the
+    metrics of the run's hyperparameters."""
+    from torch.utils.tensorboard import SummaryWriter
+
+    writer = SummaryWriter(log_dir=str(run.path / TensorBoardCallback.DIR))
+    try:
+        for tag, value in zip(VERDICT_METRICS, (report.mean, float(report.solved)), strict=True):
+            writer.add_scalar(tag, value, global_step=step)
+    finally:
+        writer.close()
 
 
 TENSORBOARD_EXTRA = "pip install 'cartpole[tensorboard]'"

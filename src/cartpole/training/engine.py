@@ -30,7 +30,7 @@ from cartpole.envs import EnvInfo, Simulator, check_simulator
 from cartpole.evaluation import MIN_EPISODES_FOR_SOLVED, EvalReport, Policy, play_greedy_blocks
 from cartpole.runs import LiveStatus, RunDir, load_checkpoint
 from cartpole.training.budget import Budget
-from cartpole.training.callbacks import MetricsCallback, screened_reports, status_fields
+from cartpole.training.callbacks import MetricsCallback, screened_reports, status_fields, write_verdict
 from cartpole.training.config import TrainSettings
 from cartpole.training.loop import Callback, LoopState, TrainingLoop, failure_detail
 from cartpole.training.setup import RunSetup, make_callbacks
@@ -331,13 +331,15 @@ def final_verdicts(members: list[Member]) -> tuple[dict[int, EvalReport], dict[i
     """Each member's kept best checkpoint on ``max(eval_episodes, 100)`` greedy episodes from seeds
     ``final_eval_seed(seed) + i`` (seeds no training or evaluation used, derived from the run's seed,
     so the same run gives the same verdict; ``cartpole eval`` judges it again on any other seeds),
-    all members in one vector env. Written to each ``eval.json``; and for members
-    that trained on past their best (no stop at a solve), the last policy (``latest.pt``) on the same
-    episodes, written to ``last_eval.json`` (not a verdict: shown when it disagrees). Returns both,
-    by seed."""
+    all members in one vector env. Written to each ``eval.json`` (and with TensorBoard, its metrics);
+    and for members that trained on past their best (no stop at a solve), the last policy
+    (``latest.pt``) on the same episodes, written to ``last_eval.json`` (not a verdict: shown when it
+    disagrees). Returns both, by seed."""
     reports = play_final_episodes(members, CheckpointName.BEST)
     for member in members:
         member.setup.run.write_eval(reports[member.seed].to_dict())
+        if member.setup.tensorboard:  # the metrics of the run's hyperparameters in TensorBoard
+            write_verdict(member.setup.run, reports[member.seed], member.loop.state.env_steps)
     went_on = [m for m in members if went_past_best(m.setup.run, m.loop.state)]
     lasts = play_final_episodes(went_on, CheckpointName.LATEST) if went_on else {}
     for member in went_on:

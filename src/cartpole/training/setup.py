@@ -178,7 +178,7 @@ def make_callbacks(
         status_writer,
     ]
     if setup.tensorboard:
-        callbacks.append(TensorBoardCallback(run, metrics))
+        callbacks.append(TensorBoardCallback(run, metrics, run.config()))
     if not quiet:
         callbacks.append(ProgressCallback(setup.budget, setup.spec.iteration))
     return callbacks + list(extra)

@@ -69,7 +69,8 @@ def experiment(request: Request, name: Name) -> Any:
     responses={**NOT_FOUND, 200: {"content": {"image/png": {}}}},
 )
 def figure(request: Request, name: Name, figure: Annotated[str, Path(max_length=40)]) -> FileResponse:
-    """A figure of the experiment: ``curves`` or ``solve_steps``."""
+    """A figure of the experiment: ``curves``, ``solve_steps``, ``performance_profile`` (rliable's
+    performance profiles of the final returns) or ``improvement`` (their probability of improvement)."""
     try:
         path = experiments_folder(request).figure(name, figure)
     except NotFound as err:

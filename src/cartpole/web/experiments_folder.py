@@ -28,7 +28,7 @@ from cartpole.web.shared_reports import SharedReport, SharedReports, SharedStatu
 
 EXPERIMENTS = "experiments"
 SWEEPS = "sweeps"
-FIGURES = ("curves", "solve_steps")
+FIGURES = ("curves", "solve_steps", "performance_profile", "improvement")
 """The figures ``cartpole compare`` draws, as ``NAME.png``."""
 ABSOLUTE_PATH = re.compile(r"(?<![\w.])/(?:[^\s/:'\"]+/)*([^\s/:'\"]+)")
 
@@ -75,6 +75,26 @@ class ReportEntry(BaseModel):
     run_folders: list[str] = Field(description="run folder names, in the experiment's runs/ folder")
 
 
+class ScoreMatrix(BaseModel):
+    """Every run's score as rliable reads it: runs (a row per seed) by entries (a column each)."""
+
+    score: str = Field(description="what a run's score is")
+    entries: list[str] = Field(description="the columns' entries")
+    seeds: list[int] = Field(description="the rows' seeds")
+    matrix: list[list[float | None]] = Field(
+        description="None where that seed of that entry has not finished"
+    )
+
+
+class Improvement(BaseModel):
+    """rliable's probability of improvement: the chance that a run of ``x`` scores above a run of ``y``."""
+
+    x: str
+    y: str
+    probability: float | None
+    ci95: list[float] | None
+
+
 class Report(BaseModel):
     env_id: str
     budget: str
@@ -82,6 +102,10 @@ class Report(BaseModel):
     confidence: float
     method: str
     entries: list[ReportEntry]
+    scores: ScoreMatrix | None = Field(None, description="absent from reports made before it")
+    probability_of_improvement: list[Improvement] = Field(
+        default_factory=list, description="for each entry over each later one"
+    )
 
 
 class ExperimentRow(BaseModel):

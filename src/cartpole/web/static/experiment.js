@@ -6,6 +6,8 @@ const name = CP.param("name") || "";
 const FIGURE_TEXT = {
   curves: "Evaluation return against env steps: per entry the mean over its runs, with a 95% bootstrap CI band.",
   solve_steps: "Each run's env steps to its first verified solve (hollow: never solved, shown at its budget); black bar: the median.",
+  performance_profile: "Performance profile (rliable): per entry, the fraction of runs whose final verdict mean return is above each tau, with a 95% bootstrap CI band.",
+  improvement: "Probability of improvement (rliable): for each pair, the chance that a run of X ends with a higher final verdict mean return than a run of Y (0.5: no difference), with its 95% bootstrap CI.",
 };
 
 function number(value, digits) {
