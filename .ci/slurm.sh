@@ -32,11 +32,12 @@ cartpole_slurm_stop() {
     # shellcheck disable=SC2086
     [ -z "$jobs" ] || scancel $jobs 2>/dev/null || true
   fi
-  local pidfile pid
+  local pidfile pid pids=()
   for pidfile in slurmd.pid slurmctld.pid munge/munged.pid; do
-    pid="$(cat "$CARTPOLE_SLURM_DIR/$pidfile" 2>/dev/null)" || continue
-    kill "$pid" 2>/dev/null || continue
-    for _ in $(seq 50); do kill -0 "$pid" 2>/dev/null || break; sleep 0.1; done
+    pid="$(cat "$CARTPOLE_SLURM_DIR/$pidfile" 2>/dev/null)" && kill "$pid" 2>/dev/null && pids+=("$pid")
+  done
+  for pid in "${pids[@]}"; do  # each takes about 2 s to stop
+    for _ in $(seq 100); do kill -0 "$pid" 2>/dev/null || break; sleep 0.1; done
   done
   rm -rf "$CARTPOLE_SLURM_DIR"
   unset CARTPOLE_SLURM_DIR SLURM_CONF CARTPOLE_TEST_SLURM
@@ -110,10 +111,15 @@ cartpole_slurm_start() {
 }
 
 CARTPOLE_SLURM_START=$SECONDS
-cartpole_slurm_install
-CARTPOLE_SLURM_DIR="$(mktemp -d /tmp/cartpole-slurm.XXXXXX)"
-# Stopped on exit, before whatever the shell did on exit already (by hand: postgres.sh's stop).
-trap "cartpole_slurm_stop; $(trap -p EXIT | sed -E "s/^trap -- '(.*)' EXIT\$/\1/")" EXIT
-cartpole_slurm_start "$CARTPOLE_SLURM_DIR"
+if cartpole_slurm_install; then
+  CARTPOLE_SLURM_DIR="$(mktemp -d /tmp/cartpole-slurm.XXXXXX)"
+  # Stopped on exit, before whatever the shell did on exit already (by hand: postgres.sh's stop).
+  trap "cartpole_slurm_stop; $(trap -p EXIT | sed -E "s/^trap -- '(.*)' EXIT\$/\1/")" EXIT
+fi
+if [ -z "${CARTPOLE_SLURM_DIR:-}" ] || ! cartpole_slurm_start "$CARTPOLE_SLURM_DIR"; then
+  cartpole_slurm_stop
+  echo "no Slurm cluster: installing or starting it failed" >&2
+  return 1
+fi
 export CARTPOLE_TEST_SLURM=1
 echo "Slurm for the cluster tests: SLURM_CONF=$SLURM_CONF ($((SECONDS - CARTPOLE_SLURM_START)) s to install and start)"

@@ -6,7 +6,8 @@ one-machine run of the same comparison.
 Needs a Slurm cluster whose node is this machine (SLURM_CONF; `.ci/slurm.sh` starts a throwaway one) and
 CARTPOLE_TEST_POSTGRES_URL (`.ci/postgres.sh`):
     source .ci/postgres.sh && source .ci/slurm.sh && python -m pytest -m slow -n 0 tests/test_slurm.py
-Skipped where either is missing, except under CI=true, where it fails: CI cannot skip it unseen.
+Skipped where either is missing, except under CI=true, where it fails: CI cannot skip it unseen. (The
+test that the docs show the script is a quick one.)
 """
 
 from __future__ import annotations
@@ -26,10 +27,9 @@ import pytest
 
 from cartpole.experiments.shared import RowState, SharedComparison
 
-pytestmark = pytest.mark.slow
-
 URL = os.environ.get("CARTPOLE_TEST_POSTGRES_URL")
-SCRIPT = Path(__file__).resolve().parents[1] / "docs" / "experiments" / "slurm-compare.sbatch"
+DOCS = Path(__file__).resolve().parents[1] / "docs"
+SCRIPT = DOCS / "experiments" / "slurm-compare.sbatch"
 ENTRIES = ["cem", "random-search"]
 SEEDS = 6
 TASKS = 3
@@ -51,14 +51,13 @@ def missing() -> list[str]:
     return lacks
 
 
-@pytest.fixture
 def cluster() -> str:
-    """The PostgreSQL URL; skips without Slurm or PostgreSQL, but fails under CI=true."""
+    """The PostgreSQL URL; skips the test without Slurm or PostgreSQL, but fails it under CI=true."""
     lacks = missing()
     if lacks:
-        message = "no " + " and no ".join(lacks)
+        message = "this test needs " + " and ".join(lacks)
         if os.environ.get("CI", "").lower() in ("true", "1"):
-            pytest.fail(message + " (CI=true: this test must run)")
+            pytest.fail(message + " (CI=true: it must run)")
         pytest.skip(message)
     assert URL is not None
     return URL
@@ -150,14 +149,16 @@ def finished_records(runs_dir: Path) -> list[dict[str, Any]]:
     return [r for r in records if r.get("state") == "finished"]
 
 
-def test_a_job_array_shares_one_comparison_and_survives_a_scancel(cluster, tmp_path):
+@pytest.mark.slow
+def test_a_job_array_shares_one_comparison_and_survives_a_scancel(tmp_path):
+    url = cluster()
     name = f"slurm-{uuid.uuid4().hex[:8]}"
     runs_dir, outputs = tmp_path / "cluster", tmp_path / "outputs"
     runs_dir.mkdir()
     outputs.mkdir()
-    job = submit(cluster, name, runs_dir, outputs)
+    job = submit(url, name, runs_dir, outputs)
     try:
-        shared = wait_for(lambda: open_shared(cluster, name), 300, "the comparison to be created")
+        shared = wait_for(lambda: open_shared(url, name), 300, "the comparison to be created")
         cancelled, held = wait_for(
             lambda: training_task(shared, runs_dir), 300, "a task to train a claimed run"
         )
@@ -192,3 +193,15 @@ def test_a_job_array_shares_one_comparison_and_survives_a_scancel(cluster, tmp_p
     expected = {(r["agent"], r["seed"]): {k: r[k] for k in SAME} for r in finished_records(alone)}
     assert len(expected) == len(ENTRIES) * SEEDS
     assert {(r.entry, r.seed): {k: r.record[k] for k in SAME} for r in rows} == expected
+
+
+def test_the_docs_show_the_shipped_compare_script():
+    """docs/EXPERIMENTS.md shows the script this test submits, less its comment header."""
+    lines = SCRIPT.read_text().splitlines()
+    header = next(
+        i for i, line in enumerate(lines[1:], 1) if not line.startswith("#") or line.startswith("#SBATCH")
+    )
+    shipped = lines[:1] + lines[header:]
+    docs = (DOCS / "EXPERIMENTS.md").read_text()
+    block = docs[docs.index("```bash\n#!/bin/bash\n") :].split("\n", 1)[1]
+    assert block[: block.index("```")].splitlines() == shipped
