@@ -157,16 +157,26 @@ def test_a_job_array_shares_one_comparison_and_survives_a_scancel(tmp_path):
     runs_dir.mkdir()
     outputs.mkdir()
     job = submit(url, name, runs_dir, outputs)
+    alone: subprocess.Popen[str] | None = None
     try:
         shared = wait_for(lambda: open_shared(url, name), 300, "the comparison to be created")
         cancelled, held = wait_for(
             lambda: training_task(shared, runs_dir), 300, "a task to train a claimed run"
         )
         slurm("scancel", f"{job}_{cancelled}")
+        # The same comparison on one machine, meanwhile (the cluster's tasks often wait).
+        alone = subprocess.Popen(
+            [sys.executable, "-m", "cartpole", "compare", *COMPARE_ARGS, "--name", name,
+             "--runs-dir", str(tmp_path / "one-machine")],
+            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+        )  # fmt: skip
         wait_for(lambda: not slurm("squeue", "--noheader", "--array", "--jobs", job).strip(), 540,
                  "the job array to end")  # fmt: skip
+        _, alone_errors = alone.communicate(timeout=300)
     finally:
         subprocess.run(["scancel", job], capture_output=True, timeout=60)
+        if alone is not None and alone.poll() is None:
+            alone.kill()
     logs = "\n".join(f"--- task {p.name}\n{p.read_text()}" for p in sorted(outputs.iterdir()))
     states = job_states(job)
     assert states == {t: "CANCELLED" if t == cancelled else "COMPLETED" for t in range(TASKS)}, logs
@@ -183,14 +193,10 @@ def test_a_job_array_shares_one_comparison_and_survives_a_scancel(tmp_path):
     assert sorted((r["agent"], r["seed"]) for r in records) == sorted((r.entry, r.seed) for r in rows)
 
     # The same results as one machine's run of the same comparison, run by run.
-    alone = tmp_path / "one-machine"
-    one = subprocess.run(
-        [sys.executable, "-m", "cartpole", "compare", *COMPARE_ARGS, "--name", name,
-         "--runs-dir", str(alone)],
-        capture_output=True, text=True, timeout=300,
-    )  # fmt: skip
-    assert one.returncode == 0, one.stderr
-    expected = {(r["agent"], r["seed"]): {k: r[k] for k in SAME} for r in finished_records(alone)}
+    assert alone.returncode == 0, alone_errors
+    expected = {
+        (r["agent"], r["seed"]): {k: r[k] for k in SAME} for r in finished_records(tmp_path / "one-machine")
+    }
     assert len(expected) == len(ENTRIES) * SEEDS
     assert {(r.entry, r.seed): {k: r.record[k] for k in SAME} for r in rows} == expected
 
