@@ -86,6 +86,8 @@ def test_onnx_acts_as_ours_wherever_our_two_best_scores_do_not_nearly_tie(case, 
     action, scores = session.run(["action", "scores"], {"observations": observations[:500]})
     assert action.dtype == np.int64 and scores.shape == (500, opened.env.n_actions)
     assert np.array_equal(action, scores.argmax(axis=1))
+    (one,) = session.run(["action"], {"observations": observations[:1]})  # any batch size
+    assert one.tolist() == action[:1].tolist()
     if opened.checkpoint.agent != "dqn" and hasattr(opened.policy, "params"):  # linear: [-s, s]
         assert np.allclose(scores, opened.policy.scores(observations[:500]), rtol=1e-5, atol=1e-5)
     if opened.checkpoint.agent == "dqn":  # Q-values
@@ -276,3 +278,15 @@ def test_hub_refuses_a_folder_that_is_not_empty_a_file_and_a_checkpoint(cem_run,
     assert "is a file" in capsys.readouterr().err
     assert main(["export", str(cem_run / "checkpoints" / "best.pt"), "--hub", str(tmp_path / "new")]) == 2
     assert "give the run's folder" in capsys.readouterr().err and not (tmp_path / "new").exists()
+
+
+def test_a_failed_hub_export_leaves_nothing(cem_run, tmp_path, monkeypatch, capsys):
+    import cartpole.export.hub
+
+    def full_disk(*args: Any) -> None:
+        raise OSError(28, "No space left on device", "model.onnx")
+
+    monkeypatch.setattr(cartpole.export.hub, "write_onnx", full_disk)
+    assert main(["export", str(cem_run), "--hub", str(tmp_path / "hub")]) == 2
+    assert "No space left on device" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []  # neither the folder nor its staging folder

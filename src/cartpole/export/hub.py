@@ -15,10 +15,9 @@ complete: a failed export leaves nothing half written.
 from __future__ import annotations
 
 import json
-import os
+import secrets
 import shlex
 import shutil
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -29,6 +28,7 @@ from cartpole.export.onnx_graph import ExportError, input_dtype, require_export_
 from cartpole.recording import RecordingError, check_video_path, render_episodes, write_video
 from cartpole.runs import RunDir
 from cartpole.runs.atomic import write_text_atomic
+from cartpole.runs.run_dir import CHECKPOINTS, CONFIG, EVAL
 
 CARD = "README.md"
 ONNX_FILE = "model.onnx"
@@ -59,9 +59,9 @@ def write_hub_folder(run: str | Path, folder: str | Path) -> HubFolder:
     run_dir, report = verdict_of(Path(run))
     opened = open_policy(run_dir.path)
     folder.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".partial", dir=folder.parent))
+    staging = folder.parent / f".{folder.name}.{secrets.token_hex(4)}.partial"
+    staging.mkdir()  # with the usual mode (mkdtemp's folders are private)
     try:
-        staging.chmod(0o777 & ~current_umask())  # mkdtemp's folders are private: give the usual mode
         written = fill(staging, run_dir, opened, report)
         if folder.exists():
             folder.rmdir()  # empty, as checked
@@ -101,20 +101,14 @@ def verdict_of(run: Path) -> tuple[RunDir, EvalReport]:
     return run_dir, EvalReport.from_dict(data)
 
 
-def current_umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
 def fill(staging: Path, run: RunDir, opened: OpenedPolicy, report: EvalReport) -> tuple[str, str | None]:
     """Everything the folder holds, written into ``staging``; the checkpoint's and the video's names
     in it."""
     config = run.config()
-    shutil.copyfile(run.path / "config.json", staging / "config.json")
-    shutil.copyfile(run.path / "eval.json", staging / "eval.json")
-    checkpoint = Path("checkpoints") / opened.path.name
-    (staging / "checkpoints").mkdir()
+    for record in (CONFIG, EVAL):
+        shutil.copyfile(run.path / record, staging / record)
+    checkpoint = Path(CHECKPOINTS) / opened.path.name
+    (staging / CHECKPOINTS).mkdir()
     shutil.copyfile(opened.path, staging / checkpoint)
     write_onnx(opened, staging / ONNX_FILE)
     video = write_replay(opened, report, staging / REPLAY)
