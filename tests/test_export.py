@@ -94,6 +94,7 @@ def test_onnx_acts_as_ours_wherever_our_two_best_scores_do_not_nearly_tie(case, 
         assert np.allclose(scores, opened.policy.scores(observations[:500]), rtol=1e-4, atol=1e-4)
     meta = session.get_modelmeta().custom_metadata_map
     assert (meta["agent"], meta["env_id"], meta["seed"]) == (RUNS[case][0], RUNS[case][1], "3")
+    assert meta["step"] == str(opened.checkpoint.meta["step"])
 
 
 def test_the_graph_holds_the_standardization(tmp_path):

@@ -60,9 +60,8 @@ def run(args: argparse.Namespace) -> int:
     if args.hub is not None:
         hub = write_hub_folder(args.path, args.hub)
         opened, onnx_file = open_policy(hub.path), hub.onnx
-        print(
-            f"wrote {hub.path}: a model card, {hub.checkpoint.name}, config.json, eval.json, {onnx_file.name}"
-        )
+        files = [hub.checkpoint.name, "config.json", "eval.json", onnx_file.name]
+        print(f"wrote {hub.path}: a model card, {', '.join(files + ([hub.video.name] if hub.video else []))}")
         if hub.video is None:
             print('no replay video: the video extra is not installed (pip install -e ".[video]")')
     else:

@@ -185,6 +185,7 @@ def model_card(
     settings = json.dumps(config.get("config", {}), indent=2)
     seeds = f"{report.seeds[0]}..{report.seeds[-1]}"
     spread = f"{report.mean:.2f} ± {report.std:.2f} | {report.min:g} / {report.max:g}"
+    replay_row = f"| `{files['video']}` | the verdict's first episode |\n" if files["video"] else ""
     weights = "the run's checkpoint (tensors and JSON metadata: `torch.load(FILE, weights_only=True)`)"
     return f"""{front_matter(config, report)}
 # {agent} on {env_id}
@@ -216,20 +217,29 @@ A greedy {agent} agent for `{env_id}`, trained with `{LIBRARY}` (seed {config.ge
 
 ## How to load it
 
-With `{LIBRARY}` installed, in this folder (`hf download USER/REPO --local-dir {name}` fetches it):
+Fetch it with `hf download USER/REPO --local-dir {name}`. With `{LIBRARY}` installed:
 
 ```
-cartpole eval {name}
-python -c "import cartpole; policy = cartpole.load_policy('{name}'); print(policy.act(OBSERVATIONS))"
+cartpole eval {name}      # a new verdict, on fresh episode seeds
 ```
-
-Without it, the greedy policy is `{ONNX_FILE}` (observations `[N, ...]` in, `action` and `scores` out):
 
 ```python
-import numpy as np, onnxruntime
+import cartpole
+
+policy = cartpole.load_policy("{name}")
+actions = policy.act(observations)  # observations [N, ...] as the env gives them -> actions [N]
+```
+
+Without it, the greedy policy is `{ONNX_FILE}`, for any ONNX runtime: `observations` `[N, ...]`
+({observation_dtype}) in, `action` `[N]` and `scores` `[N, actions]` out:
+
+```python
+import numpy as np
+import onnxruntime
+
 session = onnxruntime.InferenceSession("{ONNX_FILE}")
-observations = np.asarray([observation], dtype=np.{observation_dtype})
-action, scores = session.run(None, {{"observations": observations}})
+batch = np.asarray([observation], dtype=np.{observation_dtype})  # one observation of the env
+action, scores = session.run(None, {{"observations": batch}})
 ```
 
 ## Files
@@ -238,8 +248,8 @@ action, scores = session.run(None, {{"observations": observations}})
 | --- | --- |
 | `{files["checkpoint"]}` | the weights: {weights} |
 | `{ONNX_FILE}` | the greedy policy as an ONNX graph, observation standardization included |
-| `config.json`, `eval.json` | the run's settings and command; its verdict |
-"""
+| `config.json`, `eval.json` | the run's settings and command; its verdict, every episode |
+{replay_row}"""
 
 
 __all__ = ["CARD", "ONNX_FILE", "REPLAY", "UPLOAD_COMMAND", "HubFolder", "model_card", "write_hub_folder"]

@@ -90,8 +90,8 @@ def scores_network(opened: OpenedPolicy) -> nn.Module:
 
 
 def write_onnx(opened: OpenedPolicy, out: Path) -> Path:
-    """Write ``opened``'s greedy policy to ``out`` as an ONNX graph (atomically), with the agent,
-    env, checkpoint and package version in its metadata; ``out``."""
+    """Write ``opened``'s greedy policy to ``out`` as an ONNX graph (atomically), with the agent, the
+    env, the run's seed, the checkpoint's step and our version in its metadata; ``out``."""
     require_export_extra()
     graph = GreedyGraph(scores_network(opened))
     example = torch.zeros((2, *opened.env.obs_shape), dtype=torch_dtype(input_dtype(opened.env)))
@@ -114,12 +114,10 @@ def write_onnx(opened: OpenedPolicy, out: Path) -> Path:
         "env_id": opened.env.label,
         "seed": str(checkpoint.meta.get("seed")),
         "step": str(checkpoint.meta.get("step")),
-        "scores": spec_of(checkpoint).score_label,
         "cartpole_version": __version__,
     }
     for key, value in metadata.items():
         model.metadata_props.add(key=key, value=value)
-    model.producer_name = "cartpole"
     write_bytes_atomic(out, model.SerializeToString(), durable=True)
     return out
 
