@@ -45,6 +45,8 @@ PARITY_OBSERVATIONS = 10_000
 RANDOM_ACTION_SHARE = 0.25
 """The share of random actions among those that play the observations: states the greedy policy
 alone would not visit, and episodes that end early."""
+PLAYING_ENVS = 16
+"""Envs :func:`play_observations` plays at once (the policy acts for all of them in one call)."""
 CHUNK = 1_000
 """Observations run through a network at once (10,000 frame stacks as float32 are half a gigabyte)."""
 
@@ -138,11 +140,12 @@ def quiet_exporter() -> Iterator[None]:
 
 
 def play_observations(
-    policy: Policy, env: EnvInfo, count: int = PARITY_OBSERVATIONS, seed: int = 0, num_envs: int = 16
+    policy: Policy, env: EnvInfo, count: int = PARITY_OBSERVATIONS, seed: int = 0
 ) -> np.ndarray:
     """``count`` observations of ``env`` (``[count, *obs_shape]``) met by ``policy`` playing it,
     one action in four random (:data:`RANDOM_ACTION_SHARE`), on our fast simulator where it has the
     env (CartPole and its pixels), else Gymnasium's."""
+    num_envs = PLAYING_ENVS
     envs = make_vec_env(env, num_envs, simulator="fast")
     rng = np.random.default_rng(seed)
     rows: list[np.ndarray] = []
