@@ -100,7 +100,7 @@ def test_bad_checkpoints(kind, tmp_path, cem_run, capsys):
 
 
 @pytest.mark.parametrize(
-    "command", ["train", "eval", "runs", "presets", "plot", "record", "serve", "compare", "sweep"]
+    "command", ["train", "eval", "runs", "presets", "plot", "record", "serve", "compare", "sweep", "export"]
 )
 def test_help_prints_its_text_as_written(command, capsys):
     """argparse leaves a description as it is: a "%%" meant for a help string shows up doubled."""

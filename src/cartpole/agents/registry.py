@@ -15,6 +15,8 @@ from cartpole.evaluation import BlockActor, Policy
 from cartpole.runs import Checkpoint, CheckpointError, RunDir, load_checkpoint
 
 if TYPE_CHECKING:
+    from torch import nn
+
     from cartpole.agents.population import Population
 
 
@@ -45,6 +47,12 @@ class AgentSpec:
     image_observations: bool = False
     """Whether it can learn from image observations ``[channels, height, width]`` (it has a
     convolutional network), e.g. ``cartpole/CartPolePixels-v1``."""
+    scores_network: Callable[[Checkpoint], nn.Module] | None = None
+    """A checkpoint's greedy path as one torch module, for export (:mod:`cartpole.export`):
+    observations ``[N, *obs_shape]`` (as the env gives them) -> the scores ``[N, n_actions]`` its
+    policy acts on, the action being their argmax (Q-values, action logits, linear scores), with
+    the observations' standardization or scaling inside. Computed exactly where acting takes fast
+    approximations (:mod:`cartpole.agents.nn.fast_tanh`); None: the agent cannot be exported."""
 
     def check_env(self, env: EnvInfo) -> None:
         """UnsupportedEnvError (one line) when this agent cannot learn on ``env``'s observations:

@@ -40,11 +40,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _optional_commands() -> list:
-    """Commands added by later modules (plot, record, serve, compare, sweep) when they are present."""
+    """Commands added by later modules (plot, record, serve, compare, sweep, export) when they are present."""
     import importlib
 
     found = []
-    for name in ("plot", "record", "serve", "compare", "sweep"):
+    for name in ("plot", "record", "serve", "compare", "sweep", "export"):
         try:
             found.append(importlib.import_module(f"cartpole.cli.{name}"))
         except ModuleNotFoundError as err:

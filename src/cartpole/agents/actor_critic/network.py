@@ -190,6 +190,18 @@ class ActorCritic(nn.Module):
         return [*self.input_layers(), *self.actor_trunk, self.policy_head]
 
 
+class ActorLogits(nn.Module):
+    """The actor of an :class:`ActorCritic` alone, frozen: observations -> action logits (what its
+    greedy policy takes the argmax of), standardization or pixel scaling included; for export."""
+
+    def __init__(self, model: ActorCritic):
+        super().__init__()
+        self.model = model.requires_grad_(False).eval()
+
+    def forward(self, observations: torch.Tensor) -> torch.Tensor:
+        return self.model.logits(observations)
+
+
 # ----------------------------------------------------------------------------------------------
 # The greedy policy
 # ----------------------------------------------------------------------------------------------
@@ -264,6 +276,7 @@ __all__ = [
     "CONV_LAYERS",
     "PIXEL_SCALE",
     "ActorCritic",
+    "ActorLogits",
     "CategoricalPolicy",
     "ScalePixels",
     "Standardization",

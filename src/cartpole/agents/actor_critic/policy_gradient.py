@@ -17,6 +17,7 @@ import torch
 from cartpole.agents.actor_critic.network import (
     ACTIVATIONS,
     ActorCritic,
+    ActorLogits,
     CategoricalPolicy,
     Standardization,
 )
@@ -141,8 +142,29 @@ def observation_shape(learner: dict[str, Any]) -> tuple[int, ...]:
 
 def policy_loader(agent: str, config_cls: type) -> Callable[[Checkpoint], CategoricalPolicy]:
     """``policy_from_checkpoint`` for an agent whose checkpoints hold an ActorCritic as ``model.*``."""
+    load_model = model_loader(agent, config_cls)
 
     def policy_from_checkpoint(checkpoint: Checkpoint) -> CategoricalPolicy:
+        return CategoricalPolicy(load_model(checkpoint))
+
+    return policy_from_checkpoint
+
+
+def logits_loader(agent: str, config_cls: type) -> Callable[[Checkpoint], ActorLogits]:
+    """``scores_network`` for such an agent: the action logits its greedy policy takes the argmax of."""
+    load_model = model_loader(agent, config_cls)
+
+    def logits_from_checkpoint(checkpoint: Checkpoint) -> ActorLogits:
+        return ActorLogits(load_model(checkpoint))
+
+    return logits_from_checkpoint
+
+
+def model_loader(agent: str, config_cls: type) -> Callable[[Checkpoint], ActorCritic]:
+    """The :class:`ActorCritic` (observation standardization included) of a checkpoint of ``agent``
+    (``model.*``); CheckpointError when it does not fit."""
+
+    def model_from_checkpoint(checkpoint: Checkpoint) -> ActorCritic:
         try:
             config = build_config(config_cls, checkpoint.meta["config"])
             data = checkpoint.meta["learner"]
@@ -160,6 +182,6 @@ def policy_loader(agent: str, config_cls: type) -> Callable[[Checkpoint], Catego
             model.load_state_dict(unprefixed(checkpoint.tensors, "model."))
         except (KeyError, RuntimeError, TypeError, ValueError) as err:
             raise CheckpointError(f"not a usable {agent} checkpoint: {err!s:.120}") from err
-        return CategoricalPolicy(model)
+        return model
 
-    return policy_from_checkpoint
+    return model_from_checkpoint

@@ -36,6 +36,7 @@ from cartpole.agents.actor_critic.network import (
 )
 from cartpole.agents.actor_critic.policy_gradient import (
     PolicyGradientConfig,
+    logits_loader,
     policy_loader,
     seeded_actor_critic,
 )
@@ -263,6 +264,7 @@ def actor_critic_spec(
         score_label="action probabilities",
         stacked_actor=stacked_greedy_actor,
         image_observations=True,
+        scores_network=logits_loader(name, config_cls),
     )
 
 

@@ -37,7 +37,12 @@ import torch
 import torch.nn.functional as F
 
 from cartpole.agents.dqn.config import DQNConfig
-from cartpole.agents.dqn.population import QLearningPopulation, dqn_bytes_per_seed, policy_from_checkpoint
+from cartpole.agents.dqn.population import (
+    QLearningPopulation,
+    dqn_bytes_per_seed,
+    policy_from_checkpoint,
+    q_network_from_checkpoint,
+)
 from cartpole.agents.dqn.replay import Minibatch
 from cartpole.agents.dqn.stacked import padded
 from cartpole.agents.episodes import Finished
@@ -425,6 +430,7 @@ AGENT = AgentSpec(
     iteration="step",
     score_label="Q-values",
     image_observations=True,
+    scores_network=q_network_from_checkpoint,
 )
 
 

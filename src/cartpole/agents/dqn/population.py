@@ -361,6 +361,12 @@ class QLearningPopulation:
 
 def policy_from_checkpoint(checkpoint: Checkpoint) -> QNetworkPolicy:
     """Rebuild the greedy policy on CPU from a checkpoint's tensors (``q_net.*``)."""
+    return QNetworkPolicy(q_network_from_checkpoint(checkpoint))
+
+
+def q_network_from_checkpoint(checkpoint: Checkpoint) -> QNetwork:
+    """The Q-network a checkpoint holds (``q_net.*``), on CPU, in eval mode (no dropout), frozen:
+    its greedy policy's Q-values, computed by torch."""
     try:
         known = {f.name for f in dataclasses.fields(DQNConfig)}  # older checkpoints hold retired settings
         config = build_config(DQNConfig, {k: v for k, v in checkpoint.meta["config"].items() if k in known})
@@ -370,7 +376,7 @@ def policy_from_checkpoint(checkpoint: Checkpoint) -> QNetworkPolicy:
         q_net.load_state_dict(unprefixed(checkpoint.tensors, "q_net."))
     except (KeyError, RuntimeError, TypeError, AttributeError) as err:
         raise CheckpointError(f"not a usable dqn checkpoint: {err!s:.120}") from err
-    return QNetworkPolicy(q_net)
+    return q_net.requires_grad_(False).eval()
 
 
 def dqn_bytes_per_seed(config: DQNConfig, env: EnvInfo) -> int:
@@ -392,4 +398,10 @@ def dqn_bytes_per_seed(config: DQNConfig, env: EnvInfo) -> int:
     return held + parameters + activations + bookkeeping
 
 
-__all__ = ["QLearningPopulation", "dqn_bytes_per_seed", "policy_from_checkpoint", "seeded_q_network"]
+__all__ = [
+    "QLearningPopulation",
+    "dqn_bytes_per_seed",
+    "policy_from_checkpoint",
+    "q_network_from_checkpoint",
+    "seeded_q_network",
+]

@@ -14,6 +14,8 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+import torch
+from torch import nn
 
 from cartpole.core.config import require
 from cartpole.runs import Checkpoint
@@ -134,6 +136,38 @@ def play_candidates(
     return returns.reshape(k, e), steps
 
 
+class LinearScores(nn.Module):
+    """A linear policy's scores (:meth:`LinearPolicy.scores`) as a torch module, in float64 as the
+    policy computes them, its observation scaling included: the greedy path for export."""
+
+    weights: torch.Tensor
+    bias: torch.Tensor
+    center: torch.Tensor
+    half_width: torch.Tensor
+
+    def __init__(self, policy: LinearPolicy):
+        super().__init__()
+        d, columns = policy.obs_dim, 1 if policy.n_actions == 2 else policy.n_actions
+        params = torch.as_tensor(policy.params, dtype=torch.float64)
+        bias = params[d * columns :] if policy.bias else torch.zeros(columns, dtype=torch.float64)
+        scaling = policy.scaling or ObservationScaling(np.zeros(d), np.ones(d))  # none: x as it is
+        self.two_actions = policy.n_actions == 2
+        self.register_buffer("weights", params[: d * columns].reshape(d, columns).clone())
+        self.register_buffer("bias", bias.clone())
+        self.register_buffer("center", torch.as_tensor(scaling.center, dtype=torch.float64))
+        self.register_buffer("half_width", torch.as_tensor(scaling.half_width, dtype=torch.float64))
+
+    def forward(self, observations: torch.Tensor) -> torch.Tensor:
+        x = (observations.to(torch.float64) - self.center) / self.half_width
+        scores = x @ self.weights + self.bias
+        return torch.cat([-scores, scores], dim=1) if self.two_actions else scores
+
+
+def scores_from_checkpoint(checkpoint: Checkpoint) -> LinearScores:
+    """The ``scores_network`` of a linear search's checkpoint."""
+    return LinearScores(policy_from_checkpoint(checkpoint))
+
+
 def policy_from_checkpoint(checkpoint: Checkpoint) -> LinearPolicy:
     data = checkpoint.meta["learner"]
     return LinearPolicy(
@@ -147,10 +181,12 @@ def policy_from_checkpoint(checkpoint: Checkpoint) -> LinearPolicy:
 
 __all__ = [
     "LinearPolicy",
+    "LinearScores",
     "ObservationScaling",
     "batched_actions",
     "batched_scores",
     "param_count",
     "play_candidates",
     "policy_from_checkpoint",
+    "scores_from_checkpoint",
 ]

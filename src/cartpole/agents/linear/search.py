@@ -28,6 +28,7 @@ from cartpole.agents.linear.policy import (
     param_count,
     play_candidates,
     policy_from_checkpoint,
+    scores_from_checkpoint,
 )
 from cartpole.agents.linear.population import LinearPopulation, Search
 from cartpole.agents.registry import AgentSpec
@@ -285,6 +286,7 @@ def linear_spec(cls: type[LinearSearch], summary: str) -> AgentSpec:
         make_population=make_population,
         iteration="generation",
         score_label="linear score",
+        scores_network=scores_from_checkpoint,
     )
 
 
