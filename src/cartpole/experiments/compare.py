@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import re
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
@@ -29,6 +29,7 @@ from cartpole.core.file_names import is_portable_name
 from cartpole.experiments.entries import Entry, ExperimentError
 from cartpole.experiments.processes import Job, python_module, run_job_source, run_jobs
 from cartpole.experiments.shared import SETUP_FLAGS, SharedComparison, new_owner
+from cartpole.experiments.slots import Slot
 from cartpole.experiments.worker import FINISHED, Task, read_record
 from cartpole.runs.atomic import write_json_atomic
 from cartpole.runs.run_dir import read_json
@@ -49,6 +50,11 @@ def check_name(name: str, what: str) -> str:
             "such as NUL or COM1): choose another"
         )
     return name
+
+
+def check_jobs(jobs: int | Sequence[Slot]) -> None:
+    if isinstance(jobs, int) and jobs < 1:
+        raise ExperimentError(f"--jobs must be >= 1, got {jobs}")
 
 
 @dataclass
@@ -215,13 +221,15 @@ class Experiment:
         write_json_atomic(path, task.__dict__)
         return Job(python_module(WORKER, str(path)), self.folder / "logs" / f"{name}.log", (entry, seeds))
 
-    def run(self, jobs: int, progress: Callable[[str, int, int, int], None] | None = None) -> list[str]:
-        """Run every pending seed, ``jobs`` at a time; return problems (failed workers) as lines.
+    def run(
+        self, jobs: int | Sequence[Slot], progress: Callable[[str, int, int, int], None] | None = None
+    ) -> list[str]:
+        """Run every pending seed, ``jobs`` at a time (a count of CPU slots, or the slots,
+        :mod:`~cartpole.experiments.slots`); return problems (failed workers) as lines.
 
         ``progress(kind, done, solved, total)`` hears of every run that ends.
         """
-        if jobs < 1:
-            raise ExperimentError(f"--jobs must be >= 1, got {jobs}")
+        check_jobs(jobs)
         self.folder.mkdir(parents=True, exist_ok=True)
         write_json_atomic(self.folder / "experiment.json", {**self.setup, "command": self.command})
         total = len(self.entries) * len(self.seeds)
@@ -251,17 +259,16 @@ class Experiment:
     def run_shared(
         self,
         shared: SharedComparison,
-        jobs: int,
+        jobs: int | Sequence[Slot],
         chunk: int,
         progress: Callable[[str, int, int, int], None] | None = None,
     ) -> list[str]:
         """Run this machine's share of a comparison shared through a database: claim pending runs of
         this request (a chunk of one entry's seeds at a time, trained as one population where the
-        entry batches its seeds), ``jobs`` claims at a time, and store each run's record and curve in
-        the database as it ends. Waits while other workers hold claims, taking over those whose
+        entry batches its seeds), ``jobs`` claims at a time (one per slot), and store each run's record
+        and curve in the database as it ends. Waits while other workers hold claims, taking over those whose
         heartbeat stops. Returns problems (failed runs) as lines."""
-        if jobs < 1:
-            raise ExperimentError(f"--jobs must be >= 1, got {jobs}")
+        check_jobs(jobs)
         if chunk < 1:
             raise ExperimentError(f"--chunk must be >= 1, got {chunk}")
         self.folder.mkdir(parents=True, exist_ok=True)

@@ -23,7 +23,7 @@ import signal
 import statistics
 import sys
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -35,6 +35,7 @@ from cartpole.experiments.best import best_value, write_best
 from cartpole.experiments.compare import check_name
 from cartpole.experiments.entries import ExperimentError
 from cartpole.experiments.processes import Job, python_module, run_jobs
+from cartpole.experiments.slots import Slot
 from cartpole.experiments.space import load_space, preset_point, space_description
 from cartpole.experiments.storage import describe_url, driver_url, engine_options, missing_driver, unreachable
 from cartpole.experiments.sweep_spec import SweepSpec
@@ -277,8 +278,11 @@ def stop_flag() -> Iterator[list[int]]:
             signal.signal(s, h)
 
 
-def trial_cost(spec: SweepSpec, trial: Any, params: dict[str, Any], stop: list[int]) -> float:
-    """Train the trial's K seeds as one population; the median cost, or TrialPruned / Interrupted."""
+def trial_cost(
+    spec: SweepSpec, trial: Any, params: dict[str, Any], stop: list[int], device: str = "cpu"
+) -> float:
+    """Train the trial's K seeds as one population on ``device`` (noted in the trial's ``device``
+    attribute); the median cost, or TrialPruned / Interrupted."""
     import optuna
 
     from cartpole.training.session import train_population
@@ -286,6 +290,7 @@ def trial_cost(spec: SweepSpec, trial: Any, params: dict[str, Any], stop: list[i
     if stop:
         raise Interrupted
     reporter = PruneReporter(trial, spec.seeds_per_trial)
+    trial.set_user_attr("device", device)
     outcome = train_population(
         spec.agent,
         spec.trial_seeds,
@@ -294,7 +299,7 @@ def trial_cost(spec: SweepSpec, trial: Any, params: dict[str, Any], stop: list[i
         overrides=params | ({"env_kwargs": spec.env_kwargs} if spec.env_kwargs else {}),
         budget=spec.budget,
         runs_dir=spec.path / "runs",
-        device="cpu",
+        device=device,
         quiet=True,
         command=["cartpole", "sweep", spec.agent, "--study", spec.name, f"(trial {trial.number})"],
         callbacks=[reporter],
@@ -315,8 +320,8 @@ def trial_cost(spec: SweepSpec, trial: Any, params: dict[str, Any], stop: list[i
     return float(statistics.median(costs))
 
 
-def run_worker(spec: SweepSpec) -> int:
-    """Run trials until the study holds ``spec.trials`` finished ones; 130 if interrupted."""
+def run_worker(spec: SweepSpec, device: str = "cpu") -> int:
+    """Run trials on ``device`` until the study holds ``spec.trials`` finished ones; 130 if interrupted."""
     from optuna.trial import TrialState
 
     study = open_study(spec, open_storage(spec))
@@ -331,7 +336,7 @@ def run_worker(spec: SweepSpec) -> int:
         study.sampler = sampler_for(spec, trial.number)
         chosen = {name: p.suggest(trial) for name, p in params.items()}
         try:
-            return trial_cost(spec, trial, chosen, stop)
+            return trial_cost(spec, trial, chosen, stop, device)
         except Interrupted:
             trial.set_user_attr("interrupted", True)
             raise
@@ -378,17 +383,21 @@ def local_lock(spec: SweepSpec) -> Iterator[bool]:
         lock.release()
 
 
-def prepare_sweep(spec: SweepSpec, workers: int) -> Any:
+def prepare_sweep(spec: SweepSpec, workers: int | Sequence[Slot]) -> Any:
     """Check the worker count, the storage and the study (ExperimentError, nothing written); the study."""
-    if workers < 1:
+    if isinstance(workers, int) and workers < 1:
         raise ExperimentError(f"--workers must be >= 1, got {workers}")
     return open_study(spec, open_storage(spec))
 
 
 def run_sweep(
-    spec: SweepSpec, study: Any, workers: int, progress: Callable[[dict[str, int], Any], None] | None
+    spec: SweepSpec,
+    study: Any,
+    workers: int | Sequence[Slot],
+    progress: Callable[[dict[str, int], Any], None] | None,
 ) -> Any:
-    """Run ``workers`` worker processes on the prepared ``study``, then write best.toml; the study.
+    """Run a worker process in each slot of ``workers`` (a count: CPU slots) on the prepared ``study``,
+    then write best.toml; the study.
 
     KeyboardInterrupt stops every worker (each marks its trial failed) and propagates after best.toml.
     """
@@ -398,7 +407,7 @@ def run_sweep(
             fail_abandoned_trials(study)  # left RUNNING by a killed sweep: nobody else can own them
         jobs = [
             Job(python_module(WORKER, str(spec_path)), spec.path / "logs" / f"worker{i}.log", i)
-            for i in range(workers)
+            for i in range(workers if isinstance(workers, int) else len(workers))
         ]
         problems: list[str] = []
 
@@ -429,17 +438,19 @@ class SweepFailed(Exception):
 
 
 def main(argv: list[str]) -> int:
-    """Worker entry: ``python -m cartpole.experiments.sweep SWEEP.json``, training on ``cartpole
-    train``'s default torch thread count. It stops as on Ctrl-C when its parent asks or is gone
-    (:func:`~cartpole.experiments.processes.follow_parent`); 130 when stopped."""
+    """Worker entry: ``python -m cartpole.experiments.sweep SWEEP.json [--device cpu|cuda]``, training
+    on that device (default: cpu) on ``cartpole train``'s default torch thread count. It stops as on
+    Ctrl-C when its parent asks or is gone (:func:`~cartpole.experiments.processes.follow_parent`); 130
+    when stopped."""
     from cartpole.experiments.processes import follow_parent
     from cartpole.training.threads import default_torch_threads, torch_threads
 
     try:
         follow_parent()  # inside: a stop asked for already interrupts as soon as it returns
         spec = SweepSpec(**json.loads(Path(argv[0]).read_text(encoding="utf-8")))
+        device = argv[argv.index("--device") + 1] if "--device" in argv else "cpu"
         with torch_threads(default_torch_threads(spec.env_id)):
-            return run_worker(spec)
+            return run_worker(spec, device)
     except ExperimentError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

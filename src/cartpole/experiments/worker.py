@@ -1,9 +1,11 @@
 """One job of an experiment, in its own process: train (or resume) one seed of one entry, or every
 pending seed of an entry whose agent batches its seeds, as one population in one process.
 
-``python -m cartpole.experiments.worker TASK.json`` trains the seeds the task names and writes what it
-measured to each seed's ``record`` file (atomically). A record whose run is ``finished`` means the work is
-done; an ``interrupted`` one names the run folder that a later worker resumes. SIGINT and SIGTERM stop
+``python -m cartpole.experiments.worker TASK.json [--device cpu|cuda]`` trains the seeds the task names
+on that torch device (default: cpu; a GPU slot's worker sees one GPU, :mod:`~cartpole.experiments.slots`)
+and writes what it measured, the device included, to each seed's ``record`` file (atomically). A record
+whose run is ``finished`` means the work is done; an ``interrupted`` one names the run folder that a
+later worker resumes. SIGINT and SIGTERM stop
 training at the next step with ``checkpoints/latest.pt`` saved (the training session's own handling),
 and so do the parent's stop request and the parent's end
 (:func:`~cartpole.experiments.processes.follow_parent`).
@@ -104,10 +106,11 @@ def resumable(record: dict[str, Any] | None) -> Path | None:
     return run if (run / "checkpoints" / "latest.pt").is_file() else None
 
 
-def run_task(task: Task) -> dict[str, Any]:
-    """Train or resume the task's run (or population); write and return its (first seed's) record."""
+def run_task(task: Task, device: str = "cpu") -> dict[str, Any]:
+    """Train or resume the task's run (or population) on ``device``; write and return its (first
+    seed's) record."""
     if task.population is not None:
-        return run_population_task(task, task.population)
+        return run_population_task(task, task.population, device)
     from cartpole.training import resume, train
 
     path = Path(task.record)
@@ -118,7 +121,7 @@ def run_task(task: Task) -> dict[str, Any]:
     previous = resumable(record)
     if previous is not None and record is not None:
         clock = SolveClock(record.get("cpu_seconds", 0.0), record.get("solve_cpu_seconds"))
-        outcome = resume(previous, quiet=True, device="cpu", callbacks=[clock])
+        outcome = resume(previous, quiet=True, device=device, callbacks=[clock])
     else:
         clock = SolveClock()
         outcome = train(
@@ -129,12 +132,12 @@ def run_task(task: Task) -> dict[str, Any]:
             overrides=task.overrides,
             budget=task.budget,
             runs_dir=task.runs_dir,
-            device="cpu",
+            device=device,
             quiet=True,
             command=task.command,
             callbacks=[clock],
         )
-    record = make_record(task, outcome, clock)
+    record = make_record(task, outcome, clock) | {"device": device}
     path.parent.mkdir(parents=True, exist_ok=True)
     write_json_atomic(path, record)
     return record
@@ -168,7 +171,7 @@ def run_fields(state: LoopState, report: EvalReport | None, clock: SolveClock) -
     }
 
 
-def run_population_task(task: Task, records: dict[int, str]) -> dict[str, Any]:
+def run_population_task(task: Task, records: dict[int, str], device: str = "cpu") -> dict[str, Any]:
     """Resume the interrupted members, then train the new seeds, each as one population; write every
     seed's record. A seed's CPU seconds are its population's CPU time divided by its seed count."""
     from cartpole.training.session import resume_population, train_population
@@ -184,7 +187,7 @@ def run_population_task(task: Task, records: dict[int, str]) -> dict[str, Any]:
         interrupted = [run for run in previous.values() if run is not None]
         cpu_start = time.process_time()
         if interrupted:
-            outcome = resume_population(interrupted[0], quiet=True)
+            outcome = resume_population(interrupted[0], quiet=True, device=device)
         else:
             outcome = train_population(
                 task.agent,
@@ -194,7 +197,7 @@ def run_population_task(task: Task, records: dict[int, str]) -> dict[str, Any]:
                 overrides=task.overrides,
                 budget=task.budget,
                 runs_dir=task.runs_dir,
-                device="cpu",
+                device=device,
                 quiet=True,
                 command=task.command,
             )
@@ -203,7 +206,7 @@ def run_population_task(task: Task, records: dict[int, str]) -> dict[str, Any]:
         if not owned:
             raise RuntimeError(f"resuming {interrupted[0]} trained none of seeds {sorted(todo)}")
         for seed in owned:
-            record = make_population_record(task, seed, outcome, cpu_share, found[seed])
+            record = make_population_record(task, seed, outcome, cpu_share, found[seed]) | {"device": device}
             paths[seed].parent.mkdir(parents=True, exist_ok=True)
             write_json_atomic(paths[seed], record)
             written[seed] = record
@@ -240,9 +243,9 @@ def make_population_record(
 
 
 def main(argv: list[str]) -> int:
-    """Run the task in ``argv[0]`` on ``cartpole train``'s default torch thread count; exit 0 when
-    finished, 130 when interrupted (also when stopped before or between training sessions, where
-    nothing is half-written: every write is atomic)."""
+    """Run the task in ``argv[0]`` (on ``--device DEVICE`` where ``argv`` ends with it) on ``cartpole
+    train``'s default torch thread count; exit 0 when finished, 130 when interrupted (also when stopped
+    before or between training sessions, where nothing is half-written: every write is atomic)."""
     from cartpole.core.errors import InputError
     from cartpole.experiments.processes import follow_parent
     from cartpole.training.threads import default_torch_threads, torch_threads
@@ -250,8 +253,9 @@ def main(argv: list[str]) -> int:
     try:
         follow_parent()  # inside: a stop asked for already interrupts as soon as it returns
         task = Task.load(Path(argv[0]))
+        device = argv[argv.index("--device") + 1] if "--device" in argv else "cpu"
         with torch_threads(default_torch_threads(task.env_id)):
-            record = run_task(task)
+            record = run_task(task, device)
         return 0 if record["state"] == FINISHED else 130
     except InputError as err:
         print(f"error: {err}", file=sys.stderr)
