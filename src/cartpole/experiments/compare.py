@@ -27,9 +27,11 @@ from typing import Any
 from cartpole.agents.registry import get_agent
 from cartpole.core.file_names import is_portable_name
 from cartpole.experiments.entries import Entry, ExperimentError
+from cartpole.experiments.pause_points import pause_at
 from cartpole.experiments.processes import Job, python_module, run_job_source, run_jobs
 from cartpole.experiments.shared import SETUP_FLAGS, SharedComparison, new_owner
 from cartpole.experiments.slots import Slot
+from cartpole.experiments.storage import lost_connection, reason_of, retry_lost_connection
 from cartpole.experiments.worker import FINISHED, Task, read_record
 from cartpole.runs.atomic import write_json_atomic
 from cartpole.runs.run_dir import read_json
@@ -281,6 +283,10 @@ class Experiment:
         return runner.problems
 
 
+class StorageLost(ExperimentError):
+    """The shared comparison's database stayed out of reach longer than its calls are retried."""
+
+
 class SharedRunner:
     """One machine's claims on a shared comparison: jobs from claims, heartbeats, results stored."""
 
@@ -296,6 +302,9 @@ class SharedRunner:
         self.labels = [e.label for e in experiment.entries]
         self.batches = {e.label: experiment.trains_populations(e) for e in experiment.entries}
         self.failed: set[tuple[str, int]] = set()
+        self.running: set[tuple[str, int]] = set()
+        """Rows this machine's workers train: never claimed again by it, even once its heartbeat is
+        stale (the database out of reach for longer than the claim timeout)."""
         self.problems: list[str] = []
         self.period = min(30.0, shared.claim_timeout / 4)
         """Seconds between heartbeats."""
@@ -308,15 +317,22 @@ class SharedRunner:
         self.warned: set[str] = set()
 
     def database(self, what: str, action: Callable[[], Any], default: Any) -> Any:
-        """``action()``, or ``default`` when the database fails (it is retried later): a line is printed
-        once per kind of failure, and training goes on."""
+        """``action()``, tried again while the database connection is lost (a line each time, for a
+        few minutes: :func:`~cartpole.experiments.storage.retry_lost_connection`), then StorageLost.
+        Another failure gives ``default`` (it is retried later): a line is printed once per kind of
+        failure, and training goes on."""
         import sys
 
         from sqlalchemy.exc import SQLAlchemyError
 
         try:
-            return action()
+            return retry_lost_connection(what, action)
         except SQLAlchemyError as err:
+            if lost_connection(err):
+                raise StorageLost(
+                    f"lost the database connection ({reason_of(err)}) while trying to {what}, for good: "
+                    "every run is saved; re-run the same command to resume"
+                ) from None
             reason = str(getattr(err, "orig", None) or err).strip().splitlines()
             if what not in self.warned:
                 self.warned.add(what)
@@ -330,13 +346,19 @@ class SharedRunner:
         claim = self.database(
             "give work",
             lambda: self.shared.claim(
-                self.owner, self.chunk, self.batches, self.failed, self.labels, self.experiment.seeds
+                self.owner,
+                self.chunk,
+                self.batches,
+                self.failed | self.running,
+                self.labels,
+                self.experiment.seeds,
             ),
             None,
         )
         if claim is None:
             self.next_look = time.monotonic() + self.look_period
             return None
+        self.running |= {(claim.entry.label, seed) for seed in claim.seeds}
         return self.experiment.job(claim.entry, claim.seeds, population=self.batches[claim.entry.label])
 
     def more(self) -> bool:
@@ -370,6 +392,7 @@ class SharedRunner:
         from cartpole.runs import RunError
 
         entry, seeds = job.key
+        self.running -= {(entry.label, seed) for seed in seeds}
         finished = []
         for seed in seeds:
             record = read_record(self.experiment.record_path(entry, seed))
@@ -384,6 +407,8 @@ class SharedRunner:
             if code not in (0, 130, -2):
                 self.failed.add((entry.label, seed))
                 self.problems.append(f"{entry.label} seed {seed} failed (exit {code}); see {job.log}")
+        if finished:
+            pause_at("finish")  # a test hook: nothing unless CARTPOLE_PAUSE_AT says so
         self.store(self.unstored + finished)
         self.next_look = 0.0  # a slot is free: look for work at once
         self.report("run")

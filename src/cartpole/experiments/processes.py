@@ -178,6 +178,9 @@ def run_job_source(
             for process, job in running.items():
                 on_done(job, int(process.returncode))
             raise
+        except Exception:  # the caller failed (its database out of reach): every worker saves its run
+            stop_all(running)
+            raise
 
 
 def follow_parent() -> None:

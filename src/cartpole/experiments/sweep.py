@@ -18,6 +18,7 @@ marked failed and replaced. The best trial is written as ``D/sweeps/NAME/best.to
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import signal
 import statistics
@@ -37,7 +38,14 @@ from cartpole.experiments.entries import ExperimentError
 from cartpole.experiments.processes import Job, python_module, run_jobs
 from cartpole.experiments.slots import Slot
 from cartpole.experiments.space import load_space, preset_point, space_description
-from cartpole.experiments.storage import describe_url, driver_url, engine_options, missing_driver, unreachable
+from cartpole.experiments.storage import (
+    describe_url,
+    driver_url,
+    engine_options,
+    missing_driver,
+    retry_lost_connection,
+    unreachable,
+)
 from cartpole.experiments.sweep_spec import SweepSpec
 from cartpole.runs.atomic import write_json_atomic
 from cartpole.training import Callback, TrainingLoop
@@ -128,9 +136,7 @@ def open_storage(spec: SweepSpec, attempts: int = 5) -> Any:
         try:
             with warnings.catch_warnings():  # heartbeats are "experimental" in Optuna, and what we need
                 warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
-                return optuna.storages.RDBStorage(
-                    url, engine_kwargs=engine, heartbeat_interval=30, grace_period=120
-                )
+                return ReconnectingStorage(url, engine_kwargs=engine, heartbeat_interval=30, grace_period=120)
         except ImportError as err:  # Optuna re-raises the driver's ModuleNotFoundError as ImportError
             raise missing_driver(spec.storage, err) from None
         except OperationalError as err:  # no server there, or a wrong host, port, user or database
@@ -141,6 +147,39 @@ def open_storage(spec: SweepSpec, attempts: int = 5) -> Any:
                 raise ExperimentError(f"the {backend} study storage at {where} failed: {reason}") from None
             time.sleep(1.0 + attempt)
     raise AssertionError("unreachable")
+
+
+class ReconnectingStorage(optuna.storages.RDBStorage):
+    """Optuna's RDBStorage, each of whose calls is tried again while it loses its connection (a
+    database server restarting): a line each time, for a few minutes
+    (:func:`~cartpole.experiments.storage.retry_lost_connection`), so that neither the sweep nor its
+    workers fail their trials for it. Each call is one transaction of Optuna's."""
+
+
+def _reconnecting(name: str) -> Callable[..., Any]:
+    method = getattr(optuna.storages.RDBStorage, name)
+
+    @functools.wraps(method)
+    def call(self: ReconnectingStorage, *args: Any, **kwargs: Any) -> Any:
+        return retry_lost_connection(
+            f"{name.replace('_', ' ')} in the study", lambda: method(self, *args, **kwargs)
+        )
+
+    return call
+
+
+RETRIED_CALLS = (
+    "create_new_study", "delete_study", "set_study_user_attr", "set_study_system_attr",
+    "get_study_id_from_name", "get_study_name_from_id", "get_study_directions", "get_study_user_attrs",
+    "get_study_system_attrs", "get_trial_user_attrs", "get_trial_system_attrs", "get_all_studies",
+    "create_new_trial", "set_trial_param", "get_trial_param", "set_trial_state_values",
+    "set_trial_intermediate_value", "set_trial_user_attr", "set_trial_system_attr",
+    "get_trial_id_from_study_id_trial_number", "get_trial", "get_all_trials", "get_best_trial",
+    "record_heartbeat",
+)  # fmt: skip
+"""RDBStorage's own calls on the database (Optuna 5), each retried alone."""
+for _name in RETRIED_CALLS:
+    setattr(ReconnectingStorage, _name, _reconnecting(_name))
 
 
 def open_study(spec: SweepSpec, storage: Any) -> Any:

@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -68,6 +68,8 @@ class Task:
     """Seed -> record file of every seed trained as one population (``seed``/``record`` name the first)."""
     overrides: dict[str, Any] = field(default_factory=dict)
     """Settings over the preset's (the comparison's ``--env-kwargs``)."""
+    device: str = "cpu"
+    """The torch device (the worker's ``--device``, its slot's), recorded in each seed's record."""
 
     @classmethod
     def load(cls, path: Path) -> Task:
@@ -106,11 +108,10 @@ def resumable(record: dict[str, Any] | None) -> Path | None:
     return run if (run / "checkpoints" / "latest.pt").is_file() else None
 
 
-def run_task(task: Task, device: str = "cpu") -> dict[str, Any]:
-    """Train or resume the task's run (or population) on ``device``; write and return its (first
-    seed's) record."""
+def run_task(task: Task) -> dict[str, Any]:
+    """Train or resume the task's run (or population); write and return its (first seed's) record."""
     if task.population is not None:
-        return run_population_task(task, task.population, device)
+        return run_population_task(task, task.population)
     from cartpole.training import resume, train
 
     path = Path(task.record)
@@ -121,7 +122,7 @@ def run_task(task: Task, device: str = "cpu") -> dict[str, Any]:
     previous = resumable(record)
     if previous is not None and record is not None:
         clock = SolveClock(record.get("cpu_seconds", 0.0), record.get("solve_cpu_seconds"))
-        outcome = resume(previous, quiet=True, device=device, callbacks=[clock])
+        outcome = resume(previous, quiet=True, device=task.device, callbacks=[clock])
     else:
         clock = SolveClock()
         outcome = train(
@@ -132,12 +133,12 @@ def run_task(task: Task, device: str = "cpu") -> dict[str, Any]:
             overrides=task.overrides,
             budget=task.budget,
             runs_dir=task.runs_dir,
-            device=device,
+            device=task.device,
             quiet=True,
             command=task.command,
             callbacks=[clock],
         )
-    record = make_record(task, outcome, clock) | {"device": device}
+    record = make_record(task, outcome, clock)
     path.parent.mkdir(parents=True, exist_ok=True)
     write_json_atomic(path, record)
     return record
@@ -151,6 +152,7 @@ def make_record(task: Task, outcome: TrainOutcome, clock: SolveClock) -> dict[st
         "seed": task.seed,
         "run": str(outcome.run.path),
         "state": INTERRUPTED if outcome.signal is not None else FINISHED,
+        "device": task.device,
     } | run_fields(outcome.state, outcome.report, clock)
 
 
@@ -171,7 +173,7 @@ def run_fields(state: LoopState, report: EvalReport | None, clock: SolveClock) -
     }
 
 
-def run_population_task(task: Task, records: dict[int, str], device: str = "cpu") -> dict[str, Any]:
+def run_population_task(task: Task, records: dict[int, str]) -> dict[str, Any]:
     """Resume the interrupted members, then train the new seeds, each as one population; write every
     seed's record. A seed's CPU seconds are its population's CPU time divided by its seed count."""
     from cartpole.training.session import resume_population, train_population
@@ -187,7 +189,7 @@ def run_population_task(task: Task, records: dict[int, str], device: str = "cpu"
         interrupted = [run for run in previous.values() if run is not None]
         cpu_start = time.process_time()
         if interrupted:
-            outcome = resume_population(interrupted[0], quiet=True, device=device)
+            outcome = resume_population(interrupted[0], quiet=True, device=task.device)
         else:
             outcome = train_population(
                 task.agent,
@@ -197,7 +199,7 @@ def run_population_task(task: Task, records: dict[int, str], device: str = "cpu"
                 overrides=task.overrides,
                 budget=task.budget,
                 runs_dir=task.runs_dir,
-                device=device,
+                device=task.device,
                 quiet=True,
                 command=task.command,
             )
@@ -206,7 +208,7 @@ def run_population_task(task: Task, records: dict[int, str], device: str = "cpu"
         if not owned:
             raise RuntimeError(f"resuming {interrupted[0]} trained none of seeds {sorted(todo)}")
         for seed in owned:
-            record = make_population_record(task, seed, outcome, cpu_share, found[seed]) | {"device": device}
+            record = make_population_record(task, seed, outcome, cpu_share, found[seed])
             paths[seed].parent.mkdir(parents=True, exist_ok=True)
             write_json_atomic(paths[seed], record)
             written[seed] = record
@@ -238,6 +240,7 @@ def make_population_record(
         "run": str(outcome.runs[seed].path),
         "state": INTERRUPTED if outcome.signal is not None else FINISHED,
         "population": True,
+        "device": task.device,
     }
     return fields | run_fields(state, report, clock)
 
@@ -253,9 +256,10 @@ def main(argv: list[str]) -> int:
     try:
         follow_parent()  # inside: a stop asked for already interrupts as soon as it returns
         task = Task.load(Path(argv[0]))
-        device = argv[argv.index("--device") + 1] if "--device" in argv else "cpu"
+        if "--device" in argv:
+            task = replace(task, device=argv[argv.index("--device") + 1])
         with torch_threads(default_torch_threads(task.env_id)):
-            record = run_task(task, device)
+            record = run_task(task)
         return 0 if record["state"] == FINISHED else 130
     except InputError as err:
         print(f"error: {err}", file=sys.stderr)
