@@ -67,9 +67,13 @@ class Cluster:
     def pg_ctl(self, *args: str) -> None:
         self.run("pg_ctl", "-D", str(self.folder / "data"), *args)
 
-    def start(self) -> None:
+    def server_options(self) -> list[str]:
+        """The log file (the server must not hold our pipes) and where it listens."""
         options = f"-c listen_addresses=127.0.0.1 -p {self.port} -k {self.folder}"
-        self.pg_ctl("-l", str(self.folder / "server.log"), "-w", "-o", options, "start")
+        return ["-l", str(self.folder / "server.log"), "-o", options]
+
+    def start(self) -> None:
+        self.pg_ctl(*self.server_options(), "-w", "start")
 
     def stop(self) -> None:
         """Stop at once, as a crash would: connections are cut, nothing is shut down cleanly."""
@@ -77,7 +81,7 @@ class Cluster:
 
     def restart(self) -> None:
         """``pg_ctl restart -m immediate``: connections cut, the server back with the same options."""
-        self.pg_ctl("-m", "immediate", "-w", "restart")
+        self.pg_ctl(*self.server_options(), "-m", "immediate", "-w", "restart")
 
     def running(self) -> bool:
         try:

@@ -23,6 +23,7 @@ import json
 import signal
 import statistics
 import sys
+import threading
 import warnings
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict
@@ -156,14 +157,23 @@ class ReconnectingStorage(optuna.storages.RDBStorage):
     workers fail their trials for it. Each call is one transaction of Optuna's."""
 
 
+_INSIDE = threading.local()
+"""Whether this thread is inside a retried call already (whose own calls then are not retried apart)."""
+
+
 def _reconnecting(name: str) -> Callable[..., Any]:
     method = getattr(optuna.storages.RDBStorage, name)
+    what = name.strip("_").replace("_", " ") + " in the study"
 
     @functools.wraps(method)
     def call(self: ReconnectingStorage, *args: Any, **kwargs: Any) -> Any:
-        return retry_lost_connection(
-            f"{name.replace('_', ' ')} in the study", lambda: method(self, *args, **kwargs)
-        )
+        if getattr(_INSIDE, "call", False):
+            return method(self, *args, **kwargs)
+        _INSIDE.call = True
+        try:
+            return retry_lost_connection(what, lambda: method(self, *args, **kwargs))
+        finally:
+            _INSIDE.call = False
 
     return call
 
@@ -175,9 +185,10 @@ RETRIED_CALLS = (
     "create_new_trial", "set_trial_param", "get_trial_param", "set_trial_state_values",
     "set_trial_intermediate_value", "set_trial_user_attr", "set_trial_system_attr",
     "get_trial_id_from_study_id_trial_number", "get_trial", "get_all_trials", "get_best_trial",
-    "record_heartbeat",
+    "record_heartbeat", "_create_new_trial", "_get_best_trial_id", "_get_stale_trial_ids", "_get_trials",
+    "_set_trial_param",
 )  # fmt: skip
-"""RDBStorage's own calls on the database (Optuna 5), each retried alone."""
+"""RDBStorage's calls on the database (Optuna 5), its private ones that Optuna's cache calls included."""
 for _name in RETRIED_CALLS:
     setattr(ReconnectingStorage, _name, _reconnecting(_name))
 
