@@ -27,7 +27,6 @@ from postgres_cluster import Cluster
 from cartpole.experiments.pause_points import PAUSE_AT
 from cartpole.experiments.shared import RowState, SharedComparison
 
-pytestmark = pytest.mark.slow
 LOST = "lost the database connection"
 
 
@@ -83,6 +82,7 @@ def run_folders(machine: Path) -> list[Path]:
     return sorted((machine / "experiments" / "faults" / "runs").glob("*__s*"))
 
 
+@pytest.mark.slow
 def test_sigkill_while_claiming_leaves_the_rows_to_the_next_worker(private_postgres: Cluster, tmp_path):
     url = private_postgres.new_database()
     entries, seeds = ["cem"], 2
@@ -104,6 +104,7 @@ def test_sigkill_while_claiming_leaves_the_rows_to_the_next_worker(private_postg
     assert not (tmp_path / "m0" / "experiments" / "faults" / "runs").exists()
 
 
+@pytest.mark.slow
 def test_sigkill_while_training_then_the_same_machine_resumes_its_runs(private_postgres: Cluster, tmp_path):
     url = private_postgres.new_database()
     entries, seeds, machine = ["reinforce"], 2, tmp_path / "m0"
@@ -128,6 +129,7 @@ def test_sigkill_while_training_then_the_same_machine_resumes_its_runs(private_p
     assert all(r.claims == 2 and Path(r.record["run"]) in trained for r in rows)
 
 
+@pytest.mark.slow
 def test_sigkill_between_a_runs_end_and_its_results_write(private_postgres: Cluster, tmp_path):
     url = private_postgres.new_database()
     entries, seeds, machine = ["cem"], 2, tmp_path / "m0"
@@ -162,6 +164,7 @@ def outage(cluster: Cluster, logs: Callable[[], str], timeout: float = 120) -> N
         cluster.start()
 
 
+@pytest.mark.slow
 def test_a_comparison_rides_out_a_postgres_restart(private_postgres: Cluster, tmp_path):
     url = private_postgres.new_database()
     entries, seeds, machine = ["cem", "reinforce"], 2, tmp_path / "m0"
@@ -182,6 +185,7 @@ def test_a_comparison_rides_out_a_postgres_restart(private_postgres: Cluster, tm
     assert len(run_folders(machine)) == len(entries) * seeds
 
 
+@pytest.mark.slow
 def test_a_sweep_rides_out_a_postgres_restart(private_postgres: Cluster, tmp_path):
     url = private_postgres.new_database()
     trials, machine = 4, tmp_path / "m0"
@@ -212,3 +216,46 @@ def test_a_sweep_rides_out_a_postgres_restart(private_postgres: Cluster, tmp_pat
     assert not study.get_trials(states=(states.RUNNING, states.WAITING, states.FAIL))
     folders = [t.user_attrs["run_seed0"] for t in done]
     assert len(set(folders)) == trials  # each trial trained once
+
+
+def connection_refused() -> Exception:
+    from sqlalchemy.exc import OperationalError
+
+    return OperationalError("SELECT 1", {}, ConnectionRefusedError("connection refused\nmore detail"))
+
+
+def test_a_lost_connection_is_retried_with_a_line_each_time_then_given_up(capsys):
+    from cartpole.experiments.storage import retry_lost_connection
+
+    calls: list[int] = []
+
+    def flaky() -> str:
+        calls.append(1)
+        if len(calls) < 3:
+            raise connection_refused()
+        return "done"
+
+    assert retry_lost_connection("claim runs", flaky, waits=(0.0, 0.0, 0.0)) == "done"
+    lines = capsys.readouterr().err.splitlines()
+    said = "lost the database connection (connection refused) while trying to claim runs: retrying in 0 s"
+    assert lines == [f"{said} (1/3)", f"{said} (2/3)"]
+
+    def down() -> str:
+        raise connection_refused()
+
+    with pytest.raises(Exception, match="connection refused"):
+        retry_lost_connection("claim runs", down, waits=(0.0, 0.0))
+    assert len(capsys.readouterr().err.splitlines()) == 2  # bounded: two waits, three tries
+
+
+def test_other_database_errors_are_not_retried(capsys):
+    from sqlalchemy.exc import IntegrityError
+
+    from cartpole.experiments.storage import retry_lost_connection
+
+    def broken() -> None:
+        raise IntegrityError("INSERT", {}, ValueError("duplicate key"))
+
+    with pytest.raises(IntegrityError):
+        retry_lost_connection("store results", broken, waits=(0.0,))
+    assert capsys.readouterr().err == ""
