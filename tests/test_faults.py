@@ -129,6 +129,45 @@ def test_sigkill_while_training_then_the_same_machine_resumes_its_runs(private_p
     assert all(r.claims == 2 and Path(r.record["run"]) in trained for r in rows)
 
 
+def worker_pids(marker: str) -> list[int]:
+    """Live compare worker processes whose command line mentions ``marker`` (a machine's folder)."""
+    found = []
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            line = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:
+            continue
+        if "cartpole.experiments.worker" in line and marker in line:
+            found.append(int(pid))
+    return found
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="finds the worker's process through /proc")
+def test_a_worker_process_killed_while_training_has_its_runs_claimed_again(
+    private_postgres: Cluster, tmp_path
+):
+    url = private_postgres.new_database()
+    entries, seeds, machine = ["reinforce"], 2, tmp_path / "m0"
+    log = tmp_path / "compare.log"
+    process = start(compare_args(url, machine, entries, seeds, "40000"), log)
+    try:
+        wait_for(
+            lambda: any((f / "checkpoints" / "latest.pt").is_file() for f in run_folders(machine)),
+            240,
+            "a run to save its first checkpoint",
+        )
+        (worker,) = wait_for(lambda: worker_pids(str(machine)), 30, "the worker process")
+        os.kill(worker, signal.SIGKILL)  # as the kernel's out-of-memory killer would
+    except BaseException:
+        process.kill()
+        raise
+    text = finish(process, log, timeout=600)
+    assert "was killed (signal 9): claiming its unfinished runs again (1/2)" in text
+    rows = check_finished_once(url, entries, seeds)
+    assert all(r.claims == 2 for r in rows)
+
+
 @pytest.mark.slow
 def test_sigkill_between_a_runs_end_and_its_results_write(private_postgres: Cluster, tmp_path):
     url = private_postgres.new_database()

@@ -17,6 +17,7 @@ ordinary run folders, a record each.
 from __future__ import annotations
 
 import re
+import signal
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -37,6 +38,8 @@ from cartpole.runs.atomic import write_json_atomic
 from cartpole.runs.run_dir import read_json
 from cartpole.training.budget import check_budget_unit, parse_budget
 
+KILLED_RETRIES = 2
+"""Times a shared comparison's machine claims again the runs of a worker killed by a signal."""
 NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 WORKER = "cartpole.experiments.worker"
 
@@ -315,6 +318,8 @@ class SharedRunner:
         self.unstored: list[tuple[Entry, int, dict[str, Any], dict[str, Any]]] = []
         """Finished runs whose results the database did not take yet (it failed): retried each beat."""
         self.warned: set[str] = set()
+        self.kills: dict[tuple[str, int], int] = {}
+        """Times the worker of each (entry, seed) was killed by a signal."""
 
     def database(self, what: str, action: Callable[[], Any], default: Any) -> Any:
         """``action()``, tried again while the database connection is lost (a line each time, for a
@@ -393,7 +398,7 @@ class SharedRunner:
 
         entry, seeds = job.key
         self.running -= {(entry.label, seed) for seed in seeds}
-        finished = []
+        finished, again = [], self.killed_again(job, code)
         for seed in seeds:
             record = read_record(self.experiment.record_path(entry, seed))
             if record and record.get("state") == FINISHED:
@@ -404,7 +409,7 @@ class SharedRunner:
                 finished.append((entry, seed, record, curve))
                 continue
             self.database("give a claim back", partial(self.shared.release, self.owner, entry, seed), None)
-            if code not in (0, 130, -2):
+            if code not in (0, 130, -2) and not again:
                 self.failed.add((entry.label, seed))
                 self.problems.append(f"{entry.label} seed {seed} failed (exit {code}); see {job.log}")
         if finished:
@@ -412,6 +417,24 @@ class SharedRunner:
         self.store(self.unstored + finished)
         self.next_look = 0.0  # a slot is free: look for work at once
         self.report("run")
+
+    def killed_again(self, job: Job, code: int) -> bool:
+        """Whether a worker killed by a signal (SIGKILL: the kernel out of memory, a person) has its
+        unfinished runs claimed again, here or by another machine, up to :data:`KILLED_RETRIES` times
+        per job (a line each time); its runs start again where it left their records."""
+        import sys
+
+        if code >= 0 or code == -signal.SIGINT:
+            return False
+        entry, seeds = job.key
+        for seed in seeds:
+            self.kills[(entry.label, seed)] = self.kills.get((entry.label, seed), 0) + 1
+        kills = max(self.kills[(entry.label, seed)] for seed in seeds)
+        if kills > KILLED_RETRIES:
+            return False
+        line = f"the worker of {entry.label} seeds {seeds} was killed (signal {-code}): claiming its "
+        print(line + f"unfinished runs again ({kills}/{KILLED_RETRIES}); see {job.log}", file=sys.stderr)
+        return True
 
     def report(self, kind: str) -> None:
         if self.progress:
