@@ -32,7 +32,7 @@ from cartpole.experiments.pause_points import pause_at
 from cartpole.experiments.processes import Job, python_module, run_job_source, run_jobs
 from cartpole.experiments.shared import SETUP_FLAGS, SharedComparison, new_owner
 from cartpole.experiments.slots import Slot
-from cartpole.experiments.storage import lost_connection, reason_of, retry_lost_connection
+from cartpole.experiments.storage import StorageLost, lost_connection, retry_lost_connection
 from cartpole.experiments.worker import FINISHED, Task, read_record
 from cartpole.runs.atomic import write_json_atomic
 from cartpole.runs.run_dir import read_json
@@ -286,10 +286,6 @@ class Experiment:
         return runner.problems
 
 
-class StorageLost(ExperimentError):
-    """The shared comparison's database stayed out of reach longer than its calls are retried."""
-
-
 class SharedRunner:
     """One machine's claims on a shared comparison: jobs from claims, heartbeats, results stored."""
 
@@ -334,10 +330,7 @@ class SharedRunner:
             return retry_lost_connection(what, action)
         except SQLAlchemyError as err:
             if lost_connection(err):
-                raise StorageLost(
-                    f"lost the database connection ({reason_of(err)}) while trying to {what}, for good: "
-                    "every run is saved; re-run the same command to resume"
-                ) from None
+                raise StorageLost.of(err, what) from None
             reason = str(getattr(err, "orig", None) or err).strip().splitlines()
             if what not in self.warned:
                 self.warned.add(what)

@@ -110,6 +110,17 @@ def reason_of(err: BaseException) -> str:
     return lines[0] if lines else type(err).__name__
 
 
+class StorageLost(ExperimentError):
+    """The database stayed out of reach for longer than its calls are tried again."""
+
+    @classmethod
+    def of(cls, err: BaseException, what: str) -> StorageLost:
+        return cls(
+            f"lost the database connection ({reason_of(err)}) for good while trying to {what}: what "
+            "finished is stored; re-run the same command to resume"
+        )
+
+
 def retry_lost_connection(what: str, call: Callable[[], T], waits: Sequence[float] = RETRY_WAITS) -> T:
     """``call()``, tried again after each of ``waits`` while it loses its database connection, with one
     line on stderr each time; then the last error is raised. Every call given is one transaction (or
@@ -130,5 +141,13 @@ def retry_lost_connection(what: str, call: Callable[[], T], waits: Sequence[floa
     return call()
 
 
-__all__ = ["describe_url", "driver_url", "engine_options", "missing_driver", "missing_module",
-           "retry_lost_connection", "unreachable"]  # fmt: skip
+__all__ = [
+    "StorageLost",
+    "describe_url",
+    "driver_url",
+    "engine_options",
+    "missing_driver",
+    "missing_module",
+    "retry_lost_connection",
+    "unreachable",
+]  # fmt: skip

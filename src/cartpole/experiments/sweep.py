@@ -40,9 +40,11 @@ from cartpole.experiments.processes import Job, python_module, run_jobs
 from cartpole.experiments.slots import Slot
 from cartpole.experiments.space import load_space, preset_point, space_description
 from cartpole.experiments.storage import (
+    StorageLost,
     describe_url,
     driver_url,
     engine_options,
+    lost_connection,
     missing_driver,
     retry_lost_connection,
     unreachable,
@@ -474,10 +476,18 @@ def run_sweep(
 
         try:
             run_jobs(jobs, workers, on_done, tick)
+        except Exception as err:
+            if lost_connection(err):  # its workers stopped, each marking its trial failed where it can
+                raise StorageLost.of(err, "follow the study") from None
+            raise
         finally:
-            if progress:
-                progress(count_trials(study), best_value(study))
-            write_best(spec, study)
+            try:
+                if progress:
+                    progress(count_trials(study), best_value(study))
+                write_best(spec, study)
+            except Exception as err:  # the study out of reach: best.toml waits for a re-run
+                if not lost_connection(err):
+                    raise
     if problems:
         raise SweepFailed("; ".join(problems))
     return study
