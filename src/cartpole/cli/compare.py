@@ -48,7 +48,7 @@ def add_parser(sub: Any) -> None:
         "--jobs",
         type=int,
         metavar="J",
-        help="CPU slots: runs at a time on the CPU (default: 1; 0 with --gpus)",
+        help="CPU slots: runs at a time on the CPU (default: 1; 0 where there are GPU slots)",
     )
     add_slots(parser, "--jobs")
     parser.add_argument(

@@ -48,7 +48,7 @@ def add_parser(sub: Any) -> None:
         "--workers",
         type=int,
         metavar="J",
-        help="local worker processes on the CPU: CPU slots (default: 1, none with --gpus)",
+        help="CPU slots: local worker processes on the CPU (default: 1; 0 where there are GPU slots)",
     )
     add_slots(parser, "--workers")
     parser.add_argument("--study", required=True, metavar="NAME", help="study name (and folder name)")
