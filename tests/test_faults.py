@@ -212,7 +212,8 @@ def test_a_comparison_rides_out_a_postgres_restart(private_postgres: Cluster, tm
     process = start(args, log)
     try:
         wait_for(lambda: run_folders(machine), 240, "the first run to start")
-        outage(private_postgres, lambda: log.read_text(errors="replace"))
+        private_postgres.restart()  # pg_ctl restart -m immediate, as an operator would
+        outage(private_postgres, lambda: log.read_text(errors="replace"))  # and one that a call meets
     except BaseException:
         process.kill()
         raise
