@@ -299,3 +299,28 @@ def test_other_database_errors_are_not_retried(capsys):
     with pytest.raises(IntegrityError):
         retry_lost_connection("store results", broken, waits=(0.0,))
     assert capsys.readouterr().err == ""
+
+
+def test_a_comparison_gives_up_in_one_line_once_the_database_stays_away(tmp_path, monkeypatch, capsys):
+    from cartpole.experiments import storage
+    from cartpole.experiments.compare import Experiment, SharedRunner
+    from cartpole.experiments.entries import Entry
+    from cartpole.experiments.storage import StorageLost
+
+    experiment = Experiment.open(tmp_path, "away", [Entry("cem")], [0], budget="2gen")
+    url = f"sqlite:///{tmp_path / 'shared.db'}"
+    runner = SharedRunner(
+        experiment, SharedComparison.join(url, "away", experiment.setup, [Entry("cem")], [0]), 1, None
+    )
+    monkeypatch.setattr(storage, "RETRY_WAITS", (0.0, 0.0))
+
+    def down() -> None:
+        raise connection_refused()
+
+    with pytest.raises(StorageLost) as caught:
+        runner.database("claim runs", down, None)
+    assert str(caught.value) == (
+        "lost the database connection (connection refused) for good while trying to claim runs: what "
+        "finished is stored; re-run the same command to resume"
+    )
+    assert len(capsys.readouterr().err.splitlines()) == 2  # a line for each new try

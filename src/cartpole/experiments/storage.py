@@ -121,10 +121,11 @@ class StorageLost(ExperimentError):
         )
 
 
-def retry_lost_connection(what: str, call: Callable[[], T], waits: Sequence[float] = RETRY_WAITS) -> T:
-    """``call()``, tried again after each of ``waits`` while it loses its database connection, with one
-    line on stderr each time; then the last error is raised. Every call given is one transaction (or
-    none), so a new try does again only what the database rolled back."""
+def retry_lost_connection(what: str, call: Callable[[], T], waits: Sequence[float] | None = None) -> T:
+    """``call()``, tried again after each of ``waits`` (default :data:`RETRY_WAITS`) while it loses its
+    database connection, with one line on stderr each time; then the last error is raised. Every call
+    given is one transaction (or none), so a new try does again only what the database rolled back."""
+    waits = RETRY_WAITS if waits is None else waits
     for attempt, wait in enumerate(waits, start=1):
         try:
             return call()
