@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from postgres_cluster import postgres_cluster, private_postgres  # noqa: F401 (fixtures)
 
 # The test process decides its thread count once, as `cartpole train --torch-threads 1` does (agents
 # never set it): small nets run fastest on one thread, and a loaded machine does not stall on

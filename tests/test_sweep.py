@@ -234,7 +234,7 @@ def test_a_worker_trains_on_the_clis_torch_thread_count(tmp_path, monkeypatch):
 
     seen: list[int] = []
 
-    def spy(spec: sweep.SweepSpec) -> int:
+    def spy(spec: sweep.SweepSpec, device: str = "cpu") -> int:
         seen.append(torch.get_num_threads())
         return 0
 

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from cartpole.cli.options import add_env_kwargs
+from cartpole.cli.options import add_env_kwargs, add_slots, slots_of
 from cartpole.experiments.storage import DEFAULT_CLAIM_TIMEOUT
 
 
@@ -44,7 +44,13 @@ def add_parser(sub: Any) -> None:
     parser.add_argument(
         "--first-seed", type=int, default=0, metavar="S", help="with a count N: seeds S..S+N-1 (default: 0)"
     )
-    parser.add_argument("--jobs", type=int, default=1, metavar="J", help="runs at a time (default: 1)")
+    parser.add_argument(
+        "--jobs",
+        type=int,
+        metavar="J",
+        help="CPU slots: runs at a time on the CPU (default: 1; 0 where there are GPU slots)",
+    )
+    add_slots(parser, "--jobs")
     parser.add_argument(
         "--env",
         default="CartPole-v1",
@@ -108,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
         return report_only(args)
     if not args.entries:
         raise ExperimentError("name at least one ENTRY to compare (or pass --report --name NAME)")
-    if args.jobs < 1:
+    if args.jobs is not None and args.jobs < 1:
         raise ExperimentError(f"--jobs must be >= 1, got {args.jobs}")
     if args.chunk < 1:
         raise ExperimentError(f"--chunk must be >= 1, got {args.chunk}")
@@ -164,6 +170,7 @@ def train_and_report(args: argparse.Namespace) -> int:
     from cartpole.training.request import parse_env_kwargs
     from cartpole.training.session import parse_seeds
 
+    slots = slots_of(args, args.jobs, "--jobs")
     seeds = parse_seeds(args.seeds, args.first_seed)
     entries = parse_entries(args.entries, args.env)
     experiment = Experiment.open(
@@ -189,6 +196,8 @@ def train_and_report(args: argparse.Namespace) -> int:
         )
     console = Console(soft_wrap=True, stderr=True)
     console.print(f"experiment: {experiment.folder}", highlight=False)
+    if any(slot.device != "cpu" for slot in slots):
+        console.print("worker slots: " + ", ".join(map(str, slots)), highlight=False)
     for entry in entries:
         if entry.picked and entry.preset != DEFAULT_PRESET:
             console.print(
@@ -200,9 +209,9 @@ def train_and_report(args: argparse.Namespace) -> int:
     with ExperimentProgress(console) as progress:
         try:
             if shared is None:
-                problems = experiment.run(args.jobs, progress.update)
+                problems = experiment.run(slots, progress.update)
             else:
-                problems = experiment.run_shared(shared, args.jobs, args.chunk, progress.update)
+                problems = experiment.run_shared(shared, slots, args.chunk, progress.update)
         except KeyboardInterrupt:
             interrupted, problems = True, []
     for line in problems:

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from cartpole.cli.options import add_env_kwargs
+from cartpole.cli.options import add_env_kwargs, add_slots, slots_of
 
 
 def add_parser(sub: Any) -> None:
@@ -45,8 +45,12 @@ def add_parser(sub: Any) -> None:
         "--seeds-per-trial", type=int, metavar="K", help="seeds 0..K-1 per trial (the same as --seeds K)"
     )
     parser.add_argument(
-        "--workers", type=int, default=1, metavar="J", help="local worker processes (default: 1)"
+        "--workers",
+        type=int,
+        metavar="J",
+        help="CPU slots: local worker processes on the CPU (default: 1; 0 where there are GPU slots)",
     )
+    add_slots(parser, "--workers")
     parser.add_argument("--study", required=True, metavar="NAME", help="study name (and folder name)")
     parser.add_argument(
         "--storage",
@@ -93,13 +97,14 @@ def run(args: argparse.Namespace) -> int:
         env_kwargs=parse_env_kwargs(args.env_kwargs),
         tensorboard=args.tensorboard,
     )
-    study = prepare_sweep(spec, args.workers)
+    slots = slots_of(args, args.workers, "--workers")
+    study = prepare_sweep(spec, slots)
     console = Console(soft_wrap=True, stderr=True)
     console.print(f"study {spec.name} in {spec.storage_label}", highlight=False)
     interrupted = False
     with SweepProgress(console, spec.trials) as progress:
         try:
-            run_sweep(spec, study, args.workers, progress.update)
+            run_sweep(spec, study, slots, progress.update)
         except KeyboardInterrupt:
             interrupted = True
     best = spec.path / "best.toml"

@@ -17,8 +17,9 @@ ordinary run folders, a record each.
 from __future__ import annotations
 
 import re
+import signal
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
@@ -27,13 +28,18 @@ from typing import Any
 from cartpole.agents.registry import get_agent
 from cartpole.core.file_names import is_portable_name
 from cartpole.experiments.entries import Entry, ExperimentError
+from cartpole.experiments.pause_points import pause_at
 from cartpole.experiments.processes import Job, python_module, run_job_source, run_jobs
 from cartpole.experiments.shared import SETUP_FLAGS, SharedComparison, new_owner
+from cartpole.experiments.slots import Slot
+from cartpole.experiments.storage import StorageLost, lost_connection, retry_lost_connection
 from cartpole.experiments.worker import FINISHED, Task, read_record
 from cartpole.runs.atomic import write_json_atomic
 from cartpole.runs.run_dir import read_json
 from cartpole.training.budget import check_budget_unit, parse_budget
 
+KILLED_RETRIES = 2
+"""Times a shared comparison's machine claims again the runs of a worker killed by a signal."""
 NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 WORKER = "cartpole.experiments.worker"
 
@@ -49,6 +55,11 @@ def check_name(name: str, what: str) -> str:
             "such as NUL or COM1): choose another"
         )
     return name
+
+
+def check_jobs(jobs: int | Sequence[Slot]) -> None:
+    if isinstance(jobs, int) and jobs < 1:
+        raise ExperimentError(f"--jobs must be >= 1, got {jobs}")
 
 
 @dataclass
@@ -231,13 +242,15 @@ class Experiment:
         write_json_atomic(path, task.__dict__)
         return Job(python_module(WORKER, str(path)), self.folder / "logs" / f"{name}.log", (entry, seeds))
 
-    def run(self, jobs: int, progress: Callable[[str, int, int, int], None] | None = None) -> list[str]:
-        """Run every pending seed, ``jobs`` at a time; return problems (failed workers) as lines.
+    def run(
+        self, jobs: int | Sequence[Slot], progress: Callable[[str, int, int, int], None] | None = None
+    ) -> list[str]:
+        """Run every pending seed, ``jobs`` at a time (a count of CPU slots, or the slots,
+        :mod:`~cartpole.experiments.slots`); return problems (failed workers) as lines.
 
         ``progress(kind, done, solved, total)`` hears of every run that ends.
         """
-        if jobs < 1:
-            raise ExperimentError(f"--jobs must be >= 1, got {jobs}")
+        check_jobs(jobs)
         self.folder.mkdir(parents=True, exist_ok=True)
         write_json_atomic(self.folder / "experiment.json", {**self.setup, "command": self.command})
         total = len(self.entries) * len(self.seeds)
@@ -267,17 +280,16 @@ class Experiment:
     def run_shared(
         self,
         shared: SharedComparison,
-        jobs: int,
+        jobs: int | Sequence[Slot],
         chunk: int,
         progress: Callable[[str, int, int, int], None] | None = None,
     ) -> list[str]:
         """Run this machine's share of a comparison shared through a database: claim pending runs of
         this request (a chunk of one entry's seeds at a time, trained as one population where the
-        entry batches its seeds), ``jobs`` claims at a time, and store each run's record and curve in
-        the database as it ends. Waits while other workers hold claims, taking over those whose
+        entry batches its seeds), ``jobs`` claims at a time (one per slot), and store each run's record
+        and curve in the database as it ends. Waits while other workers hold claims, taking over those whose
         heartbeat stops. Returns problems (failed runs) as lines."""
-        if jobs < 1:
-            raise ExperimentError(f"--jobs must be >= 1, got {jobs}")
+        check_jobs(jobs)
         if chunk < 1:
             raise ExperimentError(f"--chunk must be >= 1, got {chunk}")
         self.folder.mkdir(parents=True, exist_ok=True)
@@ -305,6 +317,9 @@ class SharedRunner:
         self.labels = [e.label for e in experiment.entries]
         self.batches = {e.label: experiment.trains_populations(e) for e in experiment.entries}
         self.failed: set[tuple[str, int]] = set()
+        self.running: set[tuple[str, int]] = set()
+        """Rows this machine's workers train: never claimed again by it, even once its heartbeat is
+        stale (the database out of reach for longer than the claim timeout)."""
         self.problems: list[str] = []
         self.period = min(30.0, shared.claim_timeout / 4)
         """Seconds between heartbeats."""
@@ -315,17 +330,23 @@ class SharedRunner:
         self.unstored: list[tuple[Entry, int, dict[str, Any], dict[str, Any]]] = []
         """Finished runs whose results the database did not take yet (it failed): retried each beat."""
         self.warned: set[str] = set()
+        self.kills: dict[tuple[str, int], int] = {}
+        """Times the worker of each (entry, seed) was killed by a signal."""
 
     def database(self, what: str, action: Callable[[], Any], default: Any) -> Any:
-        """``action()``, or ``default`` when the database fails (it is retried later): a line is printed
-        once per kind of failure, and training goes on."""
+        """``action()``, tried again while the database connection is lost (a line each time, for a
+        few minutes: :func:`~cartpole.experiments.storage.retry_lost_connection`), then StorageLost.
+        Another failure gives ``default`` (it is retried later): a line is printed once per kind of
+        failure, and training goes on."""
         import sys
 
         from sqlalchemy.exc import SQLAlchemyError
 
         try:
-            return action()
+            return retry_lost_connection(what, action)
         except SQLAlchemyError as err:
+            if lost_connection(err):
+                raise StorageLost.of(err, what) from None
             reason = str(getattr(err, "orig", None) or err).strip().splitlines()
             if what not in self.warned:
                 self.warned.add(what)
@@ -339,13 +360,19 @@ class SharedRunner:
         claim = self.database(
             "give work",
             lambda: self.shared.claim(
-                self.owner, self.chunk, self.batches, self.failed, self.labels, self.experiment.seeds
+                self.owner,
+                self.chunk,
+                self.batches,
+                self.failed | self.running,
+                self.labels,
+                self.experiment.seeds,
             ),
             None,
         )
         if claim is None:
             self.next_look = time.monotonic() + self.look_period
             return None
+        self.running |= {(claim.entry.label, seed) for seed in claim.seeds}
         return self.experiment.job(claim.entry, claim.seeds, population=self.batches[claim.entry.label])
 
     def more(self) -> bool:
@@ -379,7 +406,8 @@ class SharedRunner:
         from cartpole.runs import RunError
 
         entry, seeds = job.key
-        finished = []
+        self.running -= {(entry.label, seed) for seed in seeds}
+        finished, again = [], self.killed_again(job, code)
         for seed in seeds:
             record = read_record(self.experiment.record_path(entry, seed))
             if record and record.get("state") == FINISHED:
@@ -390,12 +418,32 @@ class SharedRunner:
                 finished.append((entry, seed, record, curve))
                 continue
             self.database("give a claim back", partial(self.shared.release, self.owner, entry, seed), None)
-            if code not in (0, 130, -2):
+            if code not in (0, 130, -2) and not again:
                 self.failed.add((entry.label, seed))
                 self.problems.append(f"{entry.label} seed {seed} failed (exit {code}); see {job.log}")
+        if finished:
+            pause_at("finish")  # a test hook: nothing unless CARTPOLE_PAUSE_AT says so
         self.store(self.unstored + finished)
         self.next_look = 0.0  # a slot is free: look for work at once
         self.report("run")
+
+    def killed_again(self, job: Job, code: int) -> bool:
+        """Whether a worker killed by a signal (SIGKILL: the kernel out of memory, a person) has its
+        unfinished runs claimed again, here or by another machine, up to :data:`KILLED_RETRIES` times
+        per job (a line each time); its runs start again where it left their records."""
+        import sys
+
+        if code >= 0 or code == -signal.SIGINT:
+            return False
+        entry, seeds = job.key
+        for seed in seeds:
+            self.kills[(entry.label, seed)] = self.kills.get((entry.label, seed), 0) + 1
+        kills = max(self.kills[(entry.label, seed)] for seed in seeds)
+        if kills > KILLED_RETRIES:
+            return False
+        line = f"the worker of {entry.label} seeds {seeds} was killed (signal {-code}): claiming its "
+        print(line + f"unfinished runs again ({kills}/{KILLED_RETRIES}); see {job.log}", file=sys.stderr)
+        return True
 
     def report(self, kind: str) -> None:
         if self.progress:

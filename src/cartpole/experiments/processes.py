@@ -28,6 +28,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from cartpole.experiments.slots import CPU, Slot
+
 POLL_SECONDS = 0.2
 GRACE_SECONDS = 60.0
 STOP_REQUEST = b"stop\n"
@@ -64,9 +66,10 @@ def python_module(module: str, *args: str) -> list[str]:
     return [sys.executable, "-m", module, *args]
 
 
-def start(job: Job) -> subprocess.Popen[bytes]:
+def start(job: Job, slot: Slot | None = None) -> subprocess.Popen[bytes]:
     """Start the job's worker, its output appended to its log, its stdin a pipe from this process
-    (the worker's :func:`follow_parent` reads it)."""
+    (the worker's :func:`follow_parent` reads it). In a ``slot``, its command ends with the slot's
+    ``--device DEVICE`` and its environment has the slot's (a GPU slot's ``CUDA_VISIBLE_DEVICES``)."""
     job.log.parent.mkdir(parents=True, exist_ok=True)
     apart: dict[str, Any]
     if sys.platform == "win32":  # a process group of its own: the terminal's Ctrl-C passes it by
@@ -75,12 +78,12 @@ def start(job: Job) -> subprocess.Popen[bytes]:
         apart = {"start_new_session": True}
     with open(job.log, "ab") as log:
         return subprocess.Popen(
-            job.args,
+            job.args if slot is None else [*job.args, *slot.arguments],
             stdout=log,
             stderr=subprocess.STDOUT,
             stdin=subprocess.PIPE,
             bufsize=0,
-            env={**os.environ, FOLLOW_PARENT: "1"},
+            env={**os.environ, **(slot.environment if slot else {}), FOLLOW_PARENT: "1"},
             **apart,
         )
 
@@ -121,11 +124,12 @@ def stop_all(running: dict[subprocess.Popen[bytes], Job], grace: float = GRACE_S
 
 def run_jobs(
     jobs: Sequence[Job],
-    workers: int,
+    workers: int | Sequence[Slot],
     on_done: Callable[[Job, int], None],
     tick: Callable[[], None] | None = None,
 ) -> None:
-    """Run ``jobs``, ``workers`` at a time (workers inherit this environment, PYTHONPATH included).
+    """Run ``jobs``, ``workers`` at a time: a count of CPU slots, or the slots (each runs one job at a
+    time, :func:`start`). Workers inherit this environment, PYTHONPATH included.
 
     ``on_done(job, exit code)`` is called in this process as each ends, ``tick()`` every poll (about
     five times a second). KeyboardInterrupt (Ctrl-C, SIGTERM) stops every worker cleanly, then
@@ -137,7 +141,7 @@ def run_jobs(
 
 def run_job_source(
     next_job: Callable[[], Job | None],
-    workers: int,
+    workers: int | Sequence[Slot],
     on_done: Callable[[Job, int], None],
     tick: Callable[[], None] | None = None,
     more: Callable[[], bool] = lambda: False,
@@ -145,17 +149,21 @@ def run_job_source(
     """:func:`run_jobs` over jobs made as slots free up: ``next_job()`` gives the next one, or None when
     it has none now; the loop ends when nothing runs, ``next_job()`` has none and ``more()`` says none
     will come (a shared comparison waits while other machines hold runs they may give up)."""
+    free = [CPU] * workers if isinstance(workers, int) else list(workers)
     running: dict[subprocess.Popen[bytes], Job] = {}
+    slots: dict[subprocess.Popen[bytes], Slot] = {}
     with sigterm_as_interrupt():
         try:
             while True:
                 exhausted = False
-                while len(running) < workers:
+                while free:
                     job = next_job()
                     if job is None:
                         exhausted = True
                         break
-                    running[start(job)] = job
+                    slot = free.pop(0)
+                    process = start(job, slot)
+                    running[process], slots[process] = job, slot
                 if not running and exhausted and not more():
                     return
                 time.sleep(POLL_SECONDS)
@@ -163,11 +171,15 @@ def run_job_source(
                     tick()
                 for process in [p for p in running if p.poll() is not None]:
                     close_pipe(process)
+                    free.append(slots.pop(process))
                     on_done(running.pop(process), int(process.returncode))
         except KeyboardInterrupt:
             stop_all(running)
             for process, job in running.items():
                 on_done(job, int(process.returncode))
+            raise
+        except Exception:  # the caller failed (its database out of reach): every worker saves its run
+            stop_all(running)
             raise
 
 

@@ -48,6 +48,7 @@ def entry_summary(entry: Entry, records: list[dict[str, Any]]) -> dict[str, Any]
     summary["final_mean_return"] = iqm_summary(finals) | {"values": finals}
     summary["seeds"] = [r["seed"] for r in records]
     summary["run_folders"] = [r["run"] for r in records]
+    summary["devices"] = sorted({str(r.get("device", "cpu")) for r in records})
     return summary
 
 
@@ -215,6 +216,9 @@ def markdown(report: dict[str, Any], figures: list[str]) -> str:
         f"run's final verdict (its kept best policy on 100 fresh episodes). {seed_range(report['seeds'])}",
         "",
     ]
+    devices = {e["entry"]: e.get("devices", ["cpu"]) for e in report["entries"]}
+    if any(found != ["cpu"] for found in devices.values()):  # a CPU-only report reads as before
+        lines += ["Devices: " + "; ".join(f"{k}: {', '.join(v)}" for k, v in devices.items()) + ".", ""]
     lines += improvement_lines(report["probability_of_improvement"])
     lines += [f"![{Path(f).stem}]({Path(f).name})" for f in figures]
     return "\n".join(lines) + "\n"

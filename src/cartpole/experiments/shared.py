@@ -28,6 +28,7 @@ from enum import StrEnum
 from typing import Any
 
 from cartpole.experiments.entries import Entry, ExperimentError
+from cartpole.experiments.pause_points import pause_in_claims
 from cartpole.experiments.storage import (
     DEFAULT_CLAIM_TIMEOUT,
     driver_url,
@@ -138,6 +139,7 @@ class SharedComparison:
             engine = sa.create_engine(driver_url(url), **engine_options(url))
         except ImportError as err:
             raise missing_driver(url, err) from None
+        pause_in_claims(engine)  # a test hook: nothing unless CARTPOLE_PAUSE_AT says so
         if not create:
             return engine
         for attempt in range(CREATE_ATTEMPTS):

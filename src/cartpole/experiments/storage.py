@@ -3,12 +3,19 @@ sweep (through Optuna's RDBStorage) and by shared comparisons (through SQLAlchem
 
 from __future__ import annotations
 
-from typing import Any
+import sys
+import time
+from collections.abc import Callable, Sequence
+from typing import Any, TypeVar
 
 from cartpole.experiments.entries import ExperimentError
 
 SUPPORTED = ("postgresql", "sqlite", "mysql")
 CONNECT_TIMEOUT_SECONDS = 10
+RETRY_WAITS = (1.0, 2.0, 4.0, 8.0, 15.0, 30.0, 30.0, 30.0, 30.0, 30.0)
+"""Seconds before each new try of a database call that lost its connection (a server restarting, a
+network cut): about three minutes in all, then the call fails (:func:`retry_lost_connection`)."""
+T = TypeVar("T")
 DEFAULT_CLAIM_TIMEOUT = 120.0
 """Seconds without a heartbeat after which another worker takes a shared comparison's claim over (here,
 not in :mod:`cartpole.experiments.shared`, so that the CLI's parser has it without SQLAlchemy)."""
@@ -81,4 +88,67 @@ def unreachable(url: str, err: Exception) -> ExperimentError:
     return ExperimentError(f"cannot reach the {backend} storage at {where}: {reason}")
 
 
-__all__ = ["describe_url", "driver_url", "engine_options", "missing_driver", "missing_module", "unreachable"]
+def lost_connection(err: BaseException) -> bool:
+    """Whether ``err`` (or what it was raised from: Optuna wraps SQLAlchemy's errors) is a lost or
+    refused connection, or a server that is not ready (starting up, shutting down): worth a new try."""
+    from sqlalchemy.exc import DBAPIError, InterfaceError, OperationalError
+
+    while err is not None:
+        if isinstance(err, (OperationalError, InterfaceError)) or (
+            isinstance(err, DBAPIError) and err.connection_invalidated
+        ):
+            return True
+        err = err.__cause__  # type: ignore[assignment]
+    return False
+
+
+def reason_of(err: BaseException) -> str:
+    """The first line of what the database driver said."""
+    while err.__cause__ is not None and not hasattr(err, "orig"):
+        err = err.__cause__
+    lines = str(getattr(err, "orig", None) or err).strip().splitlines()
+    return lines[0] if lines else type(err).__name__
+
+
+class StorageLost(ExperimentError):
+    """The database stayed out of reach for longer than its calls are tried again."""
+
+    @classmethod
+    def of(cls, err: BaseException, what: str) -> StorageLost:
+        return cls(
+            f"lost the database connection ({reason_of(err)}) for good while trying to {what}: what "
+            "finished is stored; re-run the same command to resume"
+        )
+
+
+def retry_lost_connection(what: str, call: Callable[[], T], waits: Sequence[float] | None = None) -> T:
+    """``call()``, tried again after each of ``waits`` (default :data:`RETRY_WAITS`) while it loses its
+    database connection, with one line on stderr each time; then the last error is raised. Every call
+    given is one transaction (or none), so a new try does again only what the database rolled back."""
+    waits = RETRY_WAITS if waits is None else waits
+    for attempt, wait in enumerate(waits, start=1):
+        try:
+            return call()
+        except Exception as err:
+            if not lost_connection(err):
+                raise
+            print(
+                f"lost the database connection ({reason_of(err)}) while trying to {what}: retrying in "
+                f"{wait:g} s ({attempt}/{len(waits)})",
+                file=sys.stderr,
+                flush=True,
+            )
+            time.sleep(wait)
+    return call()
+
+
+__all__ = [
+    "StorageLost",
+    "describe_url",
+    "driver_url",
+    "engine_options",
+    "missing_driver",
+    "missing_module",
+    "retry_lost_connection",
+    "unreachable",
+]  # fmt: skip

@@ -18,12 +18,14 @@ marked failed and replaced. The best trial is written as ``D/sweeps/NAME/best.to
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import signal
 import statistics
 import sys
+import threading
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -35,8 +37,18 @@ from cartpole.experiments.best import best_value, write_best
 from cartpole.experiments.compare import check_name
 from cartpole.experiments.entries import ExperimentError
 from cartpole.experiments.processes import Job, python_module, run_jobs
+from cartpole.experiments.slots import Slot
 from cartpole.experiments.space import load_space, preset_point, space_description
-from cartpole.experiments.storage import describe_url, driver_url, engine_options, missing_driver, unreachable
+from cartpole.experiments.storage import (
+    StorageLost,
+    describe_url,
+    driver_url,
+    engine_options,
+    lost_connection,
+    missing_driver,
+    retry_lost_connection,
+    unreachable,
+)
 from cartpole.experiments.sweep_spec import SweepSpec
 from cartpole.runs.atomic import write_json_atomic
 from cartpole.training import Callback, TrainingLoop
@@ -133,9 +145,7 @@ def open_storage(spec: SweepSpec, attempts: int = 5) -> Any:
         try:
             with warnings.catch_warnings():  # heartbeats are "experimental" in Optuna, and what we need
                 warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
-                return optuna.storages.RDBStorage(
-                    url, engine_kwargs=engine, heartbeat_interval=30, grace_period=120
-                )
+                return ReconnectingStorage(url, engine_kwargs=engine, heartbeat_interval=30, grace_period=120)
         except ImportError as err:  # Optuna re-raises the driver's ModuleNotFoundError as ImportError
             raise missing_driver(spec.storage, err) from None
         except OperationalError as err:  # no server there, or a wrong host, port, user or database
@@ -146,6 +156,49 @@ def open_storage(spec: SweepSpec, attempts: int = 5) -> Any:
                 raise ExperimentError(f"the {backend} study storage at {where} failed: {reason}") from None
             time.sleep(1.0 + attempt)
     raise AssertionError("unreachable")
+
+
+class ReconnectingStorage(optuna.storages.RDBStorage):
+    """Optuna's RDBStorage, each of whose calls is tried again while it loses its connection (a
+    database server restarting): a line each time, for a few minutes
+    (:func:`~cartpole.experiments.storage.retry_lost_connection`), so that neither the sweep nor its
+    workers fail their trials for it. Each call is one transaction of Optuna's."""
+
+
+_INSIDE = threading.local()
+"""Whether this thread is inside a retried call already (whose own calls then are not retried apart)."""
+
+
+def _reconnecting(name: str) -> Callable[..., Any]:
+    method = getattr(optuna.storages.RDBStorage, name)
+    what = name.strip("_").replace("_", " ") + " in the study"
+
+    @functools.wraps(method)
+    def call(self: ReconnectingStorage, *args: Any, **kwargs: Any) -> Any:
+        if getattr(_INSIDE, "call", False):
+            return method(self, *args, **kwargs)
+        _INSIDE.call = True
+        try:
+            return retry_lost_connection(what, lambda: method(self, *args, **kwargs))
+        finally:
+            _INSIDE.call = False
+
+    return call
+
+
+RETRIED_CALLS = (
+    "create_new_study", "delete_study", "set_study_user_attr", "set_study_system_attr",
+    "get_study_id_from_name", "get_study_name_from_id", "get_study_directions", "get_study_user_attrs",
+    "get_study_system_attrs", "get_trial_user_attrs", "get_trial_system_attrs", "get_all_studies",
+    "create_new_trial", "set_trial_param", "get_trial_param", "set_trial_state_values",
+    "set_trial_intermediate_value", "set_trial_user_attr", "set_trial_system_attr",
+    "get_trial_id_from_study_id_trial_number", "get_trial", "get_all_trials", "get_best_trial",
+    "record_heartbeat", "_create_new_trial", "_get_best_trial_id", "_get_stale_trial_ids", "_get_trials",
+    "_set_trial_param",
+)  # fmt: skip
+"""RDBStorage's calls on the database (Optuna 5), its private ones that Optuna's cache calls included."""
+for _name in RETRIED_CALLS:
+    setattr(ReconnectingStorage, _name, _reconnecting(_name))
 
 
 def open_study(spec: SweepSpec, storage: Any) -> Any:
@@ -283,8 +336,11 @@ def stop_flag() -> Iterator[list[int]]:
             signal.signal(s, h)
 
 
-def trial_cost(spec: SweepSpec, trial: Any, params: dict[str, Any], stop: list[int]) -> float:
-    """Train the trial's K seeds as one population; the median cost, or TrialPruned / Interrupted."""
+def trial_cost(
+    spec: SweepSpec, trial: Any, params: dict[str, Any], stop: list[int], device: str = "cpu"
+) -> float:
+    """Train the trial's K seeds as one population on ``device`` (noted in the trial's ``device``
+    attribute); the median cost, or TrialPruned / Interrupted."""
     import optuna
 
     from cartpole.training.session import train_population
@@ -292,6 +348,7 @@ def trial_cost(spec: SweepSpec, trial: Any, params: dict[str, Any], stop: list[i
     if stop:
         raise Interrupted
     reporter = PruneReporter(trial, spec.seeds_per_trial)
+    trial.set_user_attr("device", device)
     outcome = train_population(
         spec.agent,
         spec.trial_seeds,
@@ -300,7 +357,7 @@ def trial_cost(spec: SweepSpec, trial: Any, params: dict[str, Any], stop: list[i
         overrides=params | ({"env_kwargs": spec.env_kwargs} if spec.env_kwargs else {}),
         budget=spec.budget,
         runs_dir=spec.path / "runs",
-        device="cpu",
+        device=device,
         quiet=True,
         command=["cartpole", "sweep", spec.agent, "--study", spec.name, f"(trial {trial.number})"],
         tensorboard=spec.tensorboard,
@@ -322,8 +379,8 @@ def trial_cost(spec: SweepSpec, trial: Any, params: dict[str, Any], stop: list[i
     return float(statistics.median(costs))
 
 
-def run_worker(spec: SweepSpec) -> int:
-    """Run trials until the study holds ``spec.trials`` finished ones; 130 if interrupted."""
+def run_worker(spec: SweepSpec, device: str = "cpu") -> int:
+    """Run trials on ``device`` until the study holds ``spec.trials`` finished ones; 130 if interrupted."""
     from optuna.trial import TrialState
 
     study = open_study(spec, open_storage(spec))
@@ -338,7 +395,7 @@ def run_worker(spec: SweepSpec) -> int:
         study.sampler = sampler_for(spec, trial.number)
         chosen = {name: p.suggest(trial) for name, p in params.items()}
         try:
-            return trial_cost(spec, trial, chosen, stop)
+            return trial_cost(spec, trial, chosen, stop, device)
         except Interrupted:
             trial.set_user_attr("interrupted", True)
             raise
@@ -385,17 +442,21 @@ def local_lock(spec: SweepSpec) -> Iterator[bool]:
         lock.release()
 
 
-def prepare_sweep(spec: SweepSpec, workers: int) -> Any:
+def prepare_sweep(spec: SweepSpec, workers: int | Sequence[Slot]) -> Any:
     """Check the worker count, the storage and the study (ExperimentError, nothing written); the study."""
-    if workers < 1:
+    if isinstance(workers, int) and workers < 1:
         raise ExperimentError(f"--workers must be >= 1, got {workers}")
     return open_study(spec, open_storage(spec))
 
 
 def run_sweep(
-    spec: SweepSpec, study: Any, workers: int, progress: Callable[[dict[str, int], Any], None] | None
+    spec: SweepSpec,
+    study: Any,
+    workers: int | Sequence[Slot],
+    progress: Callable[[dict[str, int], Any], None] | None,
 ) -> Any:
-    """Run ``workers`` worker processes on the prepared ``study``, then write best.toml; the study.
+    """Run a worker process in each slot of ``workers`` (a count: CPU slots) on the prepared ``study``,
+    then write best.toml; the study.
 
     KeyboardInterrupt stops every worker (each marks its trial failed) and propagates after best.toml.
     """
@@ -405,7 +466,7 @@ def run_sweep(
             fail_abandoned_trials(study)  # left RUNNING by a killed sweep: nobody else can own them
         jobs = [
             Job(python_module(WORKER, str(spec_path)), spec.path / "logs" / f"worker{i}.log", i)
-            for i in range(workers)
+            for i in range(workers if isinstance(workers, int) else len(workers))
         ]
         problems: list[str] = []
 
@@ -422,10 +483,18 @@ def run_sweep(
 
         try:
             run_jobs(jobs, workers, on_done, tick)
+        except Exception as err:
+            if lost_connection(err):  # its workers stopped, each marking its trial failed where it can
+                raise StorageLost.of(err, "follow the study") from None
+            raise
         finally:
-            if progress:
-                progress(count_trials(study), best_value(study))
-            write_best(spec, study)
+            try:
+                if progress:
+                    progress(count_trials(study), best_value(study))
+                write_best(spec, study)
+            except Exception as err:  # the study out of reach: best.toml waits for a re-run
+                if not lost_connection(err):
+                    raise
     if problems:
         raise SweepFailed("; ".join(problems))
     return study
@@ -436,17 +505,19 @@ class SweepFailed(Exception):
 
 
 def main(argv: list[str]) -> int:
-    """Worker entry: ``python -m cartpole.experiments.sweep SWEEP.json``, training on ``cartpole
-    train``'s default torch thread count. It stops as on Ctrl-C when its parent asks or is gone
-    (:func:`~cartpole.experiments.processes.follow_parent`); 130 when stopped."""
+    """Worker entry: ``python -m cartpole.experiments.sweep SWEEP.json [--device cpu|cuda]``, training
+    on that device (default: cpu) on ``cartpole train``'s default torch thread count. It stops as on
+    Ctrl-C when its parent asks or is gone (:func:`~cartpole.experiments.processes.follow_parent`); 130
+    when stopped."""
     from cartpole.experiments.processes import follow_parent
     from cartpole.training.threads import default_torch_threads, torch_threads
 
     try:
         follow_parent()  # inside: a stop asked for already interrupts as soon as it returns
         spec = SweepSpec(**json.loads(Path(argv[0]).read_text(encoding="utf-8")))
+        device = argv[argv.index("--device") + 1] if "--device" in argv else "cpu"
         with torch_threads(default_torch_threads(spec.env_id)):
-            return run_worker(spec)
+            return run_worker(spec, device)
     except ExperimentError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

@@ -1,9 +1,11 @@
 """One job of an experiment, in its own process: train (or resume) one seed of one entry, or every
 pending seed of an entry whose agent batches its seeds, as one population in one process.
 
-``python -m cartpole.experiments.worker TASK.json`` trains the seeds the task names and writes what it
-measured to each seed's ``record`` file (atomically). A record whose run is ``finished`` means the work is
-done; an ``interrupted`` one names the run folder that a later worker resumes. SIGINT and SIGTERM stop
+``python -m cartpole.experiments.worker TASK.json [--device cpu|cuda]`` trains the seeds the task names
+on that torch device (default: cpu; a GPU slot's worker sees one GPU, :mod:`~cartpole.experiments.slots`)
+and writes what it measured, the device included, to each seed's ``record`` file (atomically). A record
+whose run is ``finished`` means the work is done; an ``interrupted`` one names the run folder that a
+later worker resumes. SIGINT and SIGTERM stop
 training at the next step with ``checkpoints/latest.pt`` saved (the training session's own handling),
 and so do the parent's stop request and the parent's end
 (:func:`~cartpole.experiments.processes.follow_parent`).
@@ -14,7 +16,7 @@ from __future__ import annotations
 import json
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -68,6 +70,8 @@ class Task:
     """Settings over the preset's (the comparison's ``--env-kwargs``)."""
     tensorboard: bool = False
     """``--tensorboard``: new runs also log TensorBoard events (a resumed run keeps what it had)."""
+    device: str = "cpu"
+    """The torch device (the worker's ``--device``, its slot's), recorded in each seed's record."""
 
     @classmethod
     def load(cls, path: Path) -> Task:
@@ -120,7 +124,7 @@ def run_task(task: Task) -> dict[str, Any]:
     previous = resumable(record)
     if previous is not None and record is not None:
         clock = SolveClock(record.get("cpu_seconds", 0.0), record.get("solve_cpu_seconds"))
-        outcome = resume(previous, quiet=True, device="cpu", callbacks=[clock])
+        outcome = resume(previous, quiet=True, device=task.device, callbacks=[clock])
     else:
         clock = SolveClock()
         outcome = train(
@@ -131,7 +135,7 @@ def run_task(task: Task) -> dict[str, Any]:
             overrides=task.overrides,
             budget=task.budget,
             runs_dir=task.runs_dir,
-            device="cpu",
+            device=task.device,
             quiet=True,
             command=task.command,
             tensorboard=task.tensorboard,
@@ -151,6 +155,7 @@ def make_record(task: Task, outcome: TrainOutcome, clock: SolveClock) -> dict[st
         "seed": task.seed,
         "run": str(outcome.run.path),
         "state": INTERRUPTED if outcome.signal is not None else FINISHED,
+        "device": task.device,
     } | run_fields(outcome.state, outcome.report, clock)
 
 
@@ -187,7 +192,7 @@ def run_population_task(task: Task, records: dict[int, str]) -> dict[str, Any]:
         interrupted = [run for run in previous.values() if run is not None]
         cpu_start = time.process_time()
         if interrupted:
-            outcome = resume_population(interrupted[0], quiet=True)
+            outcome = resume_population(interrupted[0], quiet=True, device=task.device)
         else:
             outcome = train_population(
                 task.agent,
@@ -197,7 +202,7 @@ def run_population_task(task: Task, records: dict[int, str]) -> dict[str, Any]:
                 overrides=task.overrides,
                 budget=task.budget,
                 runs_dir=task.runs_dir,
-                device="cpu",
+                device=task.device,
                 quiet=True,
                 command=task.command,
                 tensorboard=task.tensorboard,
@@ -239,14 +244,15 @@ def make_population_record(
         "run": str(outcome.runs[seed].path),
         "state": INTERRUPTED if outcome.signal is not None else FINISHED,
         "population": True,
+        "device": task.device,
     }
     return fields | run_fields(state, report, clock)
 
 
 def main(argv: list[str]) -> int:
-    """Run the task in ``argv[0]`` on ``cartpole train``'s default torch thread count; exit 0 when
-    finished, 130 when interrupted (also when stopped before or between training sessions, where
-    nothing is half-written: every write is atomic)."""
+    """Run the task in ``argv[0]`` (on ``--device DEVICE`` where ``argv`` ends with it) on ``cartpole
+    train``'s default torch thread count; exit 0 when finished, 130 when interrupted (also when stopped
+    before or between training sessions, where nothing is half-written: every write is atomic)."""
     from cartpole.core.errors import InputError
     from cartpole.experiments.processes import follow_parent
     from cartpole.training.threads import default_torch_threads, torch_threads
@@ -254,6 +260,8 @@ def main(argv: list[str]) -> int:
     try:
         follow_parent()  # inside: a stop asked for already interrupts as soon as it returns
         task = Task.load(Path(argv[0]))
+        if "--device" in argv:
+            task = replace(task, device=argv[argv.index("--device") + 1])
         with torch_threads(default_torch_threads(task.env_id)):
             record = run_task(task)
         return 0 if record["state"] == FINISHED else 130
