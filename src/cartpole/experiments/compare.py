@@ -299,6 +299,9 @@ class SharedRunner:
         self.unstored: list[tuple[Entry, int, dict[str, Any], dict[str, Any]]] = []
         """Finished runs whose results the database did not take yet (it failed): retried each beat."""
         self.warned: set[str] = set()
+        self.running: list[Job] = []
+        self.lost: list[Job] = []
+        """Running jobs with a claim another worker took over: killed, their results not stored."""
 
     def database(self, what: str, action: Callable[[], Any], default: Any) -> Any:
         """``action()``, or ``default`` when the database fails (it is retried later): a line is printed
@@ -330,7 +333,9 @@ class SharedRunner:
         if claim is None:
             self.next_look = time.monotonic() + self.look_period
             return None
-        return self.experiment.job(claim.entry, claim.seeds, population=self.batches[claim.entry.label])
+        job = self.experiment.job(claim.entry, claim.seeds, population=self.batches[claim.entry.label])
+        self.running.append(job)
+        return job
 
     def more(self) -> bool:
         """Whether to wait: runs of this request are not finished, and some are claimed by other
@@ -343,11 +348,36 @@ class SharedRunner:
             return True
         return bool(progress.finished + len(self.failed) < progress.total)
 
-    def tick(self) -> None:
-        if time.monotonic() - self.last_beat >= self.period:
-            self.last_beat = time.monotonic()
-            self.database("renew claims", lambda: self.shared.heartbeat(self.owner), 0)
-            self.store(self.unstored)
+    def tick(self) -> list[Job]:
+        """Every heartbeat period: renew this worker's claims, and return the running jobs to kill, those
+        with a claim the database says is no longer this worker's (it was taken over while the heartbeats
+        were late: a long pause, a network cut)."""
+        if time.monotonic() - self.last_beat < self.period:
+            return []
+        self.last_beat = time.monotonic()
+        held = self.database("renew claims", lambda: self.shared.heartbeat(self.owner), None)
+        self.store(self.unstored)
+        if held is None:
+            return []
+        lost = [job for job in self.running if job not in self.lost and not self.holds(job, held)]
+        for job in lost:
+            self.say_lost(job)
+        self.lost += lost
+        return lost
+
+    @staticmethod
+    def holds(job: Job, held: set[tuple[str, int]]) -> bool:
+        entry, seeds = job.key
+        return all((entry.label, seed) in held for seed in seeds)
+
+    @staticmethod
+    def say_lost(job: Job) -> None:
+        import sys
+
+        entry, seeds = job.key
+        which = f"seed {seeds[0]}" if len(seeds) == 1 else "seeds " + ", ".join(map(str, seeds))
+        print(f"warning: {entry.label} {which}: another worker took this claim over (this worker's "
+              "heartbeats were late); stopped its run here, saving nothing", file=sys.stderr)  # fmt: skip
 
     def store(self, finished: list[tuple[Entry, int, dict[str, Any], dict[str, Any]]]) -> None:
         """Put finished runs' results in the database; those it does not take wait in ``unstored``."""
@@ -362,6 +392,11 @@ class SharedRunner:
         from cartpole.experiments.figures import EvalCurve
         from cartpole.runs import RunError
 
+        self.running.remove(job)
+        if job in self.lost:
+            self.lost.remove(job)
+            self.give_back(job)
+            return
         entry, seeds = job.key
         finished = []
         for seed in seeds:
@@ -380,6 +415,14 @@ class SharedRunner:
         self.store(self.unstored + finished)
         self.next_look = 0.0  # a slot is free: look for work at once
         self.report("run")
+
+    def give_back(self, job: Job) -> None:
+        """A killed job's seeds that this worker still holds are pending again (release touches only its
+        own claims); its record files and run folders, perhaps the new owner's too, are not read."""
+        entry, seeds = job.key
+        for seed in seeds:
+            self.database("give a claim back", partial(self.shared.release, self.owner, entry, seed), None)
+        self.next_look = 0.0
 
     def report(self, kind: str) -> None:
         if self.progress:

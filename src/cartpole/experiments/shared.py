@@ -9,12 +9,14 @@ Two tables, made by SQLAlchemy where they are missing (the same database a sweep
   ``heartbeat`` in the database's own clock) or ``finished`` with the run's record and evaluation
   curve, written as the run ends.
 
-A worker claims rows in one transaction (``SELECT ... FOR UPDATE SKIP LOCKED`` on PostgreSQL), so
-every row is claimed by exactly one worker. Rows of a claimed chunk share an entry, so that an agent
-that batches its seeds trains them as one population. A worker renews the heartbeat of its claims
-while it runs them; a claim whose heartbeat is older than the claim timeout (its worker was killed or
-lost its machine) is taken over by another worker, who resumes the run where it has the run's folder
-and trains it again where not. Only the first finish of a row is kept.
+A worker claims rows in one statement that locks only the rows it takes (``FOR UPDATE SKIP LOCKED``
+with a ``LIMIT`` on PostgreSQL), so many workers claim at the same moment and every row is claimed by
+exactly one worker. Rows of a claimed chunk share an entry, so that an agent that batches its seeds
+trains them as one population. A worker renews the heartbeat of its claims while it runs them and
+learns from it which it still holds; a claim whose heartbeat is older than the claim timeout (its
+worker was killed, lost its machine or its network) is taken over by another worker, who resumes the
+run where it has the run's folder and trains it again where not, and the first worker, if it comes
+back, stops that run. Only the first finish of a row is kept.
 """
 
 from __future__ import annotations
@@ -211,50 +213,62 @@ class SharedComparison:
     ) -> Claim | None:
         """Claim up to ``chunk`` runs of one entry (one run where the entry does not batch its seeds)
         among ``labels`` x ``seeds``, but not those in ``skip``: pending ones, or claims whose heartbeat
-        is older than the claim timeout. None if there are none."""
+        is older than the claim timeout. None if there are none free.
+
+        One statement: the first claimable row (in seed order) names the entry, and up to the chunk's
+        size of that entry's claimable rows are claimed. On PostgreSQL both look-ups lock only the rows
+        they return and skip those other claims lock (``FOR UPDATE SKIP LOCKED``, each with its
+        ``LIMIT``), so many workers claim at the same moment, each other rows; on SQLite the statement
+        holds the database's write lock. Either way the update checks again that each row is claimable,
+        so no row is claimed twice."""
         import sqlalchemy as sa
 
+        now = database_clock(self.engine.dialect.name)
+        claimable = self._claimable(labels, seeds, skip, now)
+        first = (
+            sa.select(RUNS.c.entry)
+            .where(claimable)
+            .order_by(RUNS.c.seed, RUNS.c.entry)
+            .limit(1)
+            .with_for_update(skip_locked=True)
+            .cte("first_claimable")
+            .prefix_with("MATERIALIZED", dialect="postgresql")  # evaluated (and locked) once
+        )
+        entry = sa.select(first.c.entry).scalar_subquery()
+        batching = [label for label in labels if batches.get(label, False)]
+        size = sa.case((entry.in_(batching), chunk), else_=1) if batching and chunk > 1 else 1
+        picked = (
+            sa.select(RUNS.c.entry, RUNS.c.seed)
+            .where(claimable, RUNS.c.entry == entry)
+            .order_by(RUNS.c.seed)
+            .limit(size)
+            .with_for_update(skip_locked=True)
+            .cte("picked")
+            .prefix_with("MATERIALIZED", dialect="postgresql")
+        )
+        statement = (
+            RUNS.update()
+            .where(claimable, RUNS.c.entry == picked.c.entry, RUNS.c.seed == picked.c.seed)
+            .values(state=RowState.CLAIMED, owner=owner, heartbeat=now, claims=RUNS.c.claims + 1)
+            .returning(RUNS.c.entry, RUNS.c.seed, RUNS.c.agent, RUNS.c.preset)
+        )
         with self.engine.begin() as db:
-            now = database_seconds(db)
-            claimable = sa.and_(
-                self._asked(labels, seeds),
-                sa.or_(
-                    RUNS.c.state == RowState.PENDING,
-                    sa.and_(RUNS.c.state == RowState.CLAIMED, RUNS.c.heartbeat < now - self.claim_timeout),
-                ),
-            )
-            order = (RUNS.c.seed, RUNS.c.entry)
-            rows = db.execute(
-                sa.select(RUNS.c.entry, RUNS.c.seed, RUNS.c.agent, RUNS.c.preset)
-                .where(claimable)
-                .order_by(*order)
-                .with_for_update(skip_locked=True)
-            ).all()
-            rows = [r for r in rows if (r.entry, r.seed) not in skip]
-            if not rows:
-                return None
-            first = rows[0]
-            size = chunk if batches.get(first.entry, False) else 1
-            seeds = [r.seed for r in rows if r.entry == first.entry][:size]
-            db.execute(
-                RUNS.update()
-                .where(RUNS.c.comparison == self.name, RUNS.c.entry == first.entry, RUNS.c.seed.in_(seeds))
-                .values(state=RowState.CLAIMED, owner=owner, heartbeat=now, claims=RUNS.c.claims + 1)
-            )
-        return Claim(Entry(first.agent, first.preset), seeds)
+            rows = sorted(db.execute(statement).all(), key=lambda row: row.seed)
+        if not rows:
+            return None
+        return Claim(Entry(rows[0].agent, rows[0].preset), [row.seed for row in rows])
 
-    def heartbeat(self, owner: str) -> int:
-        """Renew every claim of ``owner``; how many it still holds (one taken over is no longer its)."""
+    def heartbeat(self, owner: str) -> set[tuple[str, int]]:
+        """Renew every claim of ``owner``; the (entry label, seed) of each claim it still holds (one
+        another worker took over, or finished, is no longer its)."""
+        statement = (
+            RUNS.update()
+            .where(RUNS.c.comparison == self.name, RUNS.c.owner == owner, RUNS.c.state == RowState.CLAIMED)
+            .values(heartbeat=database_clock(self.engine.dialect.name))
+            .returning(RUNS.c.entry, RUNS.c.seed)
+        )
         with self.engine.begin() as db:
-            now = database_seconds(db)
-            result = db.execute(
-                RUNS.update()
-                .where(
-                    RUNS.c.comparison == self.name, RUNS.c.owner == owner, RUNS.c.state == RowState.CLAIMED
-                )
-                .values(heartbeat=now)
-            )
-        return int(result.rowcount)
+            return {(row.entry, row.seed) for row in db.execute(statement)}
 
     def finish(
         self, owner: str, entry: Entry, seed: int, record: dict[str, Any], curve: dict[str, Any]
@@ -276,6 +290,20 @@ class SharedComparison:
                 .where(self._row(entry, seed), RUNS.c.owner == owner, RUNS.c.state == RowState.CLAIMED)
                 .values(state=RowState.PENDING, owner=None, heartbeat=None)
             )
+
+    def _claimable(self, labels: list[str], seeds: list[int], skip: set[tuple[str, int]], now: Any) -> Any:
+        """Rows of ``labels`` x ``seeds`` not in ``skip`` that a worker may claim at ``now`` (an SQL
+        expression): pending, or claimed with a heartbeat older than the claim timeout."""
+        import sqlalchemy as sa
+
+        free = sa.or_(
+            RUNS.c.state == RowState.PENDING,
+            sa.and_(RUNS.c.state == RowState.CLAIMED, RUNS.c.heartbeat < now - self.claim_timeout),
+        )
+        if not skip:
+            return sa.and_(self._asked(labels, seeds), free)
+        skipped = sa.tuple_(RUNS.c.entry, RUNS.c.seed).in_(sorted(skip))
+        return sa.and_(self._asked(labels, seeds), free, sa.not_(skipped))
 
     def _asked(self, labels: list[str], seeds: list[int]) -> Any:
         """The rows of ``labels`` x ``seeds`` in this comparison."""
@@ -360,15 +388,14 @@ def _insert_missing(db: Any, table: Any, rows: list[dict[str, Any]]) -> None:
     db.execute(insert(table).on_conflict_do_nothing(), rows)
 
 
-def database_seconds(db: Any) -> float:
-    """The database server's clock in seconds since the epoch: one clock for every machine's claims."""
+def database_clock(dialect: str) -> Any:
+    """The database server's clock in seconds since the epoch, as an SQL expression: one clock for every
+    machine's claims, read in the statement that uses it."""
     import sqlalchemy as sa
 
-    if db.dialect.name == "postgresql":
-        query = sa.select(sa.func.extract("epoch", sa.func.clock_timestamp()))
-    else:
-        query = sa.select((sa.func.julianday("now") - 2440587.5) * 86400.0)
-    return float(db.execute(query).scalar_one())
+    if dialect == "postgresql":
+        return sa.func.extract("epoch", sa.func.statement_timestamp())
+    return (sa.func.julianday("now") - 2440587.5) * 86400.0
 
 
 __all__ = [
