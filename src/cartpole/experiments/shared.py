@@ -126,6 +126,9 @@ class SharedComparison:
     def __init__(self, url: str, name: str, engine: Any, claim_timeout: float, setup: dict[str, Any]):
         self.url, self.name, self.engine = url, name, engine
         self.claim_timeout, self.setup = claim_timeout, setup
+        self.statements = engine.execution_options(isolation_level="AUTOCOMMIT")
+        """The engine for what one statement does (claim, heartbeat, finish, release): a transaction of
+        its own, without BEGIN and COMMIT, each a round trip to the database."""
 
     # -- opening ---------------------------------------------------------------------------------------
 
@@ -248,11 +251,16 @@ class SharedComparison:
         )
         statement = (
             RUNS.update()
-            .where(claimable, RUNS.c.entry == picked.c.entry, RUNS.c.seed == picked.c.seed)
+            .where(
+                RUNS.c.comparison == self.name,
+                RUNS.c.entry == picked.c.entry,
+                RUNS.c.seed == picked.c.seed,
+                self._free(now),  # again: on SQLite nothing was locked
+            )
             .values(state=RowState.CLAIMED, owner=owner, heartbeat=now, claims=RUNS.c.claims + 1)
             .returning(RUNS.c.entry, RUNS.c.seed, RUNS.c.agent, RUNS.c.preset)
         )
-        with self.engine.begin() as db:
+        with self.statements.connect() as db:
             rows = sorted(db.execute(statement).all(), key=lambda row: row.seed)
         if not rows:
             return None
@@ -267,14 +275,14 @@ class SharedComparison:
             .values(heartbeat=database_clock(self.engine.dialect.name))
             .returning(RUNS.c.entry, RUNS.c.seed)
         )
-        with self.engine.begin() as db:
+        with self.statements.connect() as db:
             return {(row.entry, row.seed) for row in db.execute(statement)}
 
     def finish(
         self, owner: str, entry: Entry, seed: int, record: dict[str, Any], curve: dict[str, Any]
     ) -> bool:
         """Store a finished run's record and curve; False if another worker finished it first."""
-        with self.engine.begin() as db:
+        with self.statements.connect() as db:
             result = db.execute(
                 RUNS.update()
                 .where(self._row(entry, seed), RUNS.c.state != RowState.FINISHED)
@@ -284,7 +292,7 @@ class SharedComparison:
 
     def release(self, owner: str, entry: Entry, seed: int) -> None:
         """Give a claim back (the run was interrupted here): pending again, for any worker."""
-        with self.engine.begin() as db:
+        with self.statements.connect() as db:
             db.execute(
                 RUNS.update()
                 .where(self._row(entry, seed), RUNS.c.owner == owner, RUNS.c.state == RowState.CLAIMED)
@@ -296,20 +304,28 @@ class SharedComparison:
         expression): pending, or claimed with a heartbeat older than the claim timeout."""
         import sqlalchemy as sa
 
-        free = sa.or_(
+        if not skip:
+            return sa.and_(self._asked(labels, seeds), self._free(now))
+        skipped = sa.tuple_(RUNS.c.entry, RUNS.c.seed).in_(sorted(skip))
+        return sa.and_(self._asked(labels, seeds), self._free(now), sa.not_(skipped))
+
+    def _free(self, now: Any) -> Any:
+        """Rows a worker may claim at ``now`` (an SQL expression): pending, or claimed with a heartbeat
+        older than the claim timeout."""
+        import sqlalchemy as sa
+
+        return sa.or_(
             RUNS.c.state == RowState.PENDING,
             sa.and_(RUNS.c.state == RowState.CLAIMED, RUNS.c.heartbeat < now - self.claim_timeout),
         )
-        if not skip:
-            return sa.and_(self._asked(labels, seeds), free)
-        skipped = sa.tuple_(RUNS.c.entry, RUNS.c.seed).in_(sorted(skip))
-        return sa.and_(self._asked(labels, seeds), free, sa.not_(skipped))
 
     def _asked(self, labels: list[str], seeds: list[int]) -> Any:
-        """The rows of ``labels`` x ``seeds`` in this comparison."""
+        """The rows of ``labels`` x ``seeds`` in this comparison (the seeds as ranges: a thousand seeds
+        are one condition, not a thousand values for the database to parse and test each row against)."""
         import sqlalchemy as sa
 
-        return sa.and_(RUNS.c.comparison == self.name, RUNS.c.entry.in_(labels), RUNS.c.seed.in_(seeds))
+        ranges = [RUNS.c.seed.between(low, high) for low, high in seed_ranges(seeds)]
+        return sa.and_(RUNS.c.comparison == self.name, RUNS.c.entry.in_(labels), sa.or_(sa.false(), *ranges))
 
     def _row(self, entry: Entry, seed: int) -> Any:
         import sqlalchemy as sa
@@ -386,6 +402,17 @@ def _insert_missing(db: Any, table: Any, rows: list[dict[str, Any]]) -> None:
     if insert is None:
         raise ExperimentError(f"a shared comparison needs PostgreSQL (or SQLite), not {db.dialect.name}")
     db.execute(insert(table).on_conflict_do_nothing(), rows)
+
+
+def seed_ranges(seeds: list[int]) -> list[tuple[int, int]]:
+    """``seeds`` as (first, last) ranges of consecutive seeds, in order: [0, 1, 2, 5] -> [(0, 2), (5, 5)]."""
+    ranges: list[tuple[int, int]] = []
+    for seed in sorted(set(seeds)):
+        if ranges and seed == ranges[-1][1] + 1:
+            ranges[-1] = (ranges[-1][0], seed)
+        else:
+            ranges.append((seed, seed))
+    return ranges
 
 
 def database_clock(dialect: str) -> Any:
