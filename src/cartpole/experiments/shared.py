@@ -127,6 +127,7 @@ class SharedComparison:
         self.url, self.name, self.engine = url, name, engine
         self.claim_timeout, self.setup = claim_timeout, setup
         self.statements = engine.execution_options(isolation_level="AUTOCOMMIT")
+        self._claim_statements: dict[tuple[Any, ...], Any] = {}
         """The engine for what one statement does (claim, heartbeat, finish, release): a transaction of
         its own, without BEGIN and COMMIT, each a round trip to the database."""
 
@@ -224,10 +225,31 @@ class SharedComparison:
         ``LIMIT``), so many workers claim at the same moment, each other rows; on SQLite the statement
         holds the database's write lock. Either way the update checks again that each row is claimable,
         so no row is claimed twice."""
+        batching = tuple(label for label in labels if batches.get(label, False))
+        key = (chunk, batching, tuple(labels), tuple(seeds), frozenset(skip))
+        statement = self._claim_statements.get(key)
+        if statement is None:  # built once: a worker claims with the same arguments again and again
+            statement = self._claim_statement(*key)
+            self._claim_statements = {key: statement}
+        with self.statements.connect() as db:
+            rows = sorted(db.execute(statement, {"claimant": owner}).all(), key=lambda row: row.seed)
+        if not rows:
+            return None
+        return Claim(Entry(rows[0].agent, rows[0].preset), [row.seed for row in rows])
+
+    def _claim_statement(
+        self,
+        chunk: int,
+        batching: tuple[str, ...],
+        labels: tuple[str, ...],
+        seeds: tuple[int, ...],
+        skip: frozenset[tuple[str, int]],
+    ) -> Any:
+        """The UPDATE of :meth:`claim` (its owner a bound parameter, ``claimant``)."""
         import sqlalchemy as sa
 
         now = database_clock(self.engine.dialect.name)
-        claimable = self._claimable(labels, seeds, skip, now)
+        claimable = self._claimable(list(labels), list(seeds), set(skip), now)
         first = (
             sa.select(RUNS.c.entry)
             .where(claimable)
@@ -238,8 +260,7 @@ class SharedComparison:
             .prefix_with("MATERIALIZED", dialect="postgresql")  # evaluated (and locked) once
         )
         entry = sa.select(first.c.entry).scalar_subquery()
-        batching = [label for label in labels if batches.get(label, False)]
-        size = sa.case((entry.in_(batching), chunk), else_=1) if batching and chunk > 1 else 1
+        size = sa.case((entry.in_(list(batching)), chunk), else_=1) if batching and chunk > 1 else 1
         picked = (
             sa.select(RUNS.c.entry, RUNS.c.seed)
             .where(claimable, RUNS.c.entry == entry)
@@ -249,7 +270,7 @@ class SharedComparison:
             .cte("picked")
             .prefix_with("MATERIALIZED", dialect="postgresql")
         )
-        statement = (
+        return (
             RUNS.update()
             .where(
                 RUNS.c.comparison == self.name,
@@ -257,14 +278,14 @@ class SharedComparison:
                 RUNS.c.seed == picked.c.seed,
                 self._free(now),  # again: on SQLite nothing was locked
             )
-            .values(state=RowState.CLAIMED, owner=owner, heartbeat=now, claims=RUNS.c.claims + 1)
+            .values(
+                state=RowState.CLAIMED,
+                owner=sa.bindparam("claimant"),
+                heartbeat=now,
+                claims=RUNS.c.claims + 1,
+            )
             .returning(RUNS.c.entry, RUNS.c.seed, RUNS.c.agent, RUNS.c.preset)
         )
-        with self.statements.connect() as db:
-            rows = sorted(db.execute(statement).all(), key=lambda row: row.seed)
-        if not rows:
-            return None
-        return Claim(Entry(rows[0].agent, rows[0].preset), [row.seed for row in rows])
 
     def heartbeat(self, owner: str) -> set[tuple[str, int]]:
         """Renew every claim of ``owner``; the (entry label, seed) of each claim it still holds (one
