@@ -107,6 +107,14 @@ def test_joining_with_another_budget_is_refused(url):
         SharedComparison.join(url, "cmp", {**SETUP, "budget": "5gen"}, [CEM], [0])
 
 
+def test_a_sqlite_without_returning_is_refused_in_one_line(url, monkeypatch):
+    from sqlite3 import dbapi2  # the module SQLAlchemy's SQLite dialect reads the version from
+
+    monkeypatch.setattr(dbapi2, "sqlite_version_info", (3, 31, 1))
+    with pytest.raises(ExperimentError, match=r"needs SQLite >= 3.35, and this Python's is 3.31.1"):
+        join(url)
+
+
 def test_a_comparison_that_is_not_there_cannot_be_opened(url):
     join(url)
     with pytest.raises(ExperimentError, match="no comparison named 'other'"):

@@ -174,6 +174,7 @@ class SharedComparison:
                 f"--claim-timeout must be >= {MIN_CLAIM_TIMEOUT:g} seconds, got {claim_timeout:g}"
             )
         engine = cls.connect(url)
+        check_returning(engine)
         with engine.begin() as db:
             _insert_missing(db, COMPARISONS, [{
                 "name": name, "setup": setup, "entries": [], "claim_timeout": claim_timeout,
@@ -410,6 +411,17 @@ def check_setup(name: str, stored: dict[str, Any], asked: dict[str, Any]) -> Non
                 f"comparison {name} in the storage was run with {flag} {stored.get(key)}, not {value}; "
                 "use the same value or another --name"
             )
+
+
+def check_returning(engine: Any) -> None:
+    """Claims and heartbeats read the rows they update (``UPDATE ... RETURNING``), which SQLite has from
+    3.35 on: ExperimentError, one line, with an older one."""
+    if engine.dialect.name == "sqlite" and not engine.dialect.update_returning:
+        version = ".".join(map(str, engine.dialect.dbapi.sqlite_version_info))
+        raise ExperimentError(
+            f"a shared comparison on SQLite needs SQLite >= 3.35, and this Python's is {version}; "
+            "use PostgreSQL, or a Python built with a newer SQLite"
+        )
 
 
 def _insert_missing(db: Any, table: Any, rows: list[dict[str, Any]]) -> None:
