@@ -35,6 +35,7 @@ import argparse
 import asyncio
 import json
 import multiprocessing
+import os
 import sys
 import threading
 import time
@@ -415,7 +416,12 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--workers", default="64", help="simulated workers, e.g. 64 or 1,64")
     parser.add_argument("--delay-ms", default="20", help="added delay each way in ms, e.g. 20 or 0,5,20,50")
-    parser.add_argument("--storage", required=True, help="postgresql://USER@HOST:PORT/DB")
+    parser.add_argument(
+        "--storage",
+        default=os.environ.get("CARTPOLE_TEST_POSTGRES_URL"),
+        help="postgresql://USER@HOST:PORT/DB (default: $CARTPOLE_TEST_POSTGRES_URL, which "
+        ".ci/postgres.sh sets)",
+    )
     parser.add_argument("--claim", default="current", help="current, legacy (the claim at 4df9b38), or both")
     parser.add_argument("--chunk", type=int, default=1, help="--chunk of cartpole compare")
     parser.add_argument("--rows-per-worker", type=int, default=40, help="rows per worker (>= 20)")
@@ -426,6 +432,8 @@ def main(argv: list[str] | None = None) -> int:
     claims = [c for c in args.claim.split(",") if c]
     if not claims or any(c not in CLAIMS for c in claims):
         raise SystemExit(f"error: --claim takes {', '.join(CLAIMS)} (comma-separated), not {args.claim!r}")
+    if not args.storage:
+        raise SystemExit("error: name a PostgreSQL server: --storage URL (or source .ci/postgres.sh)")
     if not args.storage.startswith("postgresql"):
         raise SystemExit("error: --storage must be a postgresql:// URL (the proxy delays a TCP connection)")
     if args.rows_per_worker < 20:
