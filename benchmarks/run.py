@@ -59,6 +59,8 @@ class Benchmark:
     headline: str | None = None
     """The README's "How fast" row for it, until it has run (None: no README row)."""
     needs_cuda: bool = False
+    needs_postgres: bool = False
+    """Its script uses the PostgreSQL server of ``CARTPOLE_TEST_POSTGRES_URL`` (.ci/postgres.sh)."""
     env: tuple[tuple[str, str], ...] = ()
     """Environment variables the script runs under (e.g. ``cpu.AVX2_SETTINGS``), beside this process's."""
 
@@ -146,6 +148,11 @@ TABLES = [
         headline="Crash safety: kill -9 at a random moment, then `--resume`",
     ),
     Benchmark(
+        "claims", "claims.py", "--workers 1,64 --delay-ms 0,5,20,50 --claim current,legacy --seconds 4",
+        minutes=2, quick=True, tiny="--workers 1,2 --delay-ms 5 --claim current,legacy --seconds 0.5",
+        needs_postgres=True,
+    ),
+    Benchmark(
         "web-latency", "web_latency.py", "--sessions 1 20 --watch-load 4 --trainings 2", minutes=5,
         quick=True,
         tiny="--steps 100 --sessions 1 4 --episodes 3 --watch-load 1 --trainings 1",
@@ -193,6 +200,7 @@ TABLES = [
     ),
 ]  # fmt: skip
 BY_NAME = {table.name: table for table in TABLES}
+POSTGRES_URL = "CARTPOLE_TEST_POSTGRES_URL"
 
 
 # ----------------------------------------------------------------------------------------------
@@ -204,6 +212,8 @@ def missing_requirement(table: Benchmark) -> str | None:
     """Why ``table`` cannot run here (its script is not written yet, or it needs a GPU); None if it can."""
     if not (BENCHMARKS / table.script).is_file():
         return f"benchmarks/{table.script} is not here yet"
+    if table.needs_postgres and not os.environ.get(POSTGRES_URL):
+        return f"it needs a PostgreSQL server: source .ci/postgres.sh (it sets {POSTGRES_URL})"
     if table.needs_cuda:
         import torch
 
@@ -236,6 +246,7 @@ def read_record(results_dir: Path, name: str) -> dict[str, Any] | None:
 
 def not_run_yet(table: Benchmark) -> str:
     where = " on a machine with a CUDA GPU" if table.needs_cuda else ""
+    where += " after `source .ci/postgres.sh`" if table.needs_postgres else ""
     return f"*Not run yet:* `python benchmarks/run.py {table.name}`{where} (about {table.minutes} min).\n"
 
 

@@ -130,3 +130,40 @@ def _open(name: str) -> SharedComparison | None:
     except Exception:
         return None
     return shared if shared.rows() else None
+
+
+def test_workers_claiming_at_the_same_moment_each_get_other_runs_at_once():
+    """A claim locks only the rows it takes: 16 workers (threads, a connection each) released together
+    each get a run on their first try, and no run is claimed twice (a claim that locked every claimable
+    row left the others with nothing until it ended)."""
+    import threading
+
+    from cartpole.experiments.entries import Entry
+    from cartpole.experiments.shared import new_owner
+
+    assert URL is not None
+    name = f"together-{uuid.uuid4().hex[:8]}"
+    entries = [Entry("cem"), Entry("random-search")]
+    labels, seeds = [e.label for e in entries], list(range(32))
+    SharedComparison.join(URL, name, {"env_id": "CartPole-v1", "budget": "3gen"}, entries, seeds)
+    workers = [SharedComparison.open(URL, name) for _ in range(16)]
+    for shared in workers:
+        shared.rows()  # connected before the start
+    start = threading.Barrier(len(workers))
+    found: list[object] = [None] * len(workers)
+
+    def claim_once(index: int) -> None:
+        start.wait()
+        found[index] = workers[index].claim(new_owner(), 1, dict.fromkeys(labels, True), set(), labels, seeds)
+
+    threads = [threading.Thread(target=claim_once, args=(i,)) for i in range(len(workers))]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(timeout=120)
+    assert all(claim is not None for claim in found), found
+    taken = [(claim.entry.label, seed) for claim in found for seed in claim.seeds]  # type: ignore[attr-defined]
+    assert len(taken) == len(set(taken)) == len(workers)
+    rows = workers[0].rows()
+    assert sum(r.state == RowState.CLAIMED for r in rows) == len(workers)
+    assert all(r.claims <= 1 for r in rows)

@@ -76,12 +76,12 @@ def test_a_claim_without_heartbeat_is_taken_over_after_the_timeout(url):
     assert claim(shared, "alive", chunk=1) is None  # nothing free: the dead one's claim is fresh
     for _ in range(3):
         time.sleep(0.8)
-        assert shared.heartbeat("alive") == 1  # a live worker keeps its claim
+        assert shared.heartbeat("alive") == {(RANDOM.label, 0)}  # a live worker keeps its claim
     taken = claim(shared, "alive", chunk=1)
     assert taken is not None and taken.entry == CEM  # the dead worker's claim, now stale
     row = next(r for r in shared.rows() if r.entry == CEM.label)
     assert row.owner == "alive" and row.claims == 2
-    assert shared.heartbeat("dead") == 0
+    assert shared.heartbeat("dead") == set()
 
 
 def test_only_the_first_finish_is_kept_and_a_release_makes_a_run_pending(url):
@@ -105,6 +105,14 @@ def test_joining_with_another_budget_is_refused(url):
     join(url)
     with pytest.raises(ExperimentError, match="was run with --budget 3gen, not 5gen"):
         SharedComparison.join(url, "cmp", {**SETUP, "budget": "5gen"}, [CEM], [0])
+
+
+def test_a_sqlite_without_returning_is_refused_in_one_line(url, monkeypatch):
+    from sqlite3 import dbapi2  # the module SQLAlchemy's SQLite dialect reads the version from
+
+    monkeypatch.setattr(dbapi2, "sqlite_version_info", (3, 31, 1))
+    with pytest.raises(ExperimentError, match=r"needs SQLite >= 3.35, and this Python's is 3.31.1"):
+        join(url)
 
 
 def test_a_comparison_that_is_not_there_cannot_be_opened(url):
@@ -164,3 +172,72 @@ def test_a_shared_compare_on_sqlite_runs_every_seed_and_reports_from_the_databas
     )  # fmt: skip
     assert local.returncode == 0, local.stderr
     assert "| cem | 2 |" in local.stdout  # from the machine's own records, without the database
+
+
+def test_a_worker_whose_claim_was_taken_over_stops_that_run_saving_nothing_and_goes_on(tmp_path, url):
+    """A claim taken over while its run trains (as after a long pause or a network cut: here another owner
+    writes itself into the row): at the next heartbeat the worker kills that run, writes nothing of it
+    (no finish, no record, no file in its run folder, which the new owner may share), says so in one
+    line, and runs the other entry."""
+    from cartpole.experiments.shared import RUNS
+
+    folder = tmp_path / "m1" / "experiments" / "cmp"
+    command = [sys.executable, "-m", "cartpole", "compare", "cem", "random-search", "--seeds", "1",
+               "--env", "MountainCar-v0", "--budget", "6s", "--jobs", "1", "--storage", url,
+               "--name", "cmp", "--claim-timeout", "2", "--runs-dir", str(tmp_path / "m1")]  # fmt: skip
+    worker = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        status = _wait_for(lambda: next((folder / "runs").glob("*/status.json"), None), "a run to start")
+        shared = SharedComparison.open(url, "cmp")
+        stolen = next(r for r in shared.rows() if r.state == RowState.CLAIMED)
+        with shared.engine.begin() as db:  # the new owner's claim, fresh for ever
+            db.execute(
+                RUNS.update()
+                .where(RUNS.c.entry == stolen.entry, RUNS.c.seed == stolen.seed)
+                .values(owner="new-owner", heartbeat=time.time() + 1e6)
+            )
+        _wait_for(lambda: _claimed_by_worker(shared, other_than=stolen.entry), "the worker to go on")
+        run_files = _files(status.parent)
+        record = {**NEW_OWNERS_RECORD, "agent": stolen.agent, "preset": stolen.preset}
+        assert shared.finish("new-owner", Entry(stolen.agent, stolen.preset), stolen.seed, record, {})
+        _, stderr = worker.communicate(timeout=300)
+    finally:
+        if worker.poll() is None:
+            worker.kill()
+    assert worker.returncode == 0, stderr
+    lost = [line for line in stderr.splitlines() if "took this claim over" in line]
+    assert lost == [f"warning: {stolen.entry} seed 0: another worker took this claim over (this worker's "
+                    "heartbeats were late); stopped its run here, saving nothing"], stderr  # fmt: skip
+    rows = {r.entry: r for r in shared.rows()}
+    assert rows[stolen.entry].owner == "new-owner" and rows[stolen.entry].record["run"] == "new-owner's"
+    other = next(r for entry, r in rows.items() if entry != stolen.entry)
+    assert other.state == RowState.FINISHED and other.record["seed"] == 0
+    assert not (folder / "records" / f"{stolen.entry}__s0.json").exists()
+    assert _files(status.parent) == run_files  # nothing written there after the kill
+    assert not (status.parent / "eval.json").exists()
+
+
+NEW_OWNERS_RECORD = {
+    "seed": 0, "run": "new-owner's", "state": "finished", "solved_in_training": False, "solve_steps": None,
+    "solve_wall_seconds": None, "solve_cpu_seconds": None, "env_steps": 1000, "wall_seconds": 6.0,
+    "cpu_seconds": 6.0, "stop_reason": "budget", "final_mean": -200.0, "final_solved": False,
+    "final_verdict": "not solved",
+}  # fmt: skip
+
+
+def _wait_for(condition, what: str, timeout: float = 300.0):  # type: ignore[no-untyped-def]
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        found = condition()
+        if found:
+            return found
+        time.sleep(0.1)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def _claimed_by_worker(shared: SharedComparison, other_than: str) -> bool:
+    return any(r.entry != other_than and r.state != RowState.PENDING for r in shared.rows())
+
+
+def _files(folder) -> dict[str, tuple[int, int]]:  # type: ignore[no-untyped-def]
+    return {str(p): (p.stat().st_mtime_ns, p.stat().st_size) for p in folder.rglob("*") if p.is_file()}

@@ -317,9 +317,6 @@ class SharedRunner:
         self.labels = [e.label for e in experiment.entries]
         self.batches = {e.label: experiment.trains_populations(e) for e in experiment.entries}
         self.failed: set[tuple[str, int]] = set()
-        self.running: set[tuple[str, int]] = set()
-        """Rows this machine's workers train: never claimed again by it, even once its heartbeat is
-        stale (the database out of reach for longer than the claim timeout)."""
         self.problems: list[str] = []
         self.period = min(30.0, shared.claim_timeout / 4)
         """Seconds between heartbeats."""
@@ -332,6 +329,11 @@ class SharedRunner:
         self.warned: set[str] = set()
         self.kills: dict[tuple[str, int], int] = {}
         """Times the worker of each (entry, seed) was killed by a signal."""
+        self.running: list[Job] = []
+        """The jobs this machine's workers train: their rows are never claimed again by it, even once its
+        heartbeat is stale (the database out of reach for longer than the claim timeout)."""
+        self.lost: list[Job] = []
+        """Running jobs with a claim another worker took over: killed, their results not stored."""
 
     def database(self, what: str, action: Callable[[], Any], default: Any) -> Any:
         """``action()``, tried again while the database connection is lost (a line each time, for a
@@ -363,7 +365,7 @@ class SharedRunner:
                 self.owner,
                 self.chunk,
                 self.batches,
-                self.failed | self.running,
+                self.failed | self.running_rows(),
                 self.labels,
                 self.experiment.seeds,
             ),
@@ -372,8 +374,13 @@ class SharedRunner:
         if claim is None:
             self.next_look = time.monotonic() + self.look_period
             return None
-        self.running |= {(claim.entry.label, seed) for seed in claim.seeds}
-        return self.experiment.job(claim.entry, claim.seeds, population=self.batches[claim.entry.label])
+        job = self.experiment.job(claim.entry, claim.seeds, population=self.batches[claim.entry.label])
+        self.running.append(job)
+        return job
+
+    def running_rows(self) -> set[tuple[str, int]]:
+        """The (entry, seed) rows of :attr:`running`."""
+        return {(job.key[0].label, seed) for job in self.running for seed in job.key[1]}
 
     def more(self) -> bool:
         """Whether to wait: runs of this request are not finished, and some are claimed by other
@@ -386,11 +393,36 @@ class SharedRunner:
             return True
         return bool(progress.finished + len(self.failed) < progress.total)
 
-    def tick(self) -> None:
-        if time.monotonic() - self.last_beat >= self.period:
-            self.last_beat = time.monotonic()
-            self.database("renew claims", lambda: self.shared.heartbeat(self.owner), 0)
-            self.store(self.unstored)
+    def tick(self) -> list[Job]:
+        """Every heartbeat period: renew this worker's claims, and return the running jobs to kill, those
+        with a claim the database says is no longer this worker's (it was taken over while the heartbeats
+        were late: a long pause, a network cut)."""
+        if time.monotonic() - self.last_beat < self.period:
+            return []
+        self.last_beat = time.monotonic()
+        held = self.database("renew claims", lambda: self.shared.heartbeat(self.owner), None)
+        self.store(self.unstored)
+        if held is None:
+            return []
+        lost = [job for job in self.running if job not in self.lost and not self.holds(job, held)]
+        for job in lost:
+            self.say_lost(job)
+        self.lost += lost
+        return lost
+
+    @staticmethod
+    def holds(job: Job, held: set[tuple[str, int]]) -> bool:
+        entry, seeds = job.key
+        return all((entry.label, seed) in held for seed in seeds)
+
+    @staticmethod
+    def say_lost(job: Job) -> None:
+        import sys
+
+        entry, seeds = job.key
+        which = f"seed {seeds[0]}" if len(seeds) == 1 else "seeds " + ", ".join(map(str, seeds))
+        print(f"warning: {entry.label} {which}: another worker took this claim over (this worker's "
+              "heartbeats were late); stopped its run here, saving nothing", file=sys.stderr)  # fmt: skip
 
     def store(self, finished: list[tuple[Entry, int, dict[str, Any], dict[str, Any]]]) -> None:
         """Put finished runs' results in the database; those it does not take wait in ``unstored``."""
@@ -405,8 +437,12 @@ class SharedRunner:
         from cartpole.experiments.figures import EvalCurve
         from cartpole.runs import RunError
 
+        self.running.remove(job)
+        if job in self.lost:
+            self.lost.remove(job)
+            self.give_back(job)
+            return
         entry, seeds = job.key
-        self.running -= {(entry.label, seed) for seed in seeds}
         finished, again = [], self.killed_again(job, code)
         for seed in seeds:
             record = read_record(self.experiment.record_path(entry, seed))
@@ -444,6 +480,14 @@ class SharedRunner:
         line = f"the worker of {entry.label} seeds {seeds} was killed (signal {-code}): claiming its "
         print(line + f"unfinished runs again ({kills}/{KILLED_RETRIES}); see {job.log}", file=sys.stderr)
         return True
+
+    def give_back(self, job: Job) -> None:
+        """A killed job's seeds that this worker still holds are pending again (release touches only its
+        own claims); its record files and run folders, perhaps the new owner's too, are not read."""
+        entry, seeds = job.key
+        for seed in seeds:
+            self.database("give a claim back", partial(self.shared.release, self.owner, entry, seed), None)
+        self.next_look = 0.0
 
     def report(self, kind: str) -> None:
         if self.progress:

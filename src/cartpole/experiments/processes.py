@@ -23,7 +23,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Collection, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -126,14 +126,15 @@ def run_jobs(
     jobs: Sequence[Job],
     workers: int | Sequence[Slot],
     on_done: Callable[[Job, int], None],
-    tick: Callable[[], None] | None = None,
+    tick: Callable[[], Collection[Job] | None] | None = None,
 ) -> None:
     """Run ``jobs``, ``workers`` at a time: a count of CPU slots, or the slots (each runs one job at a
     time, :func:`start`). Workers inherit this environment, PYTHONPATH included.
 
     ``on_done(job, exit code)`` is called in this process as each ends, ``tick()`` every poll (about
-    five times a second). KeyboardInterrupt (Ctrl-C, SIGTERM) stops every worker cleanly, then
-    propagates.
+    five times a second): the running jobs it returns are killed at once, saving nothing (their work
+    is no longer this process's), and end as any other. KeyboardInterrupt (Ctrl-C, SIGTERM) stops every
+    worker cleanly, then propagates.
     """
     queue = list(jobs)
     run_job_source(lambda: queue.pop(0) if queue else None, workers, on_done, tick)
@@ -143,7 +144,7 @@ def run_job_source(
     next_job: Callable[[], Job | None],
     workers: int | Sequence[Slot],
     on_done: Callable[[Job, int], None],
-    tick: Callable[[], None] | None = None,
+    tick: Callable[[], Collection[Job] | None] | None = None,
     more: Callable[[], bool] = lambda: False,
 ) -> None:
     """:func:`run_jobs` over jobs made as slots free up: ``next_job()`` gives the next one, or None when
@@ -168,7 +169,7 @@ def run_job_source(
                     return
                 time.sleep(POLL_SECONDS)
                 if tick:
-                    tick()
+                    kill_jobs(running, tick() or ())
                 for process in [p for p in running if p.poll() is not None]:
                     close_pipe(process)
                     free.append(slots.pop(process))
@@ -181,6 +182,15 @@ def run_job_source(
         except Exception:  # the caller failed (its database out of reach): every worker saves its run
             stop_all(running)
             raise
+
+
+def kill_jobs(running: dict[subprocess.Popen[bytes], Job], jobs: Collection[Job]) -> None:
+    """Kill the workers of ``jobs`` (the very objects) among ``running``, without a stop request: no
+    checkpoint, no record written."""
+    for process, job in running.items():
+        if any(job is doomed for doomed in jobs):
+            with contextlib.suppress(OSError):  # it has ended meanwhile
+                process.kill()
 
 
 def follow_parent() -> None:

@@ -9,12 +9,14 @@ Two tables, made by SQLAlchemy where they are missing (the same database a sweep
   ``heartbeat`` in the database's own clock) or ``finished`` with the run's record and evaluation
   curve, written as the run ends.
 
-A worker claims rows in one transaction (``SELECT ... FOR UPDATE SKIP LOCKED`` on PostgreSQL), so
-every row is claimed by exactly one worker. Rows of a claimed chunk share an entry, so that an agent
-that batches its seeds trains them as one population. A worker renews the heartbeat of its claims
-while it runs them; a claim whose heartbeat is older than the claim timeout (its worker was killed or
-lost its machine) is taken over by another worker, who resumes the run where it has the run's folder
-and trains it again where not. Only the first finish of a row is kept.
+A worker claims rows in one statement that locks only the rows it takes (``FOR UPDATE SKIP LOCKED``
+with a ``LIMIT`` on PostgreSQL), so many workers claim at the same moment and every row is claimed by
+exactly one worker. Rows of a claimed chunk share an entry, so that an agent that batches its seeds
+trains them as one population. A worker renews the heartbeat of its claims while it runs them and
+learns from it which it still holds; a claim whose heartbeat is older than the claim timeout (its
+worker was killed, lost its machine or its network) is taken over by another worker, who resumes the
+run where it has the run's folder and trains it again where not, and the first worker, if it comes
+back, stops that run. Only the first finish of a row is kept.
 """
 
 from __future__ import annotations
@@ -125,6 +127,10 @@ class SharedComparison:
     def __init__(self, url: str, name: str, engine: Any, claim_timeout: float, setup: dict[str, Any]):
         self.url, self.name, self.engine = url, name, engine
         self.claim_timeout, self.setup = claim_timeout, setup
+        self.statements = engine.execution_options(isolation_level="AUTOCOMMIT")
+        self._claim_statements: dict[tuple[Any, ...], Any] = {}
+        """The engine for what one statement does (claim, heartbeat, finish, release): a transaction of
+        its own, without BEGIN and COMMIT, each a round trip to the database."""
 
     # -- opening ---------------------------------------------------------------------------------------
 
@@ -170,6 +176,7 @@ class SharedComparison:
                 f"--claim-timeout must be >= {MIN_CLAIM_TIMEOUT:g} seconds, got {claim_timeout:g}"
             )
         engine = cls.connect(url)
+        check_returning(engine)
         with engine.begin() as db:
             _insert_missing(db, COMPARISONS, [{
                 "name": name, "setup": setup, "entries": [], "claim_timeout": claim_timeout,
@@ -213,56 +220,93 @@ class SharedComparison:
     ) -> Claim | None:
         """Claim up to ``chunk`` runs of one entry (one run where the entry does not batch its seeds)
         among ``labels`` x ``seeds``, but not those in ``skip``: pending ones, or claims whose heartbeat
-        is older than the claim timeout. None if there are none."""
+        is older than the claim timeout. None if there are none free.
+
+        One statement: the first claimable row (in seed order) names the entry, and up to the chunk's
+        size of that entry's claimable rows are claimed. On PostgreSQL both look-ups lock only the rows
+        they return and skip those other claims lock (``FOR UPDATE SKIP LOCKED``, each with its
+        ``LIMIT``), so many workers claim at the same moment, each other rows; on SQLite the statement
+        holds the database's write lock. Either way the update checks again that each row is claimable,
+        so no row is claimed twice."""
+        batching = tuple(label for label in labels if batches.get(label, False))
+        key = (chunk, batching, tuple(labels), tuple(seeds), frozenset(skip))
+        statement = self._claim_statements.get(key)
+        if statement is None:  # built once: a worker claims with the same arguments again and again
+            statement = self._claim_statement(*key)
+            self._claim_statements = {key: statement}
+        with self.statements.connect() as db:
+            rows = sorted(db.execute(statement, {"claimant": owner}).all(), key=lambda row: row.seed)
+        if not rows:
+            return None
+        return Claim(Entry(rows[0].agent, rows[0].preset), [row.seed for row in rows])
+
+    def _claim_statement(
+        self,
+        chunk: int,
+        batching: tuple[str, ...],
+        labels: tuple[str, ...],
+        seeds: tuple[int, ...],
+        skip: frozenset[tuple[str, int]],
+    ) -> Any:
+        """The UPDATE of :meth:`claim` (its owner a bound parameter, ``claimant``)."""
         import sqlalchemy as sa
 
-        with self.engine.begin() as db:
-            now = database_seconds(db)
-            claimable = sa.and_(
-                self._asked(labels, seeds),
-                sa.or_(
-                    RUNS.c.state == RowState.PENDING,
-                    sa.and_(RUNS.c.state == RowState.CLAIMED, RUNS.c.heartbeat < now - self.claim_timeout),
-                ),
+        now = database_clock(self.engine.dialect.name)
+        claimable = self._claimable(list(labels), list(seeds), set(skip), now)
+        first = (
+            sa.select(RUNS.c.entry)
+            .where(claimable)
+            .order_by(RUNS.c.seed, RUNS.c.entry)
+            .limit(1)
+            .with_for_update(skip_locked=True)
+            .cte("first_claimable")
+            .prefix_with("MATERIALIZED", dialect="postgresql")  # evaluated (and locked) once
+        )
+        entry = sa.select(first.c.entry).scalar_subquery()
+        size = sa.case((entry.in_(list(batching)), chunk), else_=1) if batching and chunk > 1 else 1
+        picked = (
+            sa.select(RUNS.c.entry, RUNS.c.seed)
+            .where(claimable, RUNS.c.entry == entry)
+            .order_by(RUNS.c.seed)
+            .limit(size)
+            .with_for_update(skip_locked=True)
+            .cte("picked")
+            .prefix_with("MATERIALIZED", dialect="postgresql")
+        )
+        return (
+            RUNS.update()
+            .where(
+                RUNS.c.comparison == self.name,
+                RUNS.c.entry == picked.c.entry,
+                RUNS.c.seed == picked.c.seed,
+                self._free(now),  # again: on SQLite nothing was locked
             )
-            order = (RUNS.c.seed, RUNS.c.entry)
-            rows = db.execute(
-                sa.select(RUNS.c.entry, RUNS.c.seed, RUNS.c.agent, RUNS.c.preset)
-                .where(claimable)
-                .order_by(*order)
-                .with_for_update(skip_locked=True)
-            ).all()
-            rows = [r for r in rows if (r.entry, r.seed) not in skip]
-            if not rows:
-                return None
-            first = rows[0]
-            size = chunk if batches.get(first.entry, False) else 1
-            seeds = [r.seed for r in rows if r.entry == first.entry][:size]
-            db.execute(
-                RUNS.update()
-                .where(RUNS.c.comparison == self.name, RUNS.c.entry == first.entry, RUNS.c.seed.in_(seeds))
-                .values(state=RowState.CLAIMED, owner=owner, heartbeat=now, claims=RUNS.c.claims + 1)
+            .values(
+                state=RowState.CLAIMED,
+                owner=sa.bindparam("claimant"),
+                heartbeat=now,
+                claims=RUNS.c.claims + 1,
             )
-        return Claim(Entry(first.agent, first.preset), seeds)
+            .returning(RUNS.c.entry, RUNS.c.seed, RUNS.c.agent, RUNS.c.preset)
+        )
 
-    def heartbeat(self, owner: str) -> int:
-        """Renew every claim of ``owner``; how many it still holds (one taken over is no longer its)."""
-        with self.engine.begin() as db:
-            now = database_seconds(db)
-            result = db.execute(
-                RUNS.update()
-                .where(
-                    RUNS.c.comparison == self.name, RUNS.c.owner == owner, RUNS.c.state == RowState.CLAIMED
-                )
-                .values(heartbeat=now)
-            )
-        return int(result.rowcount)
+    def heartbeat(self, owner: str) -> set[tuple[str, int]]:
+        """Renew every claim of ``owner``; the (entry label, seed) of each claim it still holds (one
+        another worker took over, or finished, is no longer its)."""
+        statement = (
+            RUNS.update()
+            .where(RUNS.c.comparison == self.name, RUNS.c.owner == owner, RUNS.c.state == RowState.CLAIMED)
+            .values(heartbeat=database_clock(self.engine.dialect.name))
+            .returning(RUNS.c.entry, RUNS.c.seed)
+        )
+        with self.statements.connect() as db:
+            return {(row.entry, row.seed) for row in db.execute(statement)}
 
     def finish(
         self, owner: str, entry: Entry, seed: int, record: dict[str, Any], curve: dict[str, Any]
     ) -> bool:
         """Store a finished run's record and curve; False if another worker finished it first."""
-        with self.engine.begin() as db:
+        with self.statements.connect() as db:
             result = db.execute(
                 RUNS.update()
                 .where(self._row(entry, seed), RUNS.c.state != RowState.FINISHED)
@@ -272,18 +316,40 @@ class SharedComparison:
 
     def release(self, owner: str, entry: Entry, seed: int) -> None:
         """Give a claim back (the run was interrupted here): pending again, for any worker."""
-        with self.engine.begin() as db:
+        with self.statements.connect() as db:
             db.execute(
                 RUNS.update()
                 .where(self._row(entry, seed), RUNS.c.owner == owner, RUNS.c.state == RowState.CLAIMED)
                 .values(state=RowState.PENDING, owner=None, heartbeat=None)
             )
 
-    def _asked(self, labels: list[str], seeds: list[int]) -> Any:
-        """The rows of ``labels`` x ``seeds`` in this comparison."""
+    def _claimable(self, labels: list[str], seeds: list[int], skip: set[tuple[str, int]], now: Any) -> Any:
+        """Rows of ``labels`` x ``seeds`` not in ``skip`` that a worker may claim at ``now`` (an SQL
+        expression): pending, or claimed with a heartbeat older than the claim timeout."""
         import sqlalchemy as sa
 
-        return sa.and_(RUNS.c.comparison == self.name, RUNS.c.entry.in_(labels), RUNS.c.seed.in_(seeds))
+        if not skip:
+            return sa.and_(self._asked(labels, seeds), self._free(now))
+        skipped = sa.tuple_(RUNS.c.entry, RUNS.c.seed).in_(sorted(skip))
+        return sa.and_(self._asked(labels, seeds), self._free(now), sa.not_(skipped))
+
+    def _free(self, now: Any) -> Any:
+        """Rows a worker may claim at ``now`` (an SQL expression): pending, or claimed with a heartbeat
+        older than the claim timeout."""
+        import sqlalchemy as sa
+
+        return sa.or_(
+            RUNS.c.state == RowState.PENDING,
+            sa.and_(RUNS.c.state == RowState.CLAIMED, RUNS.c.heartbeat < now - self.claim_timeout),
+        )
+
+    def _asked(self, labels: list[str], seeds: list[int]) -> Any:
+        """The rows of ``labels`` x ``seeds`` in this comparison (the seeds as ranges: a thousand seeds
+        are one condition, not a thousand values for the database to parse and test each row against)."""
+        import sqlalchemy as sa
+
+        ranges = [RUNS.c.seed.between(low, high) for low, high in seed_ranges(seeds)]
+        return sa.and_(RUNS.c.comparison == self.name, RUNS.c.entry.in_(labels), sa.or_(sa.false(), *ranges))
 
     def _row(self, entry: Entry, seed: int) -> Any:
         import sqlalchemy as sa
@@ -349,6 +415,17 @@ def check_setup(name: str, stored: dict[str, Any], asked: dict[str, Any]) -> Non
             )
 
 
+def check_returning(engine: Any) -> None:
+    """Claims and heartbeats read the rows they update (``UPDATE ... RETURNING``), which SQLite has from
+    3.35 on: ExperimentError, one line, with an older one."""
+    if engine.dialect.name == "sqlite" and not engine.dialect.update_returning:
+        version = ".".join(map(str, engine.dialect.dbapi.sqlite_version_info))
+        raise ExperimentError(
+            f"a shared comparison on SQLite needs SQLite >= 3.35, and this Python's is {version}; "
+            "use PostgreSQL, or a Python built with a newer SQLite"
+        )
+
+
 def _insert_missing(db: Any, table: Any, rows: list[dict[str, Any]]) -> None:
     """Insert the rows whose primary key is not there yet (ON CONFLICT DO NOTHING)."""
     if not rows:
@@ -362,15 +439,25 @@ def _insert_missing(db: Any, table: Any, rows: list[dict[str, Any]]) -> None:
     db.execute(insert(table).on_conflict_do_nothing(), rows)
 
 
-def database_seconds(db: Any) -> float:
-    """The database server's clock in seconds since the epoch: one clock for every machine's claims."""
+def seed_ranges(seeds: list[int]) -> list[tuple[int, int]]:
+    """``seeds`` as (first, last) ranges of consecutive seeds, in order: [0, 1, 2, 5] -> [(0, 2), (5, 5)]."""
+    ranges: list[tuple[int, int]] = []
+    for seed in sorted(set(seeds)):
+        if ranges and seed == ranges[-1][1] + 1:
+            ranges[-1] = (ranges[-1][0], seed)
+        else:
+            ranges.append((seed, seed))
+    return ranges
+
+
+def database_clock(dialect: str) -> Any:
+    """The database server's clock in seconds since the epoch, as an SQL expression: one clock for every
+    machine's claims, read in the statement that uses it."""
     import sqlalchemy as sa
 
-    if db.dialect.name == "postgresql":
-        query = sa.select(sa.func.extract("epoch", sa.func.clock_timestamp()))
-    else:
-        query = sa.select((sa.func.julianday("now") - 2440587.5) * 86400.0)
-    return float(db.execute(query).scalar_one())
+    if dialect == "postgresql":
+        return sa.func.extract("epoch", sa.func.statement_timestamp())
+    return (sa.func.julianday("now") - 2440587.5) * 86400.0
 
 
 __all__ = [
