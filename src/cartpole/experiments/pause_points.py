@@ -3,7 +3,8 @@
 ``CARTPOLE_PAUSE_AT=POINT:FOLDER`` (read here only; ``tests/test_faults.py`` sets it) makes a process
 that reaches POINT create the file FOLDER/POINT and wait while that file exists. The points:
 
-- ``claim``: inside a claim's transaction, its rows updated and locked, nothing committed;
+- ``claim``: a claim's statement executed (one statement, committed as it ran), its rows not yet
+  handed to a worker;
 - ``finish``: a run's record written by its worker, its results not yet stored in the database.
 
 Unset (always, outside those tests), a point costs one look-up in ``os.environ``.
@@ -31,12 +32,12 @@ def pause_at(point: str) -> None:
 
 
 def pause_in_claims(engine: Any) -> None:
-    """Have ``engine`` pause at ``claim`` after the statement that claims rows, inside its transaction
-    (set only where ``CARTPOLE_PAUSE_AT`` is)."""
+    """Have ``engine`` pause at ``claim`` after the statement that claims rows (set only where
+    ``CARTPOLE_PAUSE_AT`` is)."""
     import sqlalchemy as sa
 
     def after_execute(conn: Any, cursor: Any, statement: str, *rest: Any) -> None:
-        if statement.startswith("UPDATE cartpole_comparison_runs") and "claims=" in statement:
+        if "UPDATE cartpole_comparison_runs" in statement and "claims=" in statement:
             pause_at("claim")
 
     if os.environ.get(PAUSE_AT, "").startswith("claim:"):
