@@ -83,7 +83,7 @@ def run_folders(machine: Path) -> list[Path]:
 
 
 @pytest.mark.slow
-def test_sigkill_while_claiming_leaves_the_rows_to_the_next_worker_after_the_claim_timeout(private_postgres: Cluster, tmp_path):
+def test_sigkill_while_claiming_leaves_the_claim_to_go_stale(private_postgres: Cluster, tmp_path):
     url = private_postgres.new_database()
     entries, seeds = ["cem"], 2
     log = tmp_path / "doomed.log"
