@@ -287,3 +287,16 @@ def test_a_failed_hub_export_leaves_nothing(cem_run, tmp_path, monkeypatch, caps
     assert main(["export", str(cem_run), "--hub", str(tmp_path / "hub")]) == 2
     assert "No space left on device" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []  # neither the folder nor its staging folder
+
+
+def test_the_card_of_a_changed_env_names_its_kwargs(tmp_path, capsys):
+    outcome = train(
+        "cem", "CartPole-v1", seed=0, overrides={"env_kwargs": {"gravity": 5.0}}, budget="2gen",
+        runs_dir=tmp_path / "runs", quiet=True,
+    )  # fmt: skip
+    hub = tmp_path / "hub"
+    assert main(["export", str(outcome.run.path), "--hub", str(hub)]) == 0
+    card = (hub / "README.md").read_text()
+    (result,) = front_matter(card)["model-index"][0]["results"]
+    assert result["dataset"] == {"name": "CartPole-v1 (gravity=5.0)", "type": "CartPole-v1"}
+    assert "# cem on CartPole-v1 (gravity=5.0)" in card

@@ -151,7 +151,7 @@ def front_matter(config: dict[str, Any], report: EvalReport) -> str:
         f"      type: {q('reinforcement-learning')}",
         f"      name: {q('reinforcement-learning')}",
         "    dataset:",
-        f"      name: {q(env_id)}",
+        f"      name: {q(report.env_label)}",  # with its kwargs and wrappers: never the plain env's
         f"      type: {q(env_id)}",
         "    metrics:",
         f"    - type: {q('mean_reward')}",
@@ -188,7 +188,7 @@ def model_card(
     replay_row = f"| `{files['video']}` | the verdict's first episode |\n" if files["video"] else ""
     weights = "the run's checkpoint (tensors and JSON metadata: `torch.load(FILE, weights_only=True)`)"
     return f"""{front_matter(config, report)}
-# {agent} on {env_id}
+# {agent} on {report.env_label}
 
 A greedy {agent} agent for `{env_id}`, trained with `{LIBRARY}` (seed {config.get("seed")}, preset
 `{config.get("preset", "default")}`), kept at env step {meta.get("step")}.
