@@ -249,8 +249,9 @@ def simulate_worker(
     shared = SharedComparison(url, name, engine, CLAIM_TIMEOUT, SETUP)
     owner, labels = new_owner(), [e.label for e in ENTRIES]
     batches = {label: True for label in labels}
-    with engine.connect() as db:  # connected, as `cartpole compare` is when it has joined the comparison
+    with shared.statements.connect() as db:  # connected, as `cartpole compare` is once it has joined
         db.execute(sa.select(1))
+    shared.claim_statement(chunk, batches, set(), labels, seeds)  # built ahead, as its SharedRunner does
     start.wait()
     t0 = clock["start"]
     deadline = t0 + seconds

@@ -316,6 +316,7 @@ class SharedRunner:
         self.owner = new_owner()
         self.labels = [e.label for e in experiment.entries]
         self.batches = {e.label: experiment.trains_populations(e) for e in experiment.entries}
+        shared.claim_statement(chunk, self.batches, set(), self.labels, experiment.seeds)  # built ahead
         self.failed: set[tuple[str, int]] = set()
         self.problems: list[str] = []
         self.period = min(30.0, shared.claim_timeout / 4)

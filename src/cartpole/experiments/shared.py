@@ -228,17 +228,31 @@ class SharedComparison:
         ``LIMIT``), so many workers claim at the same moment, each other rows; on SQLite the statement
         holds the database's write lock. Either way the update checks again that each row is claimable,
         so no row is claimed twice."""
-        batching = tuple(label for label in labels if batches.get(label, False))
-        key = (chunk, batching, tuple(labels), tuple(seeds), frozenset(skip))
-        statement = self._claim_statements.get(key)
-        if statement is None:  # built once: a worker claims with the same arguments again and again
-            statement = self._claim_statement(*key)
-            self._claim_statements = {key: statement}
+        statement = self.claim_statement(chunk, batches, skip, labels, seeds)
         with self.statements.connect() as db:
             rows = sorted(db.execute(statement, {"claimant": owner}).all(), key=lambda row: row.seed)
         if not rows:
             return None
         return Claim(Entry(rows[0].agent, rows[0].preset), [row.seed for row in rows])
+
+    def claim_statement(
+        self,
+        chunk: int,
+        batches: dict[str, bool],
+        skip: set[tuple[str, int]],
+        labels: list[str],
+        seeds: list[int],
+    ) -> Any:
+        """The statement :meth:`claim` runs with these arguments, built once and kept: a worker claims
+        with the same arguments again and again, and builds it ahead (as it joins), so that its first
+        claim costs no more than the next."""
+        batching = tuple(label for label in labels if batches.get(label, False))
+        key = (chunk, batching, tuple(labels), tuple(seeds), frozenset(skip))
+        statement = self._claim_statements.get(key)
+        if statement is None:
+            statement = self._claim_statement(*key)
+            self._claim_statements = {key: statement}
+        return statement
 
     def _claim_statement(
         self,
