@@ -12,10 +12,10 @@ import os
 import signal
 import subprocess
 import sys
-import time
 import uuid
 
 import pytest
+from polling import wait_for
 
 from cartpole.experiments.shared import RowState, SharedComparison
 
@@ -38,16 +38,6 @@ def compare_command(name: str, runs_dir: object) -> list[str]:
 
 def claims_of(shared: SharedComparison, pid: int) -> list[object]:
     return [r for r in shared.rows() if r.state == RowState.CLAIMED and f":{pid}:" in (r.owner or "")]
-
-
-def wait_for(condition, timeout: float, what: str):  # type: ignore[no-untyped-def]
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        found = condition()
-        if found:
-            return found
-        time.sleep(0.2)
-    raise AssertionError(f"timed out waiting for {what}")
 
 
 def worker_processes(marker: str) -> list[str]:

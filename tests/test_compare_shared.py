@@ -11,6 +11,7 @@ import sys
 import time
 
 import pytest
+from polling import wait_for
 
 from cartpole.experiments.entries import Entry, ExperimentError
 from cartpole.experiments.shared import RowState, SharedComparison
@@ -187,7 +188,7 @@ def test_a_worker_whose_claim_was_taken_over_stops_that_run_saving_nothing_and_g
                "--name", "cmp", "--claim-timeout", "2", "--runs-dir", str(tmp_path / "m1")]  # fmt: skip
     worker = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        status = _wait_for(lambda: next((folder / "runs").glob("*/status.json"), None), "a run to start")
+        status = wait_for(lambda: next((folder / "runs").glob("*/status.json"), None), 300, "a run to start")
         shared = SharedComparison.open(url, "cmp")
         stolen = next(r for r in shared.rows() if r.state == RowState.CLAIMED)
         with shared.engine.begin() as db:  # the new owner's claim, fresh for ever
@@ -196,7 +197,7 @@ def test_a_worker_whose_claim_was_taken_over_stops_that_run_saving_nothing_and_g
                 .where(RUNS.c.entry == stolen.entry, RUNS.c.seed == stolen.seed)
                 .values(owner="new-owner", heartbeat=time.time() + 1e6)
             )
-        _wait_for(lambda: _claimed_by_worker(shared, other_than=stolen.entry), "the worker to go on")
+        wait_for(lambda: _claimed_by_worker(shared, other_than=stolen.entry), 300, "the worker to go on")
         run_files = _files(status.parent)
         record = {**NEW_OWNERS_RECORD, "agent": stolen.agent, "preset": stolen.preset}
         assert shared.finish("new-owner", Entry(stolen.agent, stolen.preset), stolen.seed, record, {})
@@ -223,16 +224,6 @@ NEW_OWNERS_RECORD = {
     "cpu_seconds": 6.0, "stop_reason": "budget", "final_mean": -200.0, "final_solved": False,
     "final_verdict": "not solved",
 }  # fmt: skip
-
-
-def _wait_for(condition, what: str, timeout: float = 300.0):  # type: ignore[no-untyped-def]
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        found = condition()
-        if found:
-            return found
-        time.sleep(0.1)
-    raise AssertionError(f"timed out waiting for {what}")
 
 
 def _claimed_by_worker(shared: SharedComparison, other_than: str) -> bool:

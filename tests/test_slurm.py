@@ -17,13 +17,12 @@ import os
 import shutil
 import subprocess
 import sys
-import time
 import uuid
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import pytest
+from polling import wait_for
 
 from cartpole.experiments.shared import RowState, SharedComparison
 
@@ -38,7 +37,6 @@ SHARED_ARGS = ["--chunk", "2", "--claim-timeout", "5"]
 SAME = ("solved_in_training", "solve_steps", "env_steps", "stop_reason", "final_mean", "final_solved",
         "final_verdict")  # fmt: skip
 """What a run's record must hold alike on the cluster and on one machine."""
-T = TypeVar("T")
 
 
 def missing() -> list[str]:
@@ -61,16 +59,6 @@ def cluster() -> str:
         pytest.skip(message)
     assert URL is not None
     return URL
-
-
-def wait_for(condition: Callable[[], T], timeout: float, what: str) -> T:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        found = condition()
-        if found:
-            return found
-        time.sleep(0.2)
-    raise AssertionError(f"timed out waiting for {what}")
 
 
 def slurm(*args: str) -> str:
