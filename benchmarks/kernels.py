@@ -7,24 +7,26 @@ the batched matmul, a policy head's weight gradient in both orientations, and th
     python benchmarks/kernels.py --pixels --threads 2
 
 Shapes are a 100-seed PPO population's full-batch step: ``[seeds, rows, width]`` activations, and
-``[seeds, rows, width] x [seeds, width, width]`` for a hidden layer. Printed: nanoseconds an element
-for ``torch.tanh``, ``np.tanh`` and ``cartpole.agents.nn.fast_tanh`` (the one the populations and the
-numpy greedy policies use), the largest relative difference of the last from float64 ``tanh``, and
-GFLOP/s of ``torch.bmm``; then the weight gradient of a 2-output head (``[seeds, width, rows] x
-[seeds, rows, 2]``, autograd's orientation for ``baddbmm``, against ``[seeds, 2, rows] x [seeds,
-rows, width]``, the one ``agents/nn/stacked_linear.py`` takes), one seed's ReLU gradient by
-``torch.where`` and by autograd's ``threshold_backward`` (``relu_gradient``), and one Adam step
-of ``[seeds, 9218]`` parameters (a 64x64 actor-critic) in torch's elementwise form and in the numba pass of
-``agents/nn/population_optimizers.py``. Which kernels NumPy and torch pick depends on the CPU (AVX-512
-or not), so the CPU is printed first. Last, one ``learn()`` (rollout and update) of PPO's, A2C's and
-REINFORCE's default presets for one seed and for ``--seeds``, with the networks' gradients by autograd
-and by hand (``agents/nn/stacked_linear.py``'s ``mlp_gradients``, what the populations use for MLPs).
-Then acting: one step of PPO's and DQN's default networks for every env of 1 and ``--seeds`` seeds,
-through the NumPy twins (``agents/nn/numpy_mlp.py``, how they act) and through torch on the same
-weights; a greedy policy on 1 and 100 rows, through its compiled forward pass
-(``agents/nn/greedy_play.py``, how it acts) and through torch; and 10 and 100 greedy episodes of
-our float64 CartPole (an in-training evaluation), stepped by the vector env and played in one
-compiled call, per env step.
+``[seeds, rows, width] x [seeds, width, width]`` for a hidden layer. Printed: nanoseconds an element for
+``torch.tanh``, ``np.tanh`` and ``cartpole.agents.nn.fast_tanh`` (the one the populations and the numpy
+greedy policies use), the largest relative difference of the last from float64 ``tanh``, and GFLOP/s of
+``torch.bmm``; then the weight gradient of a 2-output head (``[seeds, width, rows] x [seeds, rows, 2]``,
+autograd's orientation for ``baddbmm``, against ``[seeds, 2, rows] x [seeds, rows, width]``, and the
+latter in our fixed order, what ``agents/nn/stacked_linear.py`` runs), one seed's ReLU gradient by
+``torch.where`` and by autograd's ``threshold_backward`` (``relu_gradient``), and one Adam step of
+``[seeds, 9218]`` parameters (a 64x64 actor-critic) in torch's elementwise form and in the numba pass of
+``agents/nn/population_optimizers.py``. Then our fixed-order product (``agents/nn/fixed_order.py``, what
+every seed trains with, so that its bits never depend on its neighbours) against ``torch.bmm`` on the
+default agents' shapes, for one seed and for ``--seeds``. Which kernels NumPy and torch pick depends on
+the CPU (AVX-512 or not), so the CPU is printed first. Last, one ``learn()`` (rollout and update) of
+PPO's, A2C's and REINFORCE's default presets for one seed and for ``--seeds``, with the networks'
+gradients by autograd and by hand (``agents/nn/stacked_linear.py``'s ``mlp_gradients``, what the
+populations use for MLPs). Then acting: one step of PPO's and DQN's default networks for every env of 1
+and ``--seeds`` seeds, through the NumPy twins (``agents/nn/numpy_mlp.py``, how they act) and through
+torch on the same weights; a greedy policy on 1 and 100 rows, through its compiled forward pass
+(``agents/nn/greedy_play.py``, how it acts) and through torch; and 10 and 100 greedy episodes of our
+float64 CartPole (an in-training evaluation), stepped by the vector env and played in one compiled call,
+per env step.
 
 ``--pixels``: instead, one seed's conv trunk (a 512-row batch of 4x30x100 frame stacks through
 ``agents/actor_critic/network.py``'s ``CONV_LAYERS``, forward and backward) with the images laid
@@ -45,6 +47,7 @@ from cpu import describe_cpu
 from table_file import Measurement, Table, add_table_arguments
 
 from cartpole.agents.nn.fast_tanh import tanh_array
+from cartpole.agents.nn.fixed_order import matmul
 from cartpole.agents.nn.population_optimizers import PopulationAdam
 from cartpole.agents.nn.stacked_linear import relu_gradient, relu_gradient_by_where
 
@@ -262,6 +265,42 @@ def pixels() -> list[list[str]]:
     return rows
 
 
+PRODUCT_SHAPES = (
+    ("PPO default, first layer", 256, 4, 16),
+    ("PPO default, hidden layer", 256, 16, 16),
+    ("PPO default, a weight gradient", 16, 256, 16),
+    ("DQN default, hidden layer", 256, 64, 64),
+    ("DQN default, a weight gradient", 64, 256, 64),
+    ("a 2-action head's weight gradient", 2, 256, 64),
+)
+"""(what, n, k, m) of ``[S, n, k] x [S, k, m]`` products a seed's training makes."""
+
+
+def products(seeds: int, repeats: int) -> list[list[str]]:
+    """Our fixed-order product (``agents/nn/fixed_order.py``, what every seed trains with) against
+    ``torch.bmm`` on the agents' shapes, for one seed and for ``seeds``: GFLOP/s of each."""
+    generator = torch.Generator().manual_seed(1)
+    rows = []
+    for what, n, k, m in PRODUCT_SHAPES:
+        for count in (1, seeds):
+            a, b = (
+                torch.randn(count, n, k, generator=generator),
+                torch.randn(count, k, m, generator=generator),
+            )
+            flops = 2 * count * n * k * m
+            ours = seconds_per_call(lambda a=a, b=b: matmul(a, b), repeats)
+            theirs = seconds_per_call(lambda a=a, b=b: torch.bmm(a, b), repeats)
+            rows.append(
+                [
+                    f"{what}, [{count}, {n}, {k}] x [{count}, {k}, {m}]: fixed order / torch.bmm",
+                    f"{flops / ours / 1e9:.1f} / {flops / theirs / 1e9:.1f} GFLOP/s ({theirs / ours:.2f}x)",
+                ]
+            )
+    for row in rows:
+        print(*row, sep=": ", flush=True)
+    return rows
+
+
 def arithmetic(args: argparse.Namespace) -> list[list[str]]:
     """tanh three ways, bmm, a head's weight gradient both ways, a ReLU gradient two ways, Adam two ways."""
     shape = (args.seeds, args.rows, args.width)
@@ -291,7 +330,8 @@ def arithmetic(args: argparse.Namespace) -> list[list[str]]:
     heads = torch.randn(args.seeds, args.rows, 2, generator=generator)
     for name, call in [
         ("x^T @ grad (autograd's)", lambda: torch.bmm(x.transpose(1, 2), heads)),
-        ("grad^T @ x (stacked_linear)", lambda: torch.bmm(heads.transpose(1, 2), x)),
+        ("grad^T @ x", lambda: torch.bmm(heads.transpose(1, 2), x)),
+        ("grad^T @ x, fixed order (stacked_linear)", lambda: matmul(heads.transpose(1, 2), x)),
     ]:
         rows.append([f"head weight gradient, {name}", f"{seconds_per_call(call, args.repeats) * 1e3:.3f} ms"])
     y, grad = torch.relu(x[:1]), x[:1].flip(1)  # one seed's [rows, width]: DQN's single run
@@ -327,7 +367,8 @@ def main() -> None:
     if args.pixels:
         rows = pixels()
     else:
-        rows = arithmetic(args) + updates_by_hand(args.seeds, max(1, args.repeats // 5))
+        rows = arithmetic(args) + products(args.seeds, args.repeats)
+        rows += updates_by_hand(args.seeds, max(1, args.repeats // 5))
         rows += acting(args.seeds, args.repeats)
     notes = [f"torch CPU capability {capability}, {args.threads} torch thread(s)."]
     table = Table(["measure", "time"], rows, summary={"capability": capability}, notes=notes)

@@ -37,6 +37,7 @@ from cartpole.agents.actor_critic.population import (
 )
 from cartpole.agents.actor_critic.rollout import Rollout
 from cartpole.agents.learner import LearnResult
+from cartpole.agents.nn.fixed_order import seed_sums
 from cartpole.agents.nn.masked import log_probs_and_entropy, masked_mean, masked_normalize
 from cartpole.agents.nn.schedules import SCHEDULES, schedule_value
 from cartpole.core.config import require
@@ -188,7 +189,7 @@ def ppo_loss_gradients(
         dim=-1,
     )  # [S, B, 5]: the rows of each metric, whose masked means are the metrics (one reduction)
     divisor = count.clamp(min=1.0).unsqueeze(1)
-    metrics = (rows * mask.unsqueeze(-1)).sum(dim=1) / divisor
+    metrics = seed_sums(rows * mask.unsqueeze(-1)) / divisor
     per_row = mask / divisor  # d masked_mean / d row
     unclipped_side = (unclipped_term > clipped_term).float() + 0.5 * (unclipped_term == clipped_term).float()
     inside = ((ratio > 1.0 - clip) & (ratio < 1.0 + clip)).float()

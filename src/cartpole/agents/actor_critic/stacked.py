@@ -2,8 +2,8 @@
 for every seed at once, and an update's gradients computed by hand for MLPs.
 
 - :class:`StackedActorCritic` (:class:`~cartpole.agents.nn.flat_parameters.FlatParameters`): each
-  linear layer is a view ``[S, out, in]`` of the flat rows and runs as one ``torch.baddbmm`` over the
-  seed axis (:func:`~cartpole.agents.nn.stacked_linear.stacked_linear`); the convolutional layers of
+  linear layer is a view ``[S, out, in]`` of the flat rows and runs as one fixed-order product over
+  the seed axis (:func:`~cartpole.agents.nn.stacked_linear.stacked_linear`); the convolutional layers of
   an image trunk run one ``conv2d`` per seed (:func:`~cartpole.agents.nn.stacked_conv.stacked_conv2d`).
   Each network is walked by its *forward plan* (:func:`forward_plan`: the layers from observation to
   one head, by parameter name), the same plan for every seed.
@@ -135,7 +135,7 @@ class UpdatePass:
 
 class StackedActorCritic(FlatParameters[ActorCritic]):
     """The actor-critics of S seeds (:class:`~cartpole.agents.nn.flat_parameters.FlatParameters`),
-    each linear layer one ``torch.baddbmm`` for all seeds."""
+    each linear layer one fixed-order product for all seeds (:mod:`~cartpole.agents.nn.fixed_order`)."""
 
     def __init__(self, models: list[ActorCritic], device: torch.device):
         super().__init__(models, device)
@@ -161,7 +161,7 @@ class StackedActorCritic(FlatParameters[ActorCritic]):
         scale: Callable[[torch.Tensor], torch.Tensor] = scale_stacked_pixels,
         inputs: list[torch.Tensor] | None = None,
     ) -> torch.Tensor:
-        """``x`` [S, B, *obs_shape] through ``plan``: one baddbmm per linear layer for all seeds, one
+        """``x`` [S, B, *obs_shape] through ``plan``: one product per linear layer for all seeds, one
         conv2d per seed and convolutional layer; pixels scaled by ``scale``. ``inputs``, when given,
         receives each linear layer's input, in order."""
         image_shape: torch.Size | None = None

@@ -47,6 +47,7 @@ from cartpole.agents.dqn.replay import Minibatch
 from cartpole.agents.dqn.stacked import padded
 from cartpole.agents.episodes import Finished
 from cartpole.agents.learner import LearnResult
+from cartpole.agents.nn.fixed_order import seed_sums
 from cartpole.agents.nn.flat_parameters import to_device
 from cartpole.agents.nn.schedules import schedule_value
 from cartpole.agents.registry import AgentSpec
@@ -231,7 +232,7 @@ class PopulationDQN(QLearningPopulation):
             elementwise = F.smooth_l1_loss(q, targets, reduction="none")
         else:
             elementwise = F.mse_loss(q, targets, reduction="none")
-        return (elementwise * mask).sum(dim=1) / count
+        return seed_sums(elementwise * mask) / count
 
     @property
     def discount(self) -> float:
@@ -262,7 +263,7 @@ class PopulationDQN(QLearningPopulation):
             return None
         q, losses = measured
         with torch.no_grad():
-            q_means = (q.detach() * shared.mask).sum(dim=1) / shared.row_counts
+            q_means = seed_sums(q.detach() * shared.mask) / shared.row_counts
             return torch.stack([losses.detach(), q_means], dim=1)
 
     @torch.no_grad()

@@ -193,8 +193,9 @@ class QLearningPopulation:
 
     def numpy_q_values(self, x: np.ndarray) -> np.ndarray:
         """Q-values ``[S, B, n_actions]`` of ``x`` [S, B, obs_dim] as :meth:`StackedQNetwork.forward`
-        computes them, in NumPy on views of the online weights (CPU only; no copies). ``np.matmul``
-        multiplies each seed's slice on its own, so a seed's actions do not depend on its neighbours."""
+        computes them, in NumPy on views of the online weights (CPU only), in the fixed order of
+        :func:`~cartpole.agents.nn.fixed_order.matmul_arrays` (which lays each view's rows out
+        once a call), so a seed's actions do not depend on its neighbours."""
         if self.acting_networks is None:
             self.acting_networks = self.numpy_networks(None, copy=False)
         return q_values_from(self.acting_networks, x)

@@ -1,29 +1,22 @@
 """The Q-networks of S seeds as one: :class:`StackedQNetwork`, the online networks' parameters in one
 flat ``[S, P]`` tensor (:class:`~cartpole.agents.nn.flat_parameters.FlatParameters`) and the target
-networks in the rows above them, each linear layer one ``torch.baddbmm`` for all seeds
+networks in the rows above them, each linear layer one fixed-order product for all seeds
 (:func:`~cartpole.agents.nn.stacked_linear.stacked_linear`), and a plain ReLU MLP's gradients by hand.
 
-Why a seed's bits do not depend on the seeds beside it: every operation is either per seed (a
-batched matmul multiplies each seed's slice on its own; reductions run over a seed's own row: the
-loss, the Q mean, the gradient norm for clipping) or elementwise, and nothing is ever reduced over
-the seed axis (the summed loss that is backpropagated has the gradient 1 or 0 per seed). Two details
-keep the bits equal where torch's kernels would otherwise betray a seed's position in the batch:
+Why a seed's bits do not depend on the seeds beside it: every operation is either per seed (each
+product and each sum over a seed's rows runs in an order of our own,
+:mod:`~cartpole.agents.nn.fixed_order`: the layers, their gradients, the loss, the Q mean, the
+gradient norm for clipping) or elementwise, and nothing is ever reduced over the seed axis (the
+summed loss that is backpropagated has the gradient 1 or 0 per seed). One detail keeps the bits
+equal where torch's elementwise kernels would otherwise betray a seed's position in the batch:
+they run vectorized over the whole tensor and finish its last few elements with scalar code, whose
+transcendental functions (tanh, elu, gelu, lerp's fused multiply-add) may round differently. So
+every per-seed block is a multiple of :data:`ALIGN` elements (the flat parameters are padded,
+minibatches and acting batches have a multiple of :data:`ALIGN` rows): no seed's elements ever
+fall into the scalar tail.
 
-- Elementwise CPU kernels run vectorized over the whole tensor and finish its last few elements
-  with scalar code, whose transcendental functions (tanh, elu, gelu, lerp's fused multiply-add) may
-  round differently. So every per-seed block is a multiple of :data:`ALIGN` elements (the flat
-  parameters are padded, minibatches and acting batches have a multiple of :data:`ALIGN` rows): no
-  seed's elements ever fall into the scalar tail.
-- A value head (one output) multiplies in the orientation whose bits do not depend on the number
-  of seeds (:func:`~cartpole.agents.nn.stacked_linear.linear_forward`), so a lone seed needs no company
-  (but on several torch threads every product of a lone seed runs as a batch of two: see
-  :mod:`~cartpole.agents.nn.stacked_linear`).
-
-Torch's batched products give every seed the same bits wherever it sits in the batch when the layer
-widths are multiples of 4 (every preset's are; ``tests/test_one_engine.py``); for other widths (7,
-10, 33, ...) a seed's floats can depend on its position in the last bit. Image networks (a
-convolutional trunk) run their convolutions one ``conv2d`` per seed
-(:func:`~cartpole.agents.nn.stacked_conv.stacked_conv2d`, for the same reason) and take their
+Image networks (a convolutional trunk) run their convolutions one ``conv2d`` per seed on fresh
+copies (:func:`~cartpole.agents.nn.stacked_conv.stacked_conv2d`, for the same reason) and take their
 gradients from autograd. Why each form of a network, and the measurements behind them:
 :mod:`cartpole.agents.nn`.
 """

@@ -19,6 +19,10 @@ module, with the benchmark table that measures it):
    greedy MLP policy acts through, and what plays an evaluation's whole episodes on our simulator;
 6. the optimizer's numba pass over the flat rows (:mod:`~cartpole.agents.nn.population_optimizers`).
 
+Every product and every sum over a seed's rows that forms 2-4 compute runs in an order of our own
+(:mod:`~cartpole.agents.nn.fixed_order`), so a seed's bits never depend on the seeds beside it, on
+any CPU; the convolutions are one library call per seed on fresh copies (stacked_conv).
+
 Besides: per-seed statistics over the valid rows of a batch (masked), the convolutional trunk's
 generic pieces (conv), fixed observation standardization (standardize) and the learning rate's
 schedules (schedules).

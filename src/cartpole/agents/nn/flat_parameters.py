@@ -26,6 +26,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from cartpole.agents.nn.fixed_order import row_norms
 from cartpole.agents.nn.numpy_mlp import Step
 from cartpole.evaluation import BlockActor
 
@@ -127,8 +128,9 @@ class FlatParameters(Generic[Module]):
     @torch.no_grad()
     def clip_grad_norms(self, max_norm: float) -> None:
         """Scale each seed's gradient down to a global norm of at most ``max_norm``, as
-        ``torch.nn.utils.clip_grad_norm_`` computes it for one network."""
-        norms = torch.linalg.vector_norm(self.grad, dim=1, keepdim=True)
+        ``torch.nn.utils.clip_grad_norm_`` computes it for one network (the norm in our fixed order:
+        :func:`~cartpole.agents.nn.fixed_order.row_norms`)."""
+        norms = row_norms(self.grad).unsqueeze(1)
         self.grad.mul_((max_norm / (norms + 1e-6)).clamp(max=1.0))
 
     def numpy_linear(self, weight: str, bias: str, rows: list[int] | None = None, copy: bool = True) -> Step:

@@ -2,24 +2,27 @@
 seed's valid rows and 0 on its padding, ``count`` [S] is how many valid rows each seed has.
 
 Seeds hold different numbers of valid rows (their episodes end at different steps), but a batch has
-one shape for all: each statistic reduces over a seed's own row only, so a seed's value does not
-depend on its neighbours' rows.
+one shape for all: each statistic reduces over a seed's own row only, in our fixed order
+(:func:`~cartpole.agents.nn.fixed_order.seed_sums`), so a seed's value does not depend on its
+neighbours' rows nor on the thread count.
 """
 
 from __future__ import annotations
 
 import torch
 
+from cartpole.agents.nn.fixed_order import seed_sums
+
 
 def masked_mean(x: torch.Tensor, mask: torch.Tensor, count: torch.Tensor) -> torch.Tensor:
     """Per-seed mean of ``x`` [S, B] over the rows where ``mask`` (float) is 1; [S]."""
-    return (x * mask).sum(dim=1) / count.clamp(min=1.0)
+    return seed_sums(x * mask) / count.clamp(min=1.0)
 
 
 def masked_variance(x: torch.Tensor, mask: torch.Tensor, count: torch.Tensor) -> torch.Tensor:
     """Per-seed unbiased variance of ``x`` [S, B] over the masked rows (0 with fewer than 2)."""
     mean = masked_mean(x, mask, count).unsqueeze(1)
-    variance = ((x - mean) * mask).square().sum(dim=1) / (count - 1.0).clamp(min=1.0)
+    variance = seed_sums(((x - mean) * mask).square()) / (count - 1.0).clamp(min=1.0)
     return torch.where(count > 1.0, variance, torch.zeros_like(variance))
 
 
@@ -27,7 +30,7 @@ def masked_normalize(x: torch.Tensor, mask: torch.Tensor, count: torch.Tensor) -
     """Per seed, ``(x - mean) / (std + 1e-8)`` over the masked rows (a single row is only centred)."""
     mean = masked_mean(x, mask, count).unsqueeze(1)
     centred = (x - mean) * mask
-    variance = centred.square().sum(dim=1) / (count - 1.0).clamp(min=1.0)
+    variance = seed_sums(centred.square()) / (count - 1.0).clamp(min=1.0)
     std = torch.where(count > 1.0, variance.sqrt() + 1e-8, torch.ones_like(variance))
     return centred / std.unsqueeze(1)
 

@@ -5,7 +5,8 @@ evaluations).
 
 Why NumPy: acting runs a few rows at a time (one per step in the web app, one per env in an
 evaluation or a batched env step), where torch's per-op overhead costs more than the arithmetic, and
-``np.matmul`` on the weights acts several times faster than torch's forward pass on the same ones
+a product of our own on the weights (:mod:`~cartpole.agents.nn.fixed_order`, on NumPy arrays) acts
+several times faster than torch's forward pass on the same ones
 (benchmarks/README.md#kernels, the acting rows). Copying the weights also makes a policy a snapshot
 that later training cannot change. A convolutional network has no twin: convolutions are torch's
 strength, and it acts through torch.
@@ -20,6 +21,7 @@ import numpy as np
 from torch import nn
 
 from cartpole.agents.nn.fast_tanh import tanh_array
+from cartpole.agents.nn.fixed_order import matmul_arrays
 from cartpole.agents.nn.greedy_play import RELU, TANH, CompiledMLP
 from cartpole.agents.nn.standardize import StandardizeObservations
 from cartpole.envs.params import CartPoleParams
@@ -66,13 +68,11 @@ or the observations' standardization (:class:`~cartpole.agents.nn.standardize.St
 
 
 def run_steps(plan: list[Step], features: np.ndarray) -> np.ndarray:
-    """``features`` through ``plan``: ``x W + b`` for a linear step, the function for an activation."""
+    """``features`` through ``plan``: ``x W + b`` for a linear step (in the fixed order of
+    :func:`~cartpole.agents.nn.fixed_order.matmul_arrays`, so that a network's outputs are the same
+    bits alone and stacked with any others), the function for an activation."""
     for step in plan:
-        if isinstance(step, tuple):
-            features = np.matmul(features, step[0])
-            features += step[1]
-        else:
-            features = step(features)
+        features = matmul_arrays(features, *step) if isinstance(step, tuple) else step(features)
     return features
 
 
@@ -121,8 +121,8 @@ class NumpyMLP:
 
 class StackedNumpyMLP:
     """S networks of one shape run as one: inputs ``[S, B, in]`` to outputs ``[S, B, out]``, one
-    ``np.matmul`` per layer for all of them. ``np.matmul`` multiplies each network's slice on its own,
-    so a network's outputs do not depend on the others beside it (tested)."""
+    fixed-order product per layer for all of them (:func:`run_steps`), so a network's outputs do not
+    depend on the others beside it (tested)."""
 
     def __init__(self, plan: list[Step]):
         self.plan = plan

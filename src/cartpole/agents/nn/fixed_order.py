@@ -1,0 +1,127 @@
+"""Matrix products and sums over a batch whose every bit the project owns: what a seed's training
+multiplies with, so that a seed gets the same bits alone, beside any other seeds, at any position.
+
+Why not torch's ``bmm``: a BLAS chooses its kernel by the whole call, so one matrix of a batch can get
+other bits than the same matrix alone or beside other neighbours. On an Intel Xeon (AVX-512, MKL)
+``torch.bmm`` gives one matrix other bits in a batch of 3 than in a batch of 1 in 74 of 500 shapes,
+40 even under ``MKL_CBWR=COMPATIBLE`` (``../shared/evidence/intel-xeon.md``), while on the AMD CPUs
+this project was developed on it gave none: a promise that rested on the BLAS held there by chance.
+
+Here each output element is one sum in a fixed order (:mod:`._fixed_order_kernels`: from 0, each
+product in turn, then the bias; multiply and add each rounded, no FMA), so its bits follow from its own
+inputs alone, on every x86-64 and arm64 CPU. ``tests/test_fixed_order.py`` checks it against that
+sum written out in NumPy, and batch by batch. On the CPU, for float32 (every network here); other
+devices and dtypes take torch's product, which promises no such thing (CUDA: docs/DESIGN.md).
+
+What it costs: ``benchmarks/kernels.py --fixed-order`` times it beside ``torch.bmm`` on the agents'
+shapes (benchmarks/README.md#kernels).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+
+
+def is_fixed_order(t: torch.Tensor) -> bool:
+    """Whether products of ``t`` run in the fixed order: float32 on the CPU."""
+    return t.device.type == "cpu" and t.dtype == torch.float32
+
+
+def kernels() -> Any:
+    """The numba kernels (:mod:`._fixed_order_kernels`), compiled or loaded on first use."""
+    from cartpole.agents.nn import _fixed_order_kernels
+
+    return _fixed_order_kernels
+
+
+def _array(t: torch.Tensor) -> np.ndarray:
+    """A NumPy view of ``t``'s values (no copy; the view shares ``t``'s strides)."""
+    return t.detach().numpy()
+
+
+def matmul(
+    a: torch.Tensor, b: torch.Tensor, c: torch.Tensor | None = None, out: torch.Tensor | None = None
+) -> torch.Tensor:
+    """``a @ b + c`` per seed, ``[S, n, m]``, for ``a`` [S, n, k], ``b`` [S, k, m] and ``c`` (default 0)
+    broadcast from [S or 1, n or 1, m or 1]; each element summed in the fixed order of the module
+    docstring, ``c`` added last. Written into ``out`` [S, n, m] when given. No autograd: callers
+    differentiate by hand (:mod:`~cartpole.agents.nn.stacked_linear`,
+    :mod:`~cartpole.agents.nn.stacked_conv`)."""
+    if not is_fixed_order(a):
+        product = torch.bmm(a, b) if c is None else torch.baddbmm(c, a, b)
+        return product if out is None else out.copy_(product)
+    seeds, n, _ = a.shape
+    m = b.shape[2]
+    direct = out is not None and out.is_contiguous()
+    result = out if direct else torch.empty((seeds, n, m), dtype=torch.float32, device=a.device)
+    assert result is not None
+    start = np.zeros((1, 1, m), dtype=np.float32) if c is None else _array(c)
+    kernels().matmul_into(_array(a), _array(b.contiguous()), start, _array(result))
+    if out is not None and not direct:
+        return out.copy_(result)
+    return result
+
+
+def matmul_arrays(x: np.ndarray, weight: np.ndarray, bias: np.ndarray) -> np.ndarray:
+    """``x @ weight + bias`` of float32 arrays, in the order of :func:`matmul`: ``x`` [S, B, in] or
+    [B, in], ``weight`` [S, in, out] or [in, out], ``bias`` broadcast from [S or 1, 1, out] or [out];
+    the result has ``x``'s number of dimensions (a NumPy twin's layer)."""
+    stacked = x.ndim == 3
+    a = (x if stacked else x[None]).astype(np.float32, copy=False)
+    b = np.ascontiguousarray(weight if weight.ndim == 3 else weight[None], dtype=np.float32)
+    c = bias.reshape(bias.shape[0] if bias.ndim == 3 else 1, 1, bias.shape[-1]).astype(np.float32, copy=False)
+    out = np.empty((max(a.shape[0], b.shape[0]), a.shape[1], b.shape[2]), dtype=np.float32)
+    if a.shape[0] != out.shape[0]:  # one input for every network
+        a = np.broadcast_to(a, (out.shape[0], *a.shape[1:]))
+    kernels().matmul_into(a, b, c, out)
+    return out if stacked or out.shape[0] > 1 else out[0]
+
+
+def row_sums(x: torch.Tensor) -> torch.Tensor:
+    """``x.sum(dim=1)`` of ``x`` [S, B, m], ``[S, m]``: 0 plus each row in turn (a bias's gradient)."""
+    if not is_fixed_order(x):
+        return x.sum(dim=1)
+    totals = torch.empty((x.shape[0], x.shape[2]), dtype=torch.float32, device=x.device)
+    kernels().row_sums_into(_array(x), _array(totals))
+    return totals
+
+
+class _SeedSums(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx: Any, x: torch.Tensor) -> torch.Tensor:
+        ctx.shape = x.shape
+        rows = x if x.dim() == 3 else x.unsqueeze(-1)
+        totals = row_sums(rows)
+        return totals if x.dim() == 3 else totals.squeeze(-1)
+
+    @staticmethod
+    def backward(ctx: Any, grad: torch.Tensor) -> torch.Tensor:
+        return grad.unsqueeze(1).expand(ctx.shape)
+
+
+def seed_sums(x: torch.Tensor) -> torch.Tensor:
+    """``x.sum(dim=1)`` of ``x`` [S, B] or [S, B, m] (each seed's rows), in the order of
+    :func:`row_sums`, differentiable. Torch's own sum splits one long row between its threads but
+    gives each of several rows one thread, so on more than one thread a lone seed's sum could be
+    another float than the same seed's among others (tests/test_fixed_order.py)."""
+    if not is_fixed_order(x):
+        return x.sum(dim=1)
+    if torch.is_grad_enabled() and x.requires_grad:
+        return _SeedSums.apply(x)
+    rows = x if x.dim() == 3 else x.unsqueeze(-1)
+    return row_sums(rows) if x.dim() == 3 else row_sums(rows).squeeze(-1)
+
+
+def row_norms(x: torch.Tensor) -> torch.Tensor:
+    """The Euclidean norm of each row of ``x`` [S, P], ``[S]``: the squares added in row order."""
+    if not is_fixed_order(x):
+        return torch.linalg.vector_norm(x, dim=1)
+    norms = torch.empty(x.shape[0], dtype=torch.float32, device=x.device)
+    kernels().row_norms_into(_array(x), _array(norms))
+    return norms
+
+
+__all__ = ["is_fixed_order", "kernels", "matmul", "matmul_arrays", "row_norms", "row_sums", "seed_sums"]
