@@ -19,6 +19,7 @@ shapes (benchmarks/README.md#kernels).
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import numpy as np
@@ -39,7 +40,15 @@ def kernels() -> Any:
 
 def _array(t: torch.Tensor) -> np.ndarray:
     """A NumPy view of ``t``'s values (no copy; the view shares ``t``'s strides)."""
-    return t.detach().numpy()
+    return (t.detach() if t.requires_grad else t).numpy()
+
+
+@functools.cache
+def _zeros(m: int) -> np.ndarray:
+    """A bias of 0 for ``m`` columns, [1, 1, m] (kept: read only)."""
+    zeros = np.zeros((1, 1, m), dtype=np.float32)
+    zeros.flags.writeable = False
+    return zeros
 
 
 def matmul(
@@ -55,14 +64,13 @@ def matmul(
         return product if out is None else out.copy_(product)
     seeds, n, _ = a.shape
     m = b.shape[2]
-    direct = out is not None and out.is_contiguous()
-    result = out if direct else torch.empty((seeds, n, m), dtype=torch.float32, device=a.device)
-    assert result is not None
-    start = np.zeros((1, 1, m), dtype=np.float32) if c is None else _array(c)
-    kernels().matmul_into(_array(a), _array(b.contiguous()), start, _array(result))
-    if out is not None and not direct:
-        return out.copy_(result)
-    return result
+    start = _zeros(m) if c is None else _array(c)
+    if out is not None and out.is_contiguous():
+        kernels().matmul_into(_array(a), _array(b.contiguous()), start, _array(out))
+        return out
+    result = np.empty((seeds, n, m), dtype=np.float32)
+    kernels().matmul_into(_array(a), _array(b.contiguous()), start, result)
+    return torch.from_numpy(result) if out is None else out.copy_(torch.from_numpy(result))
 
 
 def matmul_arrays(x: np.ndarray, weight: np.ndarray, bias: np.ndarray) -> np.ndarray:
@@ -84,9 +92,9 @@ def row_sums(x: torch.Tensor) -> torch.Tensor:
     """``x.sum(dim=1)`` of ``x`` [S, B, m], ``[S, m]``: 0 plus each row in turn (a bias's gradient)."""
     if not is_fixed_order(x):
         return x.sum(dim=1)
-    totals = torch.empty((x.shape[0], x.shape[2]), dtype=torch.float32, device=x.device)
-    kernels().row_sums_into(_array(x), _array(totals))
-    return totals
+    totals = np.empty((x.shape[0], x.shape[2]), dtype=np.float32)
+    kernels().row_sums_into(_array(x), totals)
+    return torch.from_numpy(totals)
 
 
 class _SeedSums(torch.autograd.Function):
@@ -119,9 +127,9 @@ def row_norms(x: torch.Tensor) -> torch.Tensor:
     """The Euclidean norm of each row of ``x`` [S, P], ``[S]``: the squares added in row order."""
     if not is_fixed_order(x):
         return torch.linalg.vector_norm(x, dim=1)
-    norms = torch.empty(x.shape[0], dtype=torch.float32, device=x.device)
-    kernels().row_norms_into(_array(x), _array(norms))
-    return norms
+    norms = np.empty(x.shape[0], dtype=np.float32)
+    kernels().row_norms_into(_array(x), norms)
+    return torch.from_numpy(norms)
 
 
 __all__ = ["is_fixed_order", "kernels", "matmul", "matmul_arrays", "row_norms", "row_sums", "seed_sums"]
