@@ -2,9 +2,10 @@
 # Regenerate requirements.lock: every dependency of cartpole and of all its extras (test, bench, postgres,
 # video, tensorboard, notebook), pinned, in ONE universal resolution: every CPython from 3.11 up on Linux,
 # macOS and Windows, with environment markers where a platform needs a package of its own (colorama on
-# Windows, the CUDA packages of Linux's torch). One version of each package for every Python and system
-# (uv's fewest-forks strategy), public versions only: no local labels such as +cpu, so the lock installs
-# from the public index anywhere. `.ci/resolve_platforms.py` checks that it does, with wheels alone.
+# Windows, the CUDA packages of Linux's torch) or a Python goes without one (box2d, no wheel for 3.14).
+# One version of each package for every Python and system (uv's fewest-forks strategy), public versions
+# only: no local labels such as +cpu, so the lock installs from the public index anywhere.
+# `.ci/resolve_platforms.py` checks that it does, with wheels alone.
 #
 #   bash scripts/lock.sh              keep today's pins where pyproject.toml still allows them
 #   bash scripts/lock.sh --upgrade    move every pin to the newest allowed release
@@ -23,8 +24,9 @@ trap 'rm -f "$tmp"' EXIT
 uv pip compile pyproject.toml --all-extras --universal --fork-strategy fewest --python-version 3.11 \
   --constraint <(echo "$TORCH") --no-config --no-header --quiet "$@" --output-file "$tmp"
 {
-  echo "# The tested environment: every dependency of cartpole and its extras, pinned, for CPython >= 3.11 on"
-  echo "# Linux, macOS and Windows (environment markers where a platform needs its own package)."
+  echo "# The tested environment: every dependency of cartpole and its extras, pinned, for CPython >= 3.11 (CI"
+  echo "# resolves it for 3.11-3.14) on Linux, macOS and Windows (environment markers where a platform needs its"
+  echo "# own package, or a Python goes without one: box2d, which has no wheel for 3.14)."
   echo "# Made by: bash scripts/lock.sh   (do not edit by hand). Install with: pip install -c requirements.lock -e \".[test]\""
   sed 's|^    #   -c /dev/fd/[0-9]*$|    #   -c scripts/lock.sh (the tested torch)|' "$tmp" | grep -v '^#'
 } > requirements.lock

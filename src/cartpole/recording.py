@@ -86,7 +86,7 @@ def render_episodes(
         if gym_id != env_id.removeprefix("cartpole/"):  # a pixel env: its agent sees the pictures
             env = seen_as_pixels(env, env_id)
     except gym.error.DependencyNotInstalled as err:
-        raise RecordingError(f"rendering {gym_id} needs pygame: pip install pygame ({err})") from err
+        raise RecordingError(f"rendering {gym_id} needs pygame: pip install pygame-ce ({err})") from err
     except (gym.error.Error, TypeError, ValueError) as err:
         raise RecordingError(f"{gym_id} cannot render rgb_array frames: {err}") from err
     fps = int(env.metadata.get("render_fps") or DEFAULT_FPS)
@@ -114,7 +114,7 @@ def render_episodes(
             recording.returns.append(total)
             recording.lengths.append(steps)
     except gym.error.DependencyNotInstalled as err:
-        raise RecordingError(f"rendering {gym_id} needs pygame: pip install pygame ({err})") from err
+        raise RecordingError(f"rendering {gym_id} needs pygame: pip install pygame-ce ({err})") from err
     finally:
         env.close()
     return recording

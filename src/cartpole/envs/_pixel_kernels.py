@@ -9,7 +9,8 @@ Coordinates are those of the final (flipped) 600x400 image with pixel ``(row, co
 ``[row, row + 1) x [col, col + 1)``: ``X`` grows to the right, ``Y`` downwards. Output pixel
 ``(i, j)`` covers ``X in [j * s, (j + 1) * s)`` and ``Y in [top + i * s, top + (i + 1) * s)``.
 
-How pygame draws, and how it is modelled here (measured against pygame 2.6, see the tests):
+How pygame draws, and how it is modelled here (measured against pygame 2.6; the tests hold as well for
+pygame-ce 2.5, which the lock installs):
 
 - ``gfxdraw`` truncates vertex coordinates to integers and fills every pixel from the first vertex
   pixel to the last, both included; an axis-aligned rectangle with integer corners ``a..b`` covers

@@ -18,6 +18,7 @@ from __future__ import annotations
 import importlib
 import json
 import math
+import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cache
@@ -34,6 +35,48 @@ from cartpole.envs.registration import PIXEL_REFERENCE_IDS, REFERENCE_IDS, fast_
 class UnsupportedEnvError(InputError, ValueError):
     """The env id is unknown, or its spaces are not a Box observation (flat or image) and Discrete
     actions."""
+
+
+# The Pythons, oldest and newest, that Box2D (the box2d extra's box2d 2.3.10, for LunarLander) has wheels
+# for. pyproject.toml's box2d extra carries the same bound as its marker (python_version < '3.14'), so on a
+# newer Python the extra installs nothing; tests/test_box2d_python.py checks that the two agree.
+BOX2D_PYTHONS = ((3, 11), (3, 13))
+
+
+def running_python() -> tuple[int, int]:
+    """This interpreter's (major, minor), as :func:`box2d_missing` names it."""
+    return sys.version_info.major, sys.version_info.minor
+
+
+def box2d_missing(env_id: str) -> str:
+    """The one line for ``env_id``, an env that needs Box2D, where Box2D cannot be imported: on a
+    Python that Box2D has no wheel for, that Python and the ones to use; elsewhere, how to install it."""
+    python = running_python()
+    (oldest, newest), version = BOX2D_PYTHONS, ".".join(map(str, python))
+    if not oldest <= python <= newest:
+        return (
+            f"{env_id} needs Box2D, which has no wheel for Python {version} yet; use Python "
+            f"{oldest[0]}.{oldest[1]}-{newest[0]}.{newest[1]} for the box2d extra"
+        )
+    return (
+        f"{env_id} needs Box2D, which is not installed: install the box2d extra "
+        '(pip install -c requirements.lock -e ".[box2d]")'
+    )
+
+
+def _needs_box2d(err: BaseException) -> bool:
+    """Whether ``err``, raised making an env, says that Box2D cannot be imported: Gymnasium's
+    DependencyNotInstalled for its Box2D envs, or an ImportError of the module ``Box2D`` itself."""
+    seen: set[int] = set()
+    found: BaseException | None = err
+    while found is not None and id(found) not in seen:
+        seen.add(id(found))
+        if isinstance(found, ImportError) and (found.name or "").partition(".")[0] == "Box2D":
+            return True
+        if isinstance(found, gym.error.DependencyNotInstalled) and "Box2D" in str(found):
+            return True
+        found = found.__cause__ or found.__context__
+    return False
 
 
 @dataclass(frozen=True)
@@ -254,6 +297,8 @@ def _env_info(env_id: str, key: str) -> EnvInfo:
     except ValueError as err:
         raise UnsupportedEnvError(f"{env_id} refuses env kwargs {describe_kwargs(kwargs)}: {err}") from None
     except Exception as err:
+        if _needs_box2d(err):
+            raise UnsupportedEnvError(box2d_missing(env_id)) from None
         raise UnsupportedEnvError(
             f"cannot create environment {env_id!r}: {err} (is its extra installed?)"
         ) from err
