@@ -15,6 +15,7 @@ import sys
 import uuid
 
 import pytest
+from platforms import kill_9, proc
 from polling import wait_for
 
 from cartpole.experiments.shared import RowState, SharedComparison
@@ -56,6 +57,8 @@ def worker_processes(marker: str) -> list[str]:
     return found
 
 
+@kill_9
+@proc
 def test_two_compare_processes_share_one_comparison_and_survive_a_sigkill(tmp_path):
     assert URL is not None
     name = f"shared-{uuid.uuid4().hex[:8]}"

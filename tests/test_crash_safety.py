@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 import pytest
+from platforms import kill_9, sigstop, stop_signal_to_a_process
 
 from cartpole.cli.main import main
 from cartpole.core.names import RunState
@@ -89,6 +90,8 @@ def start_training(runs_dir: Path) -> tuple[subprocess.Popen[str], RunDir]:
     return process, run
 
 
+@sigstop
+@kill_9
 def test_kill_9_shows_crashed_and_resume_finishes_with_a_verdict(tmp_path):
     process, run = start_training(tmp_path / "runs")
     # Frozen (it keeps its lock and its pid), so it cannot finish while the second trainer starts up.
@@ -121,6 +124,7 @@ def test_kill_9_shows_crashed_and_resume_finishes_with_a_verdict(tmp_path):
     assert generations_logged(run) == GENERATIONS
 
 
+@stop_signal_to_a_process
 def test_ctrl_c_leaves_no_verdict_and_runs_does_not_say_solved(tmp_path):
     """In-training evaluations go to best_eval.json and metrics.jsonl, never to eval.json."""
     process, run = start_training(tmp_path / "runs")
@@ -333,6 +337,7 @@ def test_metric_rows_on_a_full_disk_name_their_file(full_disk):
 # --- a resume never starts a run that has trained again from 0 unasked -----------------------------
 
 
+@kill_9
 def test_a_kill_before_the_first_interval_still_finds_latest_from_the_start(tmp_path):
     """latest.pt is written as training starts: a kill -9 at any moment after that leaves one."""
     process = cartpole(*TRAIN, "--runs-dir", str(tmp_path / "runs"))
@@ -459,6 +464,7 @@ def test_a_population_scores_each_seeds_last_policy_as_its_single_run_does(tmp_p
 # --- the output names the run at start; status keeps up with latest.pt; a resume from step 0 --------
 
 
+@kill_9
 @pytest.mark.parametrize("seeds", [[], ["--seeds", "0-1"]], ids=["single", "population"])
 def test_the_run_is_named_as_training_starts_so_a_kill_9_leaves_it_in_the_output(seeds, tmp_path):
     """`--resume RUN` needs the run folder: it is printed before training, not only at the end, which
@@ -490,6 +496,7 @@ train_population("random-search", [0, 1], runs_dir=sys.argv[1], budget="80gen", 
 """
 
 
+@kill_9
 def test_a_populations_status_keeps_up_with_its_latest_checkpoint_through_a_kill_9(tmp_path):
     """A population writes status.json every few seconds; latest.pt may be written more often (here
     every generation). After a kill -9 no status may lag behind its latest.pt (it said env_steps 0
@@ -523,6 +530,7 @@ train("random-search", seed=0, runs_dir=sys.argv[1], budget="2gen", overrides={"
 """
 
 
+@kill_9
 def test_a_resume_from_a_latest_written_at_step_0_says_so(tmp_path, capsys):
     """latest.pt is written as training starts (step 0): a resume goes on from it and says so,
     not that there was no latest.pt."""

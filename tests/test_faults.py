@@ -21,6 +21,7 @@ from typing import Any
 
 import optuna
 import pytest
+from platforms import kill_9, proc
 from polling import wait_for
 from postgres_cluster import Cluster
 
@@ -72,6 +73,7 @@ def run_folders(machine: Path) -> list[Path]:
     return sorted((machine / "experiments" / "faults" / "runs").glob("*__s*"))
 
 
+@kill_9
 @pytest.mark.slow
 def test_sigkill_while_claiming_leaves_the_claim_to_go_stale(private_postgres: Cluster, tmp_path):
     url = private_postgres.new_database()
@@ -94,6 +96,7 @@ def test_sigkill_while_claiming_leaves_the_claim_to_go_stale(private_postgres: C
     assert not (tmp_path / "m0" / "experiments" / "faults" / "runs").exists()
 
 
+@kill_9
 @pytest.mark.slow
 def test_sigkill_while_training_then_the_same_machine_resumes_its_runs(private_postgres: Cluster, tmp_path):
     url = private_postgres.new_database()
@@ -132,8 +135,9 @@ def worker_pids(marker: str) -> list[int]:
     return found
 
 
+@kill_9
+@proc
 @pytest.mark.slow
-@pytest.mark.skipif(not Path("/proc").is_dir(), reason="finds the worker's process through /proc")
 def test_a_worker_process_killed_while_training_has_its_runs_claimed_again(
     private_postgres: Cluster, tmp_path
 ):
@@ -158,6 +162,7 @@ def test_a_worker_process_killed_while_training_has_its_runs_claimed_again(
     assert all(r.claims == 2 for r in rows)
 
 
+@kill_9
 @pytest.mark.slow
 def test_sigkill_between_a_runs_end_and_its_results_write(private_postgres: Cluster, tmp_path):
     url = private_postgres.new_database()

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
+from platforms import kill_9, stop_signal_to_a_process
 
 from cartpole.agents.actor_critic.a2c import A2CConfig, PopulationA2C
 from cartpole.agents.actor_critic.policy_gradient import seeded_actor_critic
@@ -559,6 +560,7 @@ RARE_EVALUATIONS = ["--set", "eval_every=1000000"]
 agent's 100-episode evaluations would cost more than its training."""
 
 
+@stop_signal_to_a_process
 def test_sigint_saves_every_seed_and_resume_continues_them_all(tmp_path):
     runs_dir = tmp_path / "runs"
     # Long enough to be training still when each seed's status first shows steps (every 5 s): 60k took
@@ -593,6 +595,7 @@ SMALL_DQN = ["--set", "hidden_sizes=16,16", "--set", "batch_size=32"]
 """A DQN whose gradient steps cost little: what these tests check is the crash safety, not learning."""
 
 
+@kill_9
 @pytest.mark.parametrize(
     ("agent", "budget", "rollout", "settings"), [("ppo", 200_000, 8 * 16, []), ("dqn", 60_000, 8, SMALL_DQN)]
 )

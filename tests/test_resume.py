@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
+from platforms import stop_signal_to_a_process
 
 from cartpole.cli.main import main
 from cartpole.runs import CheckpointError, RunDir, load_checkpoint
@@ -86,10 +87,12 @@ def interrupt(runs_dir: Path, signum: int) -> tuple[RunDir, str]:
     return run, output
 
 
+@stop_signal_to_a_process
 def test_sigterm_stops_cleanly_with_143(tmp_path):
     interrupt(tmp_path / "runs", signal.SIGTERM)
 
 
+@stop_signal_to_a_process
 def test_sigint_then_resume_continues_without_gap_or_duplicate(tmp_path, capsys):
     run, _ = interrupt(tmp_path / "runs", signal.SIGINT)
     before = run.metrics()

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from platforms import proc
 from polling import wait_for
 
 from cartpole.experiments.shared import RowState, SharedComparison
@@ -137,6 +138,7 @@ def finished_records(runs_dir: Path) -> list[dict[str, Any]]:
     return [r for r in records if r.get("state") == "finished"]
 
 
+@proc
 @pytest.mark.slow
 def test_a_job_array_shares_one_comparison_and_survives_a_scancel(tmp_path):
     url = cluster()

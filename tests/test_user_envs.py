@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from platforms import stop_signal_to_a_process
 
 from cartpole.cli.main import main
 from cartpole.envs import env_info
@@ -255,6 +256,7 @@ def test_a_bad_wrapper_is_one_line_exit_2(
     assert message in err and len(err.strip().splitlines()) == 1, err
 
 
+@stop_signal_to_a_process
 def test_a_user_env_with_kwargs_resumes_on_the_env_it_trained_on(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ):

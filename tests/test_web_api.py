@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from platforms import proc, sessions
 
 pytest.importorskip("fastapi", reason="the web app needs fastapi (a dependency of cartpole: reinstall it)")
 pytest.importorskip("httpx", reason="FastAPI's test client needs httpx")
@@ -608,8 +609,10 @@ def alive(pid: int) -> bool:
     return state != "Z"
 
 
-@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads processes from /proc")
-@pytest.mark.parametrize("stop", [signal.SIGTERM, signal.SIGKILL], ids=["sigterm", "kill-9"])
+@proc
+@pytest.mark.parametrize(
+    "stop", [signal.SIGTERM, getattr(signal, "SIGKILL", None)], ids=["sigterm", "kill-9"]
+)  # no SIGKILL on Windows, which has no /proc either: skipped there
 def test_the_episode_worker_ends_with_the_server(tmp_path, stop):
     """However the server ends, the worker processes that compute Watch episodes end with it."""
     with socket.socket() as probe:
@@ -635,7 +638,8 @@ def test_the_episode_worker_ends_with_the_server(tmp_path, stop):
     assert not any(alive(pid) for pid in workers)
 
 
-@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads processes from /proc")
+@proc
+@sessions
 @pytest.mark.parametrize("stop", [signal.SIGTERM, signal.SIGINT], ids=["sigterm", "ctrl-c"])
 def test_serve_stopped_through_its_process_group_ends_without_a_word_from_its_workers(tmp_path, stop):
     """A service manager's SIGTERM, or a terminal's Ctrl+C, reaches the whole process group: server,

@@ -21,13 +21,21 @@ from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
+from platforms import kill_9
 from starlette.websockets import WebSocketDisconnect
 
 from cartpole.cli.main import main as cartpole_main
 from cartpole.runs import RunDir
 from cartpole.training.request import TrainRequest, train_command
 from cartpole.web.app import create_app
-from cartpole.web.trainings import last_problem
+from cartpole.web.trainings import (
+    CTRL_BREAK_EVENT,
+    SIGBREAK,
+    Trainings,
+    ended_well,
+    last_problem,
+    stop_training_process,
+)
 
 sys.path.insert(0, str(Path(__file__).parent))
 from conftest_web import LOCAL, LocalClient
@@ -335,11 +343,13 @@ def test_beyond_max_trainings_a_start_waits_in_the_queue_and_stop_starts_the_nex
 def assert_runs_in_the_background(pid: int) -> None:
     """A training takes only the CPU time the server leaves (Linux's idle class), in the server's
     session (Linux shares CPU time between sessions first) but not its process group (a terminal's
-    Ctrl-C is the server's)."""
+    Ctrl-C is the server's). Windows has neither sessions nor getpgid: there the group of its own
+    (CREATE_NEW_PROCESS_GROUP) is what Stop's Ctrl-Break is sent to."""
     if sys.platform == "linux":
         assert os.sched_getscheduler(pid) == os.SCHED_IDLE
-    assert os.getsid(pid) == os.getsid(0)
-    assert os.getpgid(pid) != os.getpgid(0)
+    if sys.platform != "win32":  # POSIX sessions and process groups
+        assert os.getsid(pid) == os.getsid(0)
+        assert os.getpgid(pid) != os.getpgid(0)
 
 
 def test_a_stop_as_a_training_starts_is_not_lost(tmp_path: Path):
@@ -385,6 +395,33 @@ def test_stopping_the_server_saves_its_trainings_and_the_next_one_resumes_them(t
     assert config["command"] == started["command"]  # a resume keeps the command that made the run
 
 
+def test_a_training_an_earlier_server_left_running_is_stopped_cleanly_by_the_next(tmp_path: Path):
+    """Not the server's child: Stop reaches it through the pid its status names, and it saves and
+    exits as after the Stop button (the same stop_training_process: on Windows a Ctrl-Break, not
+    os.kill's SIGTERM, which is TerminateProcess there)."""
+    earlier = Trainings(tmp_path, max_running=1)  # a server that went away without stopping it
+    long_dqn = {"budget": "2000k", "settings": {"stop_when_solved": False}}
+    started = earlier.start(TrainRequest("dqn", **long_dqn, runs_dir=str(tmp_path)))
+    process = started.process
+    assert process is not None
+    try:
+        wait_for(lambda: (earlier.tick(), started.runs)[1], what="its run folder")
+        (run,) = started.runs
+        wait_for(lambda: trains(tmp_path, run), what="training")
+        with served(tmp_path) as client:
+            assert training(client, started.name)["state"] == "running"
+            assert client.post(f"/api/trainings/{started.name}/stop", headers=BEARER).status_code == 200
+            code = process.wait(60)
+            state_becomes(client, started.name, "stopped")
+    finally:
+        earlier.close(timeout=60)
+    assert code == 128 + signal.SIGTERM and ended_well(code)
+    status = RunDir(tmp_path / run).status()
+    assert status["state"] == "interrupted" and status["stop_detail"] == "interrupted (SIGTERM)", status
+    assert (tmp_path / run / "checkpoints" / "latest.pt").is_file()
+
+
+@kill_9
 def test_a_training_whose_process_dies_shows_why_in_one_line_and_resumes(tmp_path: Path):
     with served(tmp_path) as client:
         started = client.post("/api/trainings", json=LONG_DQN, headers=BEARER).json()
@@ -407,6 +444,71 @@ def test_a_failed_commands_problem_is_its_error_line():
         last_problem("Traceback (most recent call last):\n  ...\nRuntimeError: boom\n")
         == "RuntimeError: boom"
     )
+
+
+# --- how a training is stopped, and the exit codes that are a stop, on each platform --------------
+
+
+@pytest.mark.parametrize(
+    ("platform", "signum"),
+    [("linux", signal.SIGTERM), ("darwin", signal.SIGTERM), ("win32", 1)],
+    ids=["linux", "macos", "windows"],
+)
+def test_a_training_is_stopped_by_the_signal_it_saves_on(platform: str, signum: int):
+    """On Windows os.kill(pid, CTRL_BREAK_EVENT) (1): Ctrl-Break to the process group whose id is
+    pid, the group of its own a training is started in (CREATE_NEW_PROCESS_GROUP); SIGTERM there
+    would be TerminateProcess, which ends it unsaved."""
+    sent: list[tuple[int, int]] = []
+    stop_training_process(4321, kill=lambda pid, signum: sent.append((pid, signum)), platform=platform)
+    assert sent == [(4321, signum)]
+
+
+def test_stopping_a_training_process_that_is_gone_does_nothing():
+    def gone(pid: int, signum: int) -> None:
+        raise ProcessLookupError(pid)
+
+    stop_training_process(4321, kill=gone, platform="linux")
+    stop_training_process(4321, kill=gone, platform="win32")
+
+
+def test_the_windows_numbers_are_windows_own():
+    """signal.CTRL_BREAK_EVENT and signal.SIGBREAK exist only on Windows: checked there."""
+    assert getattr(signal, "CTRL_BREAK_EVENT", CTRL_BREAK_EVENT) == CTRL_BREAK_EVENT == 1
+    assert getattr(signal, "SIGBREAK", SIGBREAK) == SIGBREAK == 21
+
+
+@pytest.mark.parametrize(
+    ("platform", "code"),
+    [
+        ("linux", 0),
+        ("linux", 130),  # saved after SIGINT (Ctrl-C)
+        ("linux", 143),  # saved after SIGTERM (Stop)
+        ("linux", -signal.SIGINT),  # the signal's default, before training's handler: nothing to save
+        ("linux", -signal.SIGTERM),
+        ("darwin", 143),
+        ("win32", 0),
+        ("win32", 130),  # saved after Ctrl-C
+        ("win32", 149),  # saved after Stop's Ctrl-Break: 128 + SIGBREAK (21)
+        ("win32", 0xC000013A),  # STATUS_CONTROL_C_EXIT: Ctrl-Break before training's handler
+    ],
+)
+def test_a_training_that_finished_or_was_stopped_is_no_problem(platform: str, code: int):
+    assert ended_well(code, platform)
+
+
+@pytest.mark.parametrize(
+    ("platform", "code"),
+    [
+        ("linux", 1),  # a traceback
+        ("linux", 2),  # bad input, a full disk
+        ("linux", -9),  # SIGKILL: killed unsaved
+        ("win32", 1),  # a traceback; Popen.kill (TerminateProcess with 1)
+        ("win32", 2),
+        ("win32", 15),  # os.kill(pid, SIGTERM): TerminateProcess with 15, unsaved
+    ],
+)
+def test_a_training_that_failed_or_was_killed_is_a_problem(platform: str, code: int):
+    assert not ended_well(code, platform)
 
 
 def test_an_unknown_training_is_404(tmp_path: Path):

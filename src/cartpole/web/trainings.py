@@ -2,9 +2,9 @@
 
 A training is the command :func:`~cartpole.training.request.train_command` gives for a checked
 request, run as ``python -m cartpole train ...`` in the folder the server was started in: its run
-folders record that command, so the same run starts from a terminal. Stop sends it SIGTERM (as Ctrl-C:
-every seed saves ``latest.pt``); Resume runs ``cartpole train --resume RUN``. At most
-``max_running`` run at once; later ones wait in a queue, in order.
+folders record that command, so the same run starts from a terminal. Stop asks it to stop as Ctrl-C
+does (:func:`stop_training_process`: every seed saves ``latest.pt``); Resume runs ``cartpole train
+--resume RUN``. At most ``max_running`` run at once; later ones wait in a queue, in order.
 
 What the server knows of a training is written to ``<runs>/trainings/<name>.json`` (its request,
 command, run folders, the problem that ended it) and its output to ``<name>.log``; its state is read
@@ -27,6 +27,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from enum import StrEnum
@@ -158,7 +159,7 @@ class Trainings:
             return training
 
     def stop(self, name: str) -> Training:
-        """Stop a training: STOP_SIGNAL to its process (which saves, as after Ctrl-C), or out of the queue."""
+        """Stop a training: its process asked to stop (it saves, as after Ctrl-C), or out of the queue."""
         with self.lock:
             training = self.get(name)
             if training.waiting is not None:
@@ -167,12 +168,12 @@ class Trainings:
                 return training
             if training.running_here():
                 assert training.process is not None
-                training.process.send_signal(STOP_SIGNAL)
+                stop_training_process(training.process.pid)
                 return training
             pid = self.other_process(training)
             if pid is None:
                 raise TrainingError(f"training {name} is not running (it is {self.state(training)})")
-            os.kill(pid, signal.SIGTERM)  # started by an earlier server, still training
+            stop_training_process(pid)  # started by an earlier server, still training
             return training
 
     def resume(self, name: str) -> Training:
@@ -278,7 +279,7 @@ class Trainings:
         if not training.runs:
             self.find_runs(training)
         training.process = None
-        if code not in STOPPED_CODES:
+        if not ended_well(code):
             training.problem = ending_problem(code, self.log_text(training))
             self.save(training)
 
@@ -303,7 +304,7 @@ class Trainings:
             running = [t for t in self.trainings.values() if t.running_here()]
             for training in running:
                 assert training.process is not None
-                training.process.send_signal(STOP_SIGNAL)
+                stop_training_process(training.process.pid)
             deadline = time.monotonic() + timeout
             for training in running:
                 assert training.process is not None
@@ -391,11 +392,42 @@ class Trainings:
             return sorted(rows, key=lambda r: (order.get(r["state"], 2), r["queue_position"] or 0))
 
 
-STOP_SIGNAL = getattr(signal, "CTRL_BREAK_EVENT", signal.SIGTERM)
-"""What stops a training, which saves as after Ctrl-C: SIGTERM (on Windows, Ctrl-Break to its process
-group). Not SIGINT: a process started with SIGINT ignored (a background job of a shell, a test
-runner's worker) keeps ignoring it until training installs its handler, so a Stop pressed as it
-starts was lost; SIGTERM's default, before then, ends it."""
+WINDOWS = "win32"
+"""``sys.platform`` on Windows. The functions that differ there take the platform, so that each
+platform's branch is tested on any machine."""
+CTRL_BREAK_EVENT = 1
+"""``signal.CTRL_BREAK_EVENT`` (Windows' wincon.h; the name exists only on Windows)."""
+SIGBREAK = 21
+"""``signal.SIGBREAK`` (the C runtime's signal.h; only on Windows): the signal a Windows process's C
+runtime raises for a Ctrl-Break event, which ``cartpole train`` handles as it does SIGINT and SIGTERM
+(``training/engine.py: STOP_SIGNALS``)."""
+STATUS_CONTROL_C_EXIT = 0xC000013A
+"""A Windows process's exit code (ntstatus.h) when a Ctrl-C or Ctrl-Break event ended it: no handler
+of its own took the event, so the console's default handler called ExitProcess."""
+
+
+def stop_signal(platform: str = sys.platform) -> int:
+    """What stops a training, which saves as after Ctrl-C: SIGTERM; on Windows Ctrl-Break to its process
+    group. Not SIGINT: a process started with SIGINT ignored (a background job of a shell, a test
+    runner's worker) keeps ignoring it until training installs its handler, so a Stop pressed as it
+    starts was lost; SIGTERM's default, before then, ends it (as Ctrl-Break's does on Windows)."""
+    return CTRL_BREAK_EVENT if platform == WINDOWS else signal.SIGTERM
+
+
+def stop_training_process(
+    pid: int, kill: Callable[[int, int], None] = os.kill, platform: str = sys.platform
+) -> None:
+    """Stop the ``cartpole train`` process ``pid`` cleanly: every seed saves ``latest.pt`` and it exits
+    with a code :func:`ended_well` counts as a stop. The Stop button, the server's close, and a training
+    an earlier server started all stop this way; ``kill`` is ``os.kill`` (a test's seam).
+
+    On POSIX SIGTERM. On Windows ``os.kill(pid, SIGTERM)`` is TerminateProcess, which ends the process
+    unsaved; ``os.kill(pid, CTRL_BREAK_EVENT)`` is GenerateConsoleCtrlEvent to the process group whose
+    id is ``pid``: a training's own group (:func:`own_process_group`: CREATE_NEW_PROCESS_GROUP makes the
+    new process's pid its group's id), which only the processes that share this one's console receive.
+    A process already gone is nothing to stop."""
+    with contextlib.suppress(ProcessLookupError):
+        kill(pid, stop_signal(platform))
 
 
 def own_process_group() -> dict[str, Any]:
@@ -429,8 +461,25 @@ def request_record(request: TrainRequest) -> dict[str, Any]:
     }
 
 
-STOPPED_CODES = frozenset({0, 128 + signal.SIGINT, 128 + signal.SIGTERM, -signal.SIGINT, -signal.SIGTERM})
-"""Exit codes of a ``cartpole train`` that ended well: done, or stopped (it saved first)."""
+POSIX = "posix"
+STOPPED_CODES = {
+    POSIX: frozenset({0, 128 + signal.SIGINT, 128 + signal.SIGTERM, -signal.SIGINT, -signal.SIGTERM}),
+    WINDOWS: frozenset({0, 128 + signal.SIGINT, 128 + SIGBREAK, STATUS_CONTROL_C_EXIT}),
+}
+"""Exit codes of a ``cartpole train`` that ended well, by platform: done (0), or stopped.
+
+POSIX: 128 + the signal once training saved (SIGINT: Ctrl-C, 130; SIGTERM: Stop, 143), or the
+signal's default ended it before training put up its handler, with nothing yet to save (``Popen``'s
+-signal). Windows: 130 (Ctrl-C), 149 (128 + SIGBREAK: Stop's Ctrl-Break) once training saved, or
+STATUS_CONTROL_C_EXIT for a Ctrl-Break before training's handler. A Windows process has no -signal,
+and none of these codes stands for a kill there: TerminateProcess (``os.kill`` with any other signal:
+its number; ``Popen.kill``: 1) ends it unsaved, a problem."""
+
+
+def ended_well(code: int, platform: str = sys.platform) -> bool:
+    """Whether a ``cartpole train`` process that exited with ``code`` on ``platform`` (``sys.platform``)
+    finished or was stopped (it saved first), rather than failed or was killed."""
+    return code in STOPPED_CODES[WINDOWS if platform == WINDOWS else POSIX]
 
 
 def ending_problem(code: int, output: str) -> str:
