@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import html
 import sys
-from collections.abc import Callable, Iterator
+from collections import Counter
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol, runtime_checkable
@@ -19,7 +20,16 @@ from typing import Any, Protocol, runtime_checkable
 import gymnasium as gym
 import numpy as np
 
-from cartpole.envs import EnvInfo, Simulator, as_env_info, describe_kwargs, make_eval_envs, resolve_simulator
+from cartpole.envs import (
+    EnvInfo,
+    Simulator,
+    as_env_info,
+    describe_kwargs,
+    judged_env,
+    make_eval_envs,
+    resolve_simulator,
+)
+from cartpole.envs.judged import cut_by_episode
 from cartpole.envs.params import CartPoleParams
 from cartpole.envs.shards import ShardedEnvs, gather_steps, step_playing
 
@@ -95,6 +105,12 @@ class EvalReport:
     simulator_only: list[str] = field(default_factory=list)
     """The kwargs that Gymnasium's own env does not take (CartPole's physics constants): the
     episodes were played on our simulator, whatever was asked."""
+    training_only: list[str] = field(default_factory=list)
+    """The kwargs that are ``gymnasium.make``'s own arguments (``max_episode_steps``): training took
+    them, the episodes here were played without them (the registry's time limit)."""
+    cut_by: dict[str, int] = field(default_factory=dict)
+    """Episodes a wrapper ended before the env did, by the wrapper (:mod:`cartpole.envs.judged`):
+    such an episode is not the env's, so a report with any calls nothing solved."""
     mean: float = field(init=False)
     std: float = field(init=False)
     min: float = field(init=False)
@@ -110,6 +126,7 @@ class EvalReport:
         solved = (
             self.threshold is not None
             and self.episodes >= MIN_EPISODES_FOR_SOLVED
+            and not self.cut_by
             and self.mean >= self.threshold
         )
         object.__setattr__(self, "solved", bool(solved))
@@ -125,7 +142,18 @@ class EvalReport:
         where = f"{self.env_label}, {self.simulator} simulator"
         if self.simulator_only:
             where += f": Gymnasium's {self.env_id} does not take {', '.join(self.simulator_only)}"
+        if self.training_only:
+            limit = (
+                f"the registry's {self.max_episode_steps}-step limit" if self.max_episode_steps else "none"
+            )
+            where += f"; {', '.join(self.training_only)} for training only: judged with {limit}"
         summary = f"mean {self.mean:.1f} ± {self.std:.1f} over {self.episodes} episodes"
+        if self.cut_by:
+            cuts = ", ".join(f"{label} ended {count}" for label, count in self.cut_by.items())
+            return (
+                f"NO VERDICT: {summary}; {cuts} of them before the env did, and Gymnasium's rule counts "
+                f"the env's whole episodes (with negative rewards a cut episode scores higher) ({where})"
+            )
         if self.threshold is None:
             return f"NO VERDICT: {summary}; {self.env_id} registers no reward_threshold ({where})"
         rule = f"{self.threshold:g}"
@@ -163,21 +191,32 @@ class EvalReport:
 
     @classmethod
     def played(
-        cls, env: EnvInfo, simulator: str, returns: list[float], lengths: list[int], seeds: list[int]
+        cls,
+        env: EnvInfo,
+        simulator: str,
+        returns: list[float],
+        lengths: list[int],
+        seeds: list[int],
+        cut_by: Sequence[str | None] = (),
     ) -> EvalReport:
-        """The report of episodes played on ``env`` (as configured) on ``simulator`` (the one that
-        really ran them: see :func:`~cartpole.envs.resolve_simulator`)."""
+        """The report of episodes played on ``env`` (as configured; as a verdict plays it:
+        :func:`~cartpole.envs.judged_env`) on ``simulator`` (the one that really ran them: see
+        :func:`~cartpole.envs.resolve_simulator`); ``cut_by``: for each episode, the wrapper that
+        ended it before the env did, if any."""
+        judged = judged_env(env)
         return cls(
             env_id=env.env_id,
-            simulator=resolve_simulator(env, simulator),
+            simulator=resolve_simulator(judged, simulator),
             returns=returns,
             lengths=lengths,
             seeds=seeds,
-            threshold=env.reward_threshold,
-            max_episode_steps=env.max_episode_steps,
+            threshold=judged.reward_threshold,
+            max_episode_steps=judged.max_episode_steps,
             env_kwargs=dict(env.kwargs),
             wrappers=[wrapper.label for wrapper in env.wrappers],
             simulator_only=list(env.simulator_only),
+            training_only=list(env.training_only),
+            cut_by=dict(Counter(label for label in cut_by if label is not None)),
         )
 
     @classmethod
@@ -192,7 +231,9 @@ class EvalReport:
             "max_episode_steps",
         )
         optional = {
-            k: data[k] for k in ("env_kwargs", "wrappers", "simulator_only") if k in data
+            k: data[k]
+            for k in ("env_kwargs", "wrappers", "simulator_only", "training_only", "cut_by")
+            if k in data
         }  # newer than the rest
         return cls(**{k: data[k] for k in keys}, **optional)
 
@@ -264,6 +305,7 @@ def play_greedy_blocks(
     simulator: Simulator,
     block_size: int,
     workers: int = 1,
+    cut_by: list[str | None] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`play_greedy_episodes` for many policies: the episodes come in blocks of
     ``block_size`` (block b: ``seeds[b * block_size:(b + 1) * block_size]``, played by policy b), and
@@ -274,7 +316,10 @@ def play_greedy_blocks(
     ``workers`` > 1: Gymnasium's pictures (a pixel env on ``"gymnasium"``, slow to draw: see
     benchmarks/README.md#renderer) are drawn by that many processes
     (:func:`~cartpole.envs.make_eval_envs`); the episodes are the same, and meanwhile a torch policy
-    acts on one thread (:func:`_one_torch_thread_while_workers_draw`)."""
+    acts on one thread (:func:`_one_torch_thread_while_workers_draw`).
+
+    ``cut_by``, when given, receives for each episode the wrapper that ended it before the env did
+    (None: the env ended it; :mod:`cartpole.envs.judged`)."""
     n = len(seeds)
     if n % block_size:
         raise ValueError(f"{n} episodes do not split into blocks of {block_size}")
@@ -284,7 +329,10 @@ def play_greedy_blocks(
     envs = make_eval_envs(info, n, simulator=simulator, workers=workers)
     try:
         with _one_torch_thread_while_workers_draw(envs):
-            return _play_blocks(act, envs, info, seeds, block_size)
+            played = _play_blocks(act, envs, info, seeds, block_size)
+        if cut_by is not None:
+            cut_by += cut_by_episode(envs.envs) if isinstance(envs, gym.vector.SyncVectorEnv) else [None] * n
+        return played
     finally:
         envs.close()
 
@@ -394,7 +442,9 @@ def evaluate(
     ``workers``: how many processes draw Gymnasium's pictures for a pixel env (see
     :func:`play_greedy_blocks`). ``env``: an id, or an env as configured (:func:`~cartpole.envs.env_info`
     with kwargs and wrappers): the policy plays through its wrappers, but the returns are the env's
-    own reward over its own episodes (:mod:`cartpole.envs.judged`), so no wrapper changes the rule.
+    own reward over its own episodes (:mod:`cartpole.envs.judged`), so no wrapper changes the rule
+    (an episode a wrapper ends early leaves no verdict), and ``gymnasium.make``'s own arguments among
+    its kwargs (``max_episode_steps``) are left out: the registry's time limit judges.
     """
     if not 1 <= episodes <= MAX_EPISODES:
         raise ValueError(f"episodes must be between 1 and {MAX_EPISODES:,}, got {episodes:,}")
@@ -407,11 +457,12 @@ def evaluate(
     seeds = [seed + i for i in range(episodes)]
     returns: list[float] = []
     lengths: list[int] = []
+    cut_by: list[str | None] = []
     for start in range(0, episodes, MAX_ENVS_PER_BATCH):
         batch = seeds[start : start + MAX_ENVS_PER_BATCH]
         batch_returns, batch_lengths = play_greedy_blocks(
-            _PolicyActor(policy), info, batch, used, len(batch), workers
+            _PolicyActor(policy), info, batch, used, len(batch), workers, cut_by
         )
         returns += batch_returns.tolist()
         lengths += batch_lengths.tolist()
-    return EvalReport.played(info, used, returns, lengths, seeds)
+    return EvalReport.played(info, used, returns, lengths, seeds, cut_by)

@@ -20,7 +20,7 @@ import numpy as np
 
 from cartpole.core.errors import InputError
 from cartpole.core.memory import SHARE, describe_bytes, fits_in_memory
-from cartpole.envs import EnvInfo, as_env_info, env_info, fast_env_id, registered_spec
+from cartpole.envs import EnvInfo, as_env_info, env_info, fast_env_id, judged_env, registered_spec
 from cartpole.envs.judged import make_judged_env
 from cartpole.envs.registration import PIXEL_REFERENCE_IDS
 from cartpole.evaluation import Policy
@@ -80,7 +80,7 @@ def render_episodes(
     gym_id = PIXEL_REFERENCE_IDS.get(fast_env_id(env_id)) or env_id.removeprefix("cartpole/")
     try:
         if info.configured:  # through its wrappers, with the env's own reward (as its verdict plays it)
-            env = make_judged_env(info, render_mode="rgb_array")
+            env = make_judged_env(judged_env(info), render_mode="rgb_array")
         else:
             env = gym.make(registered_spec(gym_id), render_mode="rgb_array")
         if gym_id != env_id.removeprefix("cartpole/"):  # a pixel env: its agent sees the pictures

@@ -141,3 +141,17 @@ def _print_preset(console: Any, name: str, values: dict[str, Any]) -> None:
     console.print(f"  [cyan]{name}[/]: {values.get('description', '')}", highlight=False)
     settings = ", ".join(f"{k}={v}" for k, v in values.items() if k != "description")
     console.print(f"    {settings}", highlight=False)
+    console.print(f"    solves: {stop_rule(values)}", highlight=False)
+
+
+def stop_rule(values: dict[str, Any]) -> str:
+    """What a preset's solve does to its training, in words (TrainSettings' stop_when_solved and
+    confirm_solves, the defaults where the preset leaves them)."""
+    from cartpole.training.config import TrainSettings
+
+    defaults = TrainSettings()
+    if not values.get("stop_when_solved", defaults.stop_when_solved):
+        return "no solve stops training (the whole budget runs); the verdict judges the kept best"
+    if values.get("confirm_solves", defaults.confirm_solves):
+        return "a passing 100-episode evaluation stops training once the next 100 episodes pass too"
+    return "the first passing 100-episode evaluation stops training (no second one: confirm_solves=false)"

@@ -33,6 +33,7 @@ from cartpole.envs.spec import (
     check_wrappers,
     describe_kwargs,
     env_info,
+    judged_env,
     make_env,
     registered_spec,
 )
@@ -129,8 +130,9 @@ def make_eval_envs(
     pixel env on ``simulator="gymnasium"``) are drawn by ``workers`` processes when ``workers`` > 1
     (:class:`~cartpole.envs.shards.ShardedEnvs`: the same episodes, sooner), that our fast
     CartPole steps in :data:`EVAL_DTYPE` (Gymnasium's bits), and that an env with wrappers reports
-    the env's own reward (:mod:`cartpole.envs.judged`)."""
-    info = as_env_info(env)
+    the env's own reward over its own episodes (:mod:`cartpole.envs.judged`), with the registry's time
+    limit (:func:`~cartpole.envs.spec.judged_env`)."""
+    info = judged_env(as_env_info(env))
     if workers > 1 and info.pixels_of and resolve_simulator(info, simulator) == "gymnasium":
         from cartpole.envs.shards import ShardedEnvs
 
@@ -157,6 +159,7 @@ __all__ = [
     "describe_kwargs",
     "env_info",
     "fast_env_id",
+    "judged_env",
     "make_env",
     "make_eval_envs",
     "make_vec_env",

@@ -16,6 +16,7 @@ on our simulator, and its :attr:`EnvInfo.simulator_only` names them.
 from __future__ import annotations
 
 import importlib
+import inspect
 import json
 import math
 import sys
@@ -158,6 +159,14 @@ def describe_kwargs(kwargs: Mapping[str, Any]) -> str:
     return ", ".join(f"{k}={json.dumps(v)}" for k, v in kwargs.items())
 
 
+MAKE_ARGUMENTS = frozenset(
+    name for name in inspect.signature(gym.make).parameters if name not in ("id", "kwargs")
+)
+"""``gymnasium.make``'s own arguments (``max_episode_steps``, ``autoreset``, ``disable_env_checker``,
+...): in ``--env-kwargs`` they change how the env is made, not the env. Training takes them; a
+verdict leaves them out (:func:`judged_env`), so that the registry's time limit judges."""
+
+
 @dataclass(frozen=True)
 class EnvInfo:
     """Spaces and limits of one Gymnasium environment as configured (its id, kwargs and wrappers)."""
@@ -185,6 +194,12 @@ class EnvInfo:
     def __post_init__(self) -> None:
         if not self.obs_shape:
             object.__setattr__(self, "obs_shape", (self.obs_dim,))
+
+    @property
+    def training_only(self) -> tuple[str, ...]:
+        """The kwargs that are ``gymnasium.make``'s own arguments (:data:`MAKE_ARGUMENTS`), which a
+        verdict leaves out."""
+        return tuple(name for name in self.kwargs if name in MAKE_ARGUMENTS)
 
     @property
     def made_id(self) -> str:
@@ -267,6 +282,16 @@ def make_env(env: EnvInfo, **make_args: Any) -> gym.Env[Any, Any]:
     ``make_args``, e.g. ``render_mode``), inside its wrappers; on our simulator where
     :attr:`EnvInfo.simulator_only`."""
     return _make(env.made_id, env.kwargs, env.wrappers, **make_args)
+
+
+def judged_env(env: EnvInfo) -> EnvInfo:
+    """The env a verdict plays: ``env`` as configured but for its :attr:`~EnvInfo.training_only`
+    kwargs (``max_episode_steps=1000`` trains on 1000-step episodes; the verdict keeps the
+    registry's limit, and says so)."""
+    if not env.training_only:
+        return env
+    kept = {name: value for name, value in env.kwargs.items() if name not in MAKE_ARGUMENTS}
+    return env_info(env.env_id, kept, env.wrappers)
 
 
 def _make(

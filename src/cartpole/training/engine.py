@@ -138,8 +138,15 @@ class PopulationEvaluations:
         """Seed i's greedy policy plays episodes from ``first_seeds[i], first_seeds[i] + 1, ...``."""
         episode_seeds = [[first + i for i in range(episodes)] for first in first_seeds]
         flat = [s for row in episode_seeds for s in row]
+        cut_by: list[str | None] = []
         returns, lengths = play_greedy_blocks(
-            self.population.greedy_actor(seeds), self.env, flat, simulator, episodes, picture_workers()
+            self.population.greedy_actor(seeds),
+            self.env,
+            flat,
+            simulator,
+            episodes,
+            picture_workers(),
+            cut_by,
         )
         return [
             EvalReport.played(
@@ -148,6 +155,7 @@ class PopulationEvaluations:
                 returns[i * episodes : (i + 1) * episodes].tolist(),
                 lengths[i * episodes : (i + 1) * episodes].tolist(),
                 row,
+                cut_by[i * episodes : (i + 1) * episodes],
             )
             for i, row in enumerate(episode_seeds)
         ]
@@ -376,13 +384,21 @@ def play_final_episodes(members: list[Member], checkpoint: CheckpointName) -> di
     act = first.spec.policies_actor(policies, first.env.obs_dim)
 
     flat_seeds = [s for row in episode_seeds for s in row]
+    cut_by: list[str | None] = []
     returns, lengths = (
         x.reshape(len(members), episodes)
-        for x in play_greedy_blocks(act, first.env, flat_seeds, simulator, episodes, picture_workers())
+        for x in play_greedy_blocks(
+            act, first.env, flat_seeds, simulator, episodes, picture_workers(), cut_by
+        )
     )
     return {
         member.seed: EvalReport.played(
-            first.env, simulator, returns[i].tolist(), lengths[i].tolist(), episode_seeds[i]
+            first.env,
+            simulator,
+            returns[i].tolist(),
+            lengths[i].tolist(),
+            episode_seeds[i],
+            cut_by[i * episodes : (i + 1) * episodes],
         )
         for i, member in enumerate(members)
     }
