@@ -174,6 +174,17 @@ def test_train_and_eval_give_no_verdict_through_a_cutting_wrapper(
     assert "NO VERDICT" in again and CUT_LABEL in again
 
 
+def test_the_notebook_api_gives_no_verdict_through_a_cutting_wrapper(tmp_path: Path) -> None:
+    import cartpole
+
+    run = cartpole.train(
+        "cem", "MountainCar-v0", budget="2gen", runs_dir=tmp_path, progress=False, wrappers=[CUT]
+    )
+    assert run.report is not None and run.report.cut_by == {CUT_LABEL: 100} and not run.solved
+    again = run.evaluate(100, seed=0)  # the run's own env: through its wrappers
+    assert again.cut_by == {CUT_LABEL: 100} and again.verdict.startswith("NO VERDICT")
+
+
 def test_presets_say_how_a_solve_stops_their_training(capsys: pytest.CaptureFixture[str]) -> None:
     """The README's solve sentence points here: each preset says whether a solve is confirmed."""
     assert main(["presets", "ppo"]) == 0

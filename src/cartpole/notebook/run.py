@@ -86,11 +86,13 @@ class Run:
         return show(self.path, self.env_id, episodes=episodes, seed=seed, mode=mode)
 
     def evaluate(self, episodes: int = MIN_EPISODES_FOR_SOLVED, seed: int | None = None) -> EvalReport:
-        """The run's kept best policy on ``episodes`` greedy episodes of Gymnasium's own env, from
-        fresh seeds unless ``seed`` is given: Gymnasium's rule, as ``cartpole eval`` judges."""
-        from cartpole.agents.registry import load_policy
+        """The run's kept best policy on ``episodes`` greedy episodes of Gymnasium's own env as the run
+        trained on it (its kwargs and wrappers; the env's own reward and episodes), from fresh seeds
+        unless ``seed`` is given: Gymnasium's rule, as ``cartpole eval`` judges."""
+        from cartpole.agents.registry import open_policy
 
-        return evaluate(load_policy(self.path), self.env_id, episodes, seed)
+        opened = open_policy(self.path)
+        return evaluate(opened.policy, opened.env, episodes, seed)
 
     def __repr__(self) -> str:
         s = self.summary
