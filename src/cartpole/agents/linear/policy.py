@@ -3,7 +3,9 @@
 For two actions, ``action = 1 if w . s (+ b) > 0 else 0`` (the second tutorial's policy); for more
 actions, ``argmax(s W + b)``. With an :class:`ObservationScaling` the policy reads each observation
 dimension scaled from its finite Box bounds to [-1, 1], and the scaling is saved with the policy.
-:func:`play_candidates` plays K candidates' episodes in one vector env, all at once.
+:func:`play_candidates` plays K candidates' episodes in one vector env, all at once. A candidate's
+scores are float64 sums in our fixed order (:func:`~cartpole.agents.nn.fixed_order.matmul_arrays`),
+so a seed's candidates act the same whatever other seeds' candidates share the batch.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from cartpole.agents.nn.fixed_order import matmul_arrays
 from cartpole.core.config import require
 from cartpole.runs import Checkpoint
 
@@ -94,10 +97,9 @@ def batched_actions(params: np.ndarray, observations: np.ndarray, shape: LinearP
         d = shape.obs_dim
         if shape.scaling is not None:
             observations = shape.scaling.apply(observations)
-        scores = np.einsum("kmd,kd->km", observations, params[:, :d])
-        if shape.bias:
-            scores += params[:, d, None]
-        return (scores > 0).astype(np.int64)
+        bias = params[:, d, None, None] if shape.bias else None
+        scores = matmul_arrays(np.asarray(observations, dtype=np.float64), params[:, :d, None], bias)
+        return (scores[..., 0] > 0).astype(np.int64)
     return batched_scores(params, observations, shape).argmax(axis=-1)
 
 
@@ -108,9 +110,8 @@ def batched_scores(params: np.ndarray, observations: np.ndarray, shape: LinearPo
         observations = shape.scaling.apply(observations)
     columns = 1 if n == 2 else n
     weights = params[:, : d * columns].reshape(-1, d, columns)
-    scores = observations @ weights
-    if shape.bias:
-        scores = scores + params[:, d * columns :].reshape(-1, 1, columns)
+    bias = params[:, d * columns :].reshape(-1, 1, columns) if shape.bias else None
+    scores = matmul_arrays(np.asarray(observations, dtype=np.float64), weights, bias)
     if n == 2:  # one score s: action 1 iff s > 0, so argmax([-s, s]) gives it (ties go to 0)
         return np.concatenate([-scores, scores], axis=-1)
     return scores

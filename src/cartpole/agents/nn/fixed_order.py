@@ -73,15 +73,20 @@ def matmul(
     return torch.from_numpy(result) if out is None else out.copy_(torch.from_numpy(result))
 
 
-def matmul_arrays(x: np.ndarray, weight: np.ndarray, bias: np.ndarray) -> np.ndarray:
-    """``x @ weight + bias`` of float32 arrays, in the order of :func:`matmul`: ``x`` [S, B, in] or
-    [B, in], ``weight`` [S, in, out] or [in, out], ``bias`` broadcast from [S or 1, 1, out] or [out];
-    the result has ``x``'s number of dimensions (a NumPy twin's layer)."""
+def matmul_arrays(x: np.ndarray, weight: np.ndarray, bias: np.ndarray | None = None) -> np.ndarray:
+    """``x @ weight + bias`` of NumPy arrays, in the order of :func:`matmul` (float32, or float64
+    for the linear policies): ``x`` [S, B, in] or [B, in], ``weight`` [S, in, out] or [in, out],
+    ``bias`` broadcast from [S or 1, 1 or B, out or 1] or [out] (default 0); the result has ``x``'s
+    number of dimensions and dtype (a NumPy twin's layer, a linear policy's scores)."""
+    dtype = x.dtype if x.dtype == np.float64 else np.dtype(np.float32)
     stacked = x.ndim == 3
-    a = (x if stacked else x[None]).astype(np.float32, copy=False)
-    b = np.ascontiguousarray(weight if weight.ndim == 3 else weight[None], dtype=np.float32)
-    c = bias.reshape(bias.shape[0] if bias.ndim == 3 else 1, 1, bias.shape[-1]).astype(np.float32, copy=False)
-    out = np.empty((max(a.shape[0], b.shape[0]), a.shape[1], b.shape[2]), dtype=np.float32)
+    a = (x if stacked else x[None]).astype(dtype, copy=False)
+    b = np.ascontiguousarray(weight if weight.ndim == 3 else weight[None], dtype=dtype)
+    if bias is None:
+        c = np.zeros((1, 1, 1), dtype=dtype)
+    else:
+        c = (bias if bias.ndim == 3 else bias.reshape(1, 1, -1)).astype(dtype, copy=False)
+    out = np.empty((max(a.shape[0], b.shape[0]), a.shape[1], b.shape[2]), dtype=dtype)
     if a.shape[0] != out.shape[0]:  # one input for every network
         a = np.broadcast_to(a, (out.shape[0], *a.shape[1:]))
     kernels().matmul_into(a, b, c, out)
