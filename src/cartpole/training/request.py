@@ -16,7 +16,7 @@ from __future__ import annotations
 import re
 from collections import Counter
 from collections.abc import Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field, fields
 from typing import Any
 
@@ -98,8 +98,11 @@ def plan_training(
             budget = parse_budget(budget)
         budget = budget or parse_budget(settings.budget)
         check_budget_unit(budget, agent, spec.iteration)
-    with about("seeds"):
+    try:
         check_memory(spec, config, env, seeds)
+    except InputError as err:
+        err.field = err.field or memory_field(spec, env, seeds, preset, dict(overrides or {}))
+        raise
     return TrainPlan(spec, env, preset, config, settings, budget)
 
 
@@ -115,6 +118,26 @@ def setting_named(message: str, spec: AgentSpec) -> str | None:
 
 def setting_names(spec: AgentSpec) -> set[str]:
     return {f.name for f in fields(spec.config_cls)} | {f.name for f in fields(TrainSettings)}
+
+
+def memory_field(spec: AgentSpec, env: EnvInfo, seeds: int, preset: str, overrides: dict[str, Any]) -> str:
+    """The input a training too big for the memory is about: the first setting given without which
+    it fits (an oversized ``hidden_sizes``); else ``seeds`` when one seed fits; else ``settings``
+    (several given settings together), or ``preset`` when none is given."""
+    for name in overrides:
+        rest = {key: value for key, value in overrides.items() if key != name}
+        try:
+            config, _ = resolve_config(spec.name, spec.config_cls, preset, rest)
+            check_memory(spec, config, env, seeds)
+        except InputError:
+            continue
+        return name
+    if seeds > 1:
+        config, _ = resolve_config(spec.name, spec.config_cls, preset, overrides)
+        with suppress(InputError):
+            check_memory(spec, config, env, 1)
+            return "seeds"
+    return "settings" if overrides else "preset"
 
 
 def check_memory(spec: AgentSpec, config: Any, env: EnvInfo, seeds: int) -> None:

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
-from pathlib import Path
 from typing import Annotated, Any
 
 from fastapi import APIRouter, HTTPException, Query, Request
@@ -16,6 +14,7 @@ from cartpole.core.names import RunState
 from cartpole.core.version import __version__
 from cartpole.envs import env_info
 from cartpole.runs import CheckpointError, RunDir, RunError
+from cartpole.web.answers import Refused, shown_paths, shown_root
 from cartpole.web.episodes import MAX_NUDGE, UNLIMITED_STEPS, EpisodesBusy, EpisodeWorkers
 from cartpole.web.physics import (
     PHYSICS_LABELS,
@@ -117,34 +116,6 @@ def folder(request: Request) -> RunsFolder:
     return request.app.state.runs
 
 
-def shown_root(runs: RunsFolder) -> str:
-    """The runs folder as the pages show it: as given when relative, else only its name (where it is
-    on this machine is nobody else's business)."""
-    return runs.root.name if runs.root.is_absolute() else str(runs.root)
-
-
-def relative_paths(value: Any, runs: RunsFolder) -> Any:
-    """``value`` (text, or lists and dicts of it) with every path inside the runs folder made relative
-    to it, and the runs folder itself replaced by how the pages show it."""
-    if isinstance(value, str):
-        for root in _spellings(runs.root):
-            value = value.replace(root + "/", "").replace(root, shown_root(runs))
-        return value
-    if isinstance(value, list):
-        return [relative_paths(v, runs) for v in value]
-    if isinstance(value, dict):
-        return {k: relative_paths(v, runs) for k, v in value.items()}
-    return value
-
-
-def _spellings(root: Path) -> list[str]:
-    """The runs folder's absolute path as written (resolved and not), longest first."""
-    names = {str(root.absolute())}
-    with contextlib.suppress(OSError):
-        names.add(str(root.resolve()))
-    return sorted((n for n in names if n != "/"), key=len, reverse=True)
-
-
 def open_run(request: Request, name: str) -> RunDir:
     try:
         return folder(request).run(name)
@@ -157,7 +128,7 @@ def info(request: Request) -> dict[str, Any]:
     """Version, the runs folder, and the physics a page may change (defaults and ranges)."""
     return {
         "version": __version__,
-        "runs_dir": shown_root(folder(request)),
+        "runs_dir": shown_root(folder(request).root),
         "physics": {
             "defaults": default_physics(),
             "limits": PHYSICS_LIMITS,
@@ -172,17 +143,17 @@ def runs(request: Request) -> dict[str, Any]:
     """Every run folder, newest first; half-written or unreadable ones are listed with their problem."""
     runs_folder = folder(request)
     try:
-        rows, problem = relative_paths(runs_folder.summaries(), runs_folder), None
+        rows, problem = shown_paths(runs_folder.summaries(), runs_folder.root), None
     except RunError as err:
-        rows, problem = [], relative_paths(str(err), runs_folder)
-    return {"runs_dir": shown_root(runs_folder), "runs": rows, "problem": problem}
+        rows, problem = [], shown_paths(str(err), runs_folder.root)
+    return {"runs_dir": shown_root(runs_folder.root), "runs": rows, "problem": problem}
 
 
 @router.get("/runs/{name}")
 def run_detail(request: Request, name: str) -> dict[str, Any]:
     """One run: summary, config, status, evaluation report, checkpoints, env threshold."""
     runs = folder(request)
-    return relative_paths(runs.detail(open_run(request, name)), runs)
+    return shown_paths(runs.detail(open_run(request, name)), runs.root)
 
 
 @router.get("/runs/{name}/metrics", response_model=MetricsOut)
@@ -204,13 +175,15 @@ def physics_query(name: str) -> Any:
 
 def nudges_from_query(steps: list[int], changes: list[float], max_steps: int) -> dict[int, float]:
     if len(steps) != len(changes):
-        raise HTTPException(422, "give one nudge value per nudge_at step (same count of each)")
+        raise Refused(422, "give one nudge value per nudge_at step (same count of each)", "nudge")
     nudges: dict[int, float] = {}
     for step, change in zip(steps, changes, strict=True):
         if not 0 <= step < max_steps:
-            raise HTTPException(422, f"nudge_at must be between 0 and {max_steps - 1}, got {step}")
+            raise Refused(422, f"nudge_at must be between 0 and {max_steps - 1}, got {step}", "nudge_at")
         if not -MAX_NUDGE <= change <= MAX_NUDGE:
-            raise HTTPException(422, f"nudge must be between -{MAX_NUDGE:g} and {MAX_NUDGE:g}, got {change}")
+            raise Refused(
+                422, f"nudge must be between -{MAX_NUDGE:g} and {MAX_NUDGE:g}, got {change}", "nudge"
+            )
         nudges[step] = nudges.get(step, 0.0) + change
     return nudges
 

@@ -14,19 +14,19 @@ from collections.abc import AsyncIterator, Callable, Iterable
 from contextlib import asynccontextmanager
 from pathlib import Path
 
-from fastapi import FastAPI, Request
-from fastapi.responses import FileResponse, JSONResponse
+from fastapi import FastAPI
+from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
-from starlette.exceptions import HTTPException
-from starlette.middleware.trustedhost import TrustedHostMiddleware
 
 from cartpole.core.version import __version__
 from cartpole.web import api, experiments_api, live, trainings_api
+from cartpole.web.answers import install_handlers
 from cartpole.web.episodes import EpisodeWorkers
 from cartpole.web.experiments_folder import ExperimentsFolder
 from cartpole.web.replay import Replays
 from cartpole.web.runs_folder import RunsFolder
 from cartpole.web.security import (
+    OwnHosts,
     SameOriginWebSockets,
     SecurityHeaders,
     TokenGate,
@@ -66,6 +66,10 @@ def create_app(
     Starting, stopping and resuming trainings needs ``token`` (None: a new random one, in
     ``app.state.token``); ``read_only`` refuses every change; ``reads_need_token`` asks the token of
     every request. At most ``max_trainings`` train at once (None: one per core).
+
+    A request names envs only from the app's own list (``envs.py``: nothing it names is imported);
+    answers name no path of this machine, and every refusal is ``{"detail": one line, "field"}``
+    (``answers.py``).
     """
     # /docs and /redoc would load Swagger UI from a CDN; the schema itself is served at /openapi.json.
     app = FastAPI(
@@ -84,13 +88,13 @@ def create_app(
     app.state.trainings = (
         None if read_only else Trainings(Path(runs_dir), max_trainings or default_max_trainings())
     )
-    app.add_exception_handler(HTTPException, _without_machine_paths)
+    install_handlers(app)  # every refusal {"detail": one line, "field"}, naming no path of this machine
     # Outermost last: headers on every answer, then the URL size, the Host, the WebSocket Origin, the token.
     app.add_middleware(
         TokenGate, token=app.state.token, read_only=read_only, reads_need_token=reads_need_token
     )
     app.add_middleware(SameOriginWebSockets)
-    app.add_middleware(TrustedHostMiddleware, allowed_hosts=allowed_hosts(allow_hosts), www_redirect=False)
+    app.add_middleware(OwnHosts, allowed_hosts=allowed_hosts(allow_hosts))
     app.add_middleware(URLLengthLimit)
     app.add_middleware(SecurityHeaders)
     app.include_router(api.router)
@@ -101,13 +105,6 @@ def create_app(
     for route, page in PAGES.items():
         app.add_api_route(route, _page(page), include_in_schema=False, methods=["GET"])
     return app
-
-
-async def _without_machine_paths(request: Request, exc: Exception) -> JSONResponse:
-    """An HTTPException's answer, with any path of the runs folder on this machine made relative."""
-    assert isinstance(exc, HTTPException)
-    detail = api.relative_paths(exc.detail, request.app.state.runs)
-    return JSONResponse({"detail": detail}, status_code=exc.status_code, headers=exc.headers)
 
 
 @asynccontextmanager

@@ -12,7 +12,7 @@ from fastapi import APIRouter, HTTPException, Path, Request
 from fastapi.responses import FileResponse, PlainTextResponse
 from pydantic import BaseModel
 
-from cartpole.web.api import relative_paths
+from cartpole.web.answers import shown_paths
 from cartpole.web.experiments_folder import (
     ExperimentOut,
     ExperimentRow,
@@ -40,7 +40,7 @@ def experiments_folder(request: Request) -> ExperimentsFolder:
 
 
 def _shown(request: Request, value: Any) -> Any:
-    return relative_paths(value, request.app.state.runs)
+    return shown_paths(value, request.app.state.runs.root)
 
 
 @router.get("/experiments", response_model=ExperimentsOut)

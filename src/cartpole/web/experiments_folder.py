@@ -5,7 +5,8 @@ solve_steps.png) and ``cartpole sweep`` writes ``RUNS_DIR/sweeps/NAME/`` (sweep.
 journal ``journal.log``, best.toml). A name from a URL must name a folder directly inside one of these
 (no separators, no ``..``, no hidden names, no link out of the runs folder), and only the files named
 here are ever opened, each a regular file (a symlink is not followed). Answers name no path of this
-machine: run folders by their name, preset files outside the runs folder by their file name.
+machine: run folders by their name, preset files outside the runs folder by their file name
+(:func:`~cartpole.web.answers.shown_paths`).
 
 A file that cannot be read or does not have the expected form is a listed problem, never an error
 answer: the page shows what it could read and says what it could not.
@@ -23,6 +24,7 @@ from typing import Any
 from pydantic import BaseModel, Field, ValidationError
 
 from cartpole.runs.run_dir import read_json
+from cartpole.web.answers import shown_paths, shown_root
 from cartpole.web.runs_folder import SAFE_NAME, NotFound, inside
 from cartpole.web.shared_reports import SharedReport, SharedReports, SharedStatus
 
@@ -30,7 +32,6 @@ EXPERIMENTS = "experiments"
 SWEEPS = "sweeps"
 FIGURES = ("curves", "solve_steps", "performance_profile", "improvement")
 """The figures ``cartpole compare`` draws, as ``NAME.png``."""
-ABSOLUTE_PATH = re.compile(r"(?<![\w.])/(?:[^\s/:'\"]+/)*([^\s/:'\"]+)")
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -188,20 +189,6 @@ class SweepOut(BaseModel):
 # ---------------------------------------------------------------------------------------------------
 
 
-def shown_path(text: str, root: Path) -> str:
-    """``text`` with each absolute path made relative to the runs folder ``root`` when inside it, else
-    cut to its last part (a preset file given by its full path shows as ``best.toml``)."""
-
-    def shorten(match: re.Match[str]) -> str:
-        path = Path(match.group(0))
-        for base in {root.absolute(), root.resolve()}:
-            if path.is_relative_to(base):
-                return str(path.relative_to(base)) or "."
-        return match.group(1)
-
-    return ABSOLUTE_PATH.sub(shorten, text)
-
-
 def _modified(path: Path) -> str | None:
     try:
         stamp = path.stat().st_mtime
@@ -294,7 +281,7 @@ class ExperimentsFolder:
             "problem": shared_problem or problem,
             "shared": shared.status if shared else None,
             "figures": [f for f in FIGURES if _regular_file(figures_folder / f"{f}.png", figures_folder)],
-            "command": [shown_path(c, self.root) for c in command] if command else None,
+            "command": [shown_paths(c, self.root) for c in command] if command else None,
             "runs_folder": f"{EXPERIMENTS}/{name}/runs",
             "updated": _modified(folder / "report.json"),
         }
@@ -344,8 +331,8 @@ class ExperimentsFolder:
             why = f"{where}: {first['msg']}"
             return None, f"report.json does not have the form `cartpole compare` writes ({why})"
         for entry in report.entries:
-            entry.entry = shown_path(entry.entry, self.root)
-            entry.preset = shown_path(entry.preset, self.root)
+            entry.entry = shown_paths(entry.entry, self.root)
+            entry.preset = shown_paths(entry.preset, self.root)
             entry.run_folders = [Path(p).name for p in entry.run_folders]
         return report, None
 
@@ -424,7 +411,7 @@ class ExperimentsFolder:
         best_toml = None
         if _regular_file(best_path, folder):
             try:
-                best_toml = shown_path(best_path.read_text(encoding="utf-8"), self.root)
+                best_toml = shown_paths(best_path.read_text(encoding="utf-8"), self.root)
             except (OSError, UnicodeDecodeError) as err:
                 problem = problem or _problem("best.toml", err)
         complete = [t for t in trials if t["state"] == "COMPLETE" and t["value"] is not None]
@@ -435,7 +422,7 @@ class ExperimentsFolder:
         return {
             "name": name,
             "agent": _text(spec.get("agent")),
-            "preset": shown_path(p, self.root) if (p := _text(spec.get("preset"))) else None,
+            "preset": shown_paths(p, self.root) if (p := _text(spec.get("preset"))) else None,
             "env_id": _text(spec.get("env_id")),
             "budget": _text(spec.get("budget")),
             "seeds_per_trial": _int(spec.get("seeds_per_trial")),
@@ -457,7 +444,7 @@ class ExperimentsFolder:
         if not _regular_file(path, folder):
             raise NotFound(f"sweep {name} has no best.toml yet (written once a trial completes)")
         try:
-            return shown_path(path.read_text(encoding="utf-8"), self.root)
+            return shown_paths(path.read_text(encoding="utf-8"), self.root)
         except (OSError, UnicodeDecodeError) as err:
             raise NotFound(_problem(f"sweep {name}'s best.toml", err)) from err
 
@@ -480,7 +467,7 @@ class ExperimentsFolder:
         }
 
     def _shown_root(self) -> str:
-        return self.root.name if self.root.is_absolute() else str(self.root)
+        return shown_root(self.root)
 
 
 class NoStudy(LookupError):

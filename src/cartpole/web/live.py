@@ -7,7 +7,9 @@ Metrics (``/ws/runs/{name}/metrics?offset=N``): the server sends ``{"type": "met
 stopped and every row is sent it sends ``{"type": "end", "state"}`` and closes. The client sends
 nothing (anything it sends closes the socket with a reason).
 
-Play (``/ws/play?env=CartPole-v1``): one simulated cart-pole per connection. Client messages:
+Play (``/ws/play?env=CartPole-v1``): one simulated cart-pole per connection, on an env of the app's
+own list (:data:`~cartpole.web.envs.OFFERED_ENVS`; any other closes the socket with code 1008 and a
+reason before anything looks it up, so nothing a request names is imported). Client messages:
 ``{"type": "reset", "seed"?: int, "physics"?: {...}}``, ``{"type": "step", "action": 0|1}``;
 each is answered by ``{"type": "state", "seed", "step", "state": [x, x_dot, theta, theta_dot],
 "reward", "return", "terminated", "truncated"}``. The pace of steps is the client's (that is how
@@ -33,11 +35,12 @@ from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 from cartpole.core.names import RunState
 from cartpole.runs import RunDir, displayed_state
 from cartpole.runs.run_dir import STOPPED_STATES
+from cartpole.web.answers import MAX_CLOSE_REASON, POLICY_VIOLATION, close_reason, shown_paths
 from cartpole.web.api import MAX_SEED
+from cartpole.web.envs import OFFERED_ENVS, offered, shown_env
 from cartpole.web.episodes import sim_limits
 from cartpole.web.physics import (
     ACTION_LABELS,
-    SCENES,
     CartPoleSim,
     GymSim,
     PhysicsError,
@@ -49,7 +52,6 @@ from cartpole.web.runs_folder import NotFound, RunsFolder
 router = APIRouter()
 
 POLL_SECONDS = 0.4
-POLICY_VIOLATION = 1008
 MESSAGE_TOO_BIG = 1009
 MAX_PLAY_MESSAGE = 4096
 """Longest play message, in bytes (a reset with every physics setting is about 150)."""
@@ -100,7 +102,8 @@ async def _follow(websocket: WebSocket, run: RunDir, offset: int, reader: asynci
             state = displayed_state(status)
             if changed or state is not shown:
                 shown = state
-                await websocket.send_json({"type": "status", "status": {**status, "state": state.value}})
+                message = shown_paths({**status, "state": state.value}, websocket.app.state.runs.root)
+                await websocket.send_json({"type": "status", "status": message})
         stamp = _stamp(run.metrics_path)
         if stamp != seen_metrics:
             seen_metrics = stamp
@@ -199,10 +202,11 @@ async def play(
     websocket: WebSocket,
     env: Annotated[str, Query(max_length=64)] = "CartPole-v1",
 ) -> None:
-    """A live game: reset, then one step message per action; every reply is the new state."""
-    if scene_of(env) is None:
-        playable = ", ".join(["CartPole-v1", "CartPole-v0", *SCENES])
-        await websocket.close(code=POLICY_VIOLATION, reason=f"{env[:40]!r} cannot be played; play {playable}")
+    """A live game: reset, then one step message per action; every reply is the new state. ``env`` is
+    one of the app's own (:data:`~cartpole.web.envs.OFFERED_ENVS`), checked before anything looks it
+    up: any other closes the socket with a reason, and nothing it names is imported."""
+    if not offered(env) or scene_of(env) is None:
+        await websocket.close(code=POLICY_VIOLATION, reason=not_playable(env))
         return
     await websocket.accept()
     session = PlaySession(env)
@@ -225,6 +229,16 @@ async def play(
                 await websocket.send_json({"type": "error", "message": str(err)})
                 continue
             await websocket.send_text(json.dumps(reply))
+
+
+def not_playable(env: str) -> str:
+    """The close reason for an env that cannot be played (one the app does not offer): the env, cut to
+    what a close reason holds beside the envs that can be."""
+    playable = f" cannot be played; play {', '.join(OFFERED_ENVS)}"
+    limit = len(env)
+    while limit > 1 and len((shown_env(env, limit) + playable).encode()) > MAX_CLOSE_REASON:
+        limit -= 1
+    return close_reason(shown_env(env, limit) + playable)
 
 
 async def receive_text(websocket: WebSocket) -> str | None:

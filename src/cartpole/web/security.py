@@ -8,7 +8,8 @@ handshake that a browser makes from another origin is refused. Every answer carr
 Security Policy that allows only this server's own scripts and styles, and no framing.
 
 These are plain ASGI middlewares (not ``BaseHTTPMiddleware``): they add nothing measurable to a
-play step's round trip.
+play step's round trip. Their refusals have the app's one shape (``{"detail", "field"}``,
+:func:`~cartpole.web.answers.refusal`); a refused WebSocket is closed with code 1008 and a reason.
 """
 
 from __future__ import annotations
@@ -19,9 +20,12 @@ from typing import Any
 from urllib.parse import parse_qs, urlencode, urlsplit
 
 from starlette.datastructures import Headers
-from starlette.responses import JSONResponse, PlainTextResponse
+from starlette.middleware.trustedhost import TrustedHostMiddleware
+from starlette.responses import PlainTextResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from starlette.websockets import WebSocketClose
+
+from cartpole.web import answers
 
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "[::1]")
 """Hosts every server answers to: this machine under its usual names."""
@@ -86,6 +90,39 @@ def allowed_hosts(extra: Iterable[str] = ()) -> list[str]:
     return list(hosts)
 
 
+HOST_CHECKED = "cartpole.host_checked"
+"""The scope key :class:`OwnHosts` sets on a request whose host it let through."""
+
+
+class OwnHosts(TrustedHostMiddleware):
+    """Starlette's ``TrustedHostMiddleware`` (its check of the ``Host`` header, unchanged, and no
+    ``www.`` redirect), its 400 refusal in the app's one shape."""
+
+    def __init__(self, app: ASGIApp, allowed_hosts: Iterable[str]) -> None:
+        async def checked(scope: Scope, receive: Receive, send: Send) -> None:
+            scope[HOST_CHECKED] = True
+            await app(scope, receive, send)
+
+        super().__init__(checked, allowed_hosts=list(allowed_hosts), www_redirect=False)
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await super().__call__(scope, receive, send)
+            return
+        refused = False
+
+        async def send_or_refuse(message: Message) -> None:
+            nonlocal refused
+            if message["type"] == "http.response.start" and not scope.get(HOST_CHECKED):
+                refused = True  # Starlette's own refusal: answered in the app's shape instead
+                text = "this server does not answer requests for that host (see cartpole serve --allow-host)"
+                await answers.refusal(400, text)(scope, receive, send)
+            elif not refused:
+                await send(message)
+
+        await super().__call__(scope, receive, send_or_refuse)
+
+
 class SameOriginWebSockets:
     """Refuse a WebSocket handshake whose ``Origin`` is not this server's own (scheme-less compare of
     host and port with the ``Host`` header). Browsers always send ``Origin`` on a WebSocket; a
@@ -127,7 +164,7 @@ class URLLengthLimit:
                     await WebSocketClose(code=1009, reason="URL too long")(scope, receive, send)
                 else:
                     text = f"URL too long: at most {self.max_bytes} bytes of path and query"
-                    await PlainTextResponse(text, status_code=414)(scope, receive, send)
+                    await answers.refusal(414, text)(scope, receive, send)
                 return
         await self.app(scope, receive, send)
 
@@ -204,7 +241,7 @@ class TokenGate:
         refusal = self.refusal(headers, change)
         if refusal is not None:
             status, text = refusal
-            await JSONResponse({"detail": text}, status_code=status)(scope, receive, send)
+            await answers.refusal(status, text)(scope, receive, send)
             return
         await self.app(scope, receive, send)
 
@@ -236,9 +273,8 @@ class TokenGate:
     ) -> None:
         """``?token=``: a right one sets the cookie and redirects to the address without it; 401 otherwise."""
         if not self.matches(query["token"][-1]):
-            await PlainTextResponse(
-                "wrong token: open the address `cartpole serve` printed", status_code=401
-            )(scope, receive, send)
+            text = "wrong token: open the address `cartpole serve` printed"
+            await answers.refusal(401, text)(scope, receive, send)
             return
         rest = urlencode([(k, v) for k, values in query.items() if k != "token" for v in values])
         location = scope.get("root_path", "") + scope["path"] + (f"?{rest}" if rest else "")
