@@ -35,8 +35,9 @@ cartpole_pg_stop() {
 trap cartpole_pg_stop EXIT
 
 cartpole_as_postgres "$CARTPOLE_PG_BIN/initdb" -D "$CARTPOLE_PG_DIR/data" -U postgres --auth=trust >/dev/null
+# max_connections: benchmarks/claims.py --workers 256 holds a connection per simulated worker (default: 100).
 cartpole_as_postgres "$CARTPOLE_PG_BIN/pg_ctl" -D "$CARTPOLE_PG_DIR/data" -l "$CARTPOLE_PG_DIR/server.log" -w \
-  -o "-c listen_addresses=127.0.0.1 -p $CARTPOLE_PG_PORT -k $CARTPOLE_PG_DIR" start >/dev/null
+  -o "-c listen_addresses=127.0.0.1 -p $CARTPOLE_PG_PORT -k $CARTPOLE_PG_DIR -c max_connections=400" start >/dev/null
 cartpole_as_postgres "$CARTPOLE_PG_BIN/createdb" -h 127.0.0.1 -p "$CARTPOLE_PG_PORT" -U postgres cartpole
 export CARTPOLE_TEST_POSTGRES_URL="postgresql://postgres@127.0.0.1:$CARTPOLE_PG_PORT/cartpole"
 echo "PostgreSQL for the sweep tests: $CARTPOLE_TEST_POSTGRES_URL"

@@ -148,8 +148,8 @@ TABLES = [
         headline="Crash safety: kill -9 at a random moment, then `--resume`",
     ),
     Benchmark(
-        "claims", "claims.py", "--workers 1,64 --delay-ms 0,5,20,50 --claim current,legacy --seconds 4",
-        minutes=2, quick=True, tiny="--workers 1,2 --delay-ms 5 --claim current,legacy --seconds 0.5",
+        "claims", "claims.py", "--workers 1,64,256 --delay-ms 20 --join current,legacy --seconds 4",
+        minutes=3, quick=True, tiny="--workers 1,2 --delay-ms 5 --join current,legacy --seconds 0.5",
         needs_postgres=True,
     ),
     Benchmark(

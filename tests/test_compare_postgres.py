@@ -160,3 +160,42 @@ def test_workers_claiming_at_the_same_moment_each_get_other_runs_at_once():
     rows = workers[0].rows()
     assert sum(r.state == RowState.CLAIMED for r in rows) == len(workers)
     assert all(r.claims <= 1 for r in rows)
+
+
+def test_workers_joining_at_the_same_moment_add_every_row_once():
+    """A join holds no lock across round trips: 32 workers (threads, a connection each) join one new
+    comparison at the same moment, half asking for one entry and fewer seeds, half for two entries;
+    every row is there once and both entries are listed once."""
+    import threading
+
+    from cartpole.experiments.entries import Entry
+
+    assert URL is not None
+    name = f"joins-{uuid.uuid4().hex[:8]}"
+    cem, random_search = Entry("cem"), Entry("random-search")
+    start = threading.Barrier(32)
+    errors: list[BaseException] = []
+
+    def join_once(index: int) -> None:
+        entries, seeds = ([cem], range(50)) if index % 2 else ([random_search, cem], range(100))
+        start.wait()
+        try:
+            shared = SharedComparison.join(URL, name, {"env_id": "CartPole-v1", "budget": "3gen"}, entries,
+                                           list(seeds))  # fmt: skip
+            shared.engine.dispose()
+        except BaseException as err:  # reported below, not lost in a thread
+            errors.append(err)
+
+    threads = [threading.Thread(target=join_once, args=(i,)) for i in range(32)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(timeout=120)
+    assert not errors, errors
+    shared = SharedComparison.open(URL, name)
+    rows = shared.rows()
+    assert sorted((r.entry, r.seed) for r in rows) == sorted(
+        (e, s) for e in ("cem", "random-search") for s in range(100)
+    )
+    assert all(r.state == RowState.PENDING and r.claims == 0 for r in rows)
+    assert sorted(e.label for e in shared.entries()) == ["cem", "random-search"]

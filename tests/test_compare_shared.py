@@ -232,3 +232,125 @@ def _claimed_by_worker(shared: SharedComparison, other_than: str) -> bool:
 
 def _files(folder) -> dict[str, tuple[int, int]]:  # type: ignore[no-untyped-def]
     return {str(p): (p.stat().st_mtime_ns, p.stat().st_size) for p in folder.rglob("*") if p.is_file()}
+
+
+def test_workers_joining_at_the_same_moment_add_every_row_once_and_every_entry(url):
+    """Joins hold no lock across round trips: eight threads join one new comparison at once, half with
+    one entry and fewer seeds, half with both entries; every row is there once, both entries listed."""
+    import threading
+
+    start = threading.Barrier(8)
+    errors: list[BaseException] = []
+
+    def join_once(index: int) -> None:
+        start.wait()
+        entries, seeds = ([CEM], range(6)) if index % 2 else ([CEM, RANDOM], range(10))
+        try:
+            SharedComparison.join(url, "cmp", SETUP, entries, list(seeds), 60.0)
+        except BaseException as err:  # reported below, not lost in a thread
+            errors.append(err)
+
+    threads = [threading.Thread(target=join_once, args=(i,)) for i in range(8)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(timeout=120)
+    assert not errors, errors
+    shared = SharedComparison.open(url, "cmp")
+    rows = shared.rows()
+    assert sorted((r.entry, r.seed) for r in rows) == sorted((e, s) for e in LABELS for s in range(10))
+    assert all(r.state == RowState.PENDING and r.claims == 0 for r in rows)
+    assert sorted(e.label for e in shared.entries()) == sorted(LABELS)
+
+
+def test_joining_with_another_entry_adds_it_to_the_list_once(url):
+    join(url, seeds=2)
+    SharedComparison.join(url, "cmp", SETUP, [Entry("hill-climbing")], [0, 1], 60.0)
+    SharedComparison.join(url, "cmp", SETUP, [Entry("hill-climbing"), CEM], [0, 1, 2], 60.0)
+    shared = SharedComparison.open(url, "cmp")
+    assert [e.label for e in shared.entries()] == [*LABELS, "hill-climbing"]
+    assert len(shared.rows()) == 2 * 2 + 3 + 1  # cem and random-search 0-1, hill-climbing 0-2, cem 2
+
+
+def runner_on(tmp_path, url: str, seeds: int = 2, chunk: int = 1):  # type: ignore[no-untyped-def]
+    """A SharedRunner of one machine on ``url`` (entries cem and random-search), that starts nothing."""
+    from cartpole.experiments.compare import Experiment, SharedRunner
+
+    experiment = Experiment.open(tmp_path, "cmp", [CEM, RANDOM], list(range(seeds)), budget="3gen")
+    shared = SharedComparison.join(url, "cmp", experiment.setup, [CEM, RANDOM], list(range(seeds)), 60.0)
+    return SharedRunner(experiment, shared, chunk, None)
+
+
+def lost_reply(shared: SharedComparison, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """The next claim of ``shared`` is committed, then its reply lost (a connection reset)."""
+    from sqlalchemy.exc import OperationalError
+
+    from cartpole.experiments import storage
+
+    monkeypatch.setattr(storage, "RETRY_WAITS", (0.0, 0.0))
+    claim = shared.claim
+
+    def committed_then_lost(*args, **kwargs):  # type: ignore[no-untyped-def]
+        monkeypatch.setattr(shared, "claim", claim)  # once
+        claim(*args, **kwargs)
+        raise OperationalError("UPDATE", {}, ConnectionResetError("connection reset by peer"))
+
+    monkeypatch.setattr(shared, "claim", committed_then_lost)
+
+
+def test_a_claim_whose_reply_was_lost_is_the_one_the_retry_runs(tmp_path, url, monkeypatch, capsys):
+    """The database committed the claim and the reply was lost: the new try finds the rows this worker
+    holds without a job and runs them, claiming nothing more: every row claimed once."""
+    runner = runner_on(tmp_path, url)
+    lost_reply(runner.shared, monkeypatch)
+    job = runner.next_job()
+    assert job is not None and job.key == (CEM, [0])
+    err = capsys.readouterr().err
+    assert "lost the database connection (connection reset by peer) while trying to give work" in err
+    assert "the claim of cem seed 0 was stored before the connection was lost: training it" in err
+    rows = {(r.entry, r.seed): r for r in runner.shared.rows()}
+    assert rows[(CEM.label, 0)].owner == runner.owner and rows[(CEM.label, 0)].claims == 1
+    assert sum(r.state == RowState.CLAIMED for r in rows.values()) == 1
+    assert runner.next_job().key == (RANDOM, [0])  # the next claim is an ordinary one
+
+
+def test_a_claim_held_without_a_job_is_given_back_at_the_next_heartbeat(tmp_path, url, capsys):
+    """However a worker came to hold a claim it runs nothing for (a reply lost while the retry claimed
+    other rows), its next heartbeat gives it back: no comparison waits for it."""
+    runner = runner_on(tmp_path, url)
+    job = runner.next_job()
+    assert job is not None
+    orphan = claim(runner.shared, runner.owner, chunk=1)  # committed, never handed to a job
+    assert orphan is not None and orphan.entry == RANDOM
+    runner.last_beat -= runner.period
+    assert runner.tick() == []  # the job's claim is still its own
+    line = ("warning: random-search seed 0: this worker held the claim but ran nothing for it (its reply "
+            "lost with the connection); gave it back, pending again")  # fmt: skip
+    assert line in capsys.readouterr().err.splitlines()
+    rows = {(r.entry, r.seed): r for r in runner.shared.rows()}
+    assert rows[(RANDOM.label, 0)].state == RowState.PENDING and rows[(RANDOM.label, 0)].owner is None
+    assert rows[(CEM.label, 0)].state == RowState.CLAIMED and rows[(CEM.label, 0)].owner == runner.owner
+
+
+def test_a_worker_whose_run_another_finished_first_is_told_so(tmp_path, url, capsys):
+    runner = runner_on(tmp_path, url)
+    job = runner.next_job()
+    assert job is not None
+    assert runner.shared.finish("other", CEM, 0, {"solved_in_training": True}, {})
+    runner.last_beat -= runner.period
+    assert runner.tick() == [job]
+    assert capsys.readouterr().err.splitlines() == [
+        "warning: cem seed 0: another worker finished this run first (its result is the one kept); stopped "
+        "its run here, saving nothing"
+    ]
+
+
+def test_on_a_stop_every_claim_is_handed_back_at_once(tmp_path, url, capsys):
+    runner = runner_on(tmp_path, url, chunk=2)
+    assert runner.next_job() is not None and runner.next_job() is not None
+    assert sum(r.state == RowState.CLAIMED for r in runner.shared.rows()) == 4
+    runner.hand_back()
+    assert all(r.state == RowState.PENDING and r.owner is None for r in runner.shared.rows())
+    assert (
+        "stopping: gave back the claims of 4 run(s) for other workers to take now" in capsys.readouterr().err
+    )

@@ -188,6 +188,31 @@ def test_sigkill_between_a_runs_end_and_its_results_write(private_postgres: Clus
     assert all(r.claims == 2 and Path(r.record["run"]) in trained for r in rows)
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("backend", ["sqlite", "postgresql"])
+def test_a_claim_whose_reply_is_lost_after_its_commit_runs_once_and_nothing_waits(
+    backend: str, request: pytest.FixtureRequest, tmp_path
+):
+    """The server commits a claim and its reply is lost (the connection closed after the commit): the
+    new try finds the claim (rows this worker holds but runs nothing for) and trains it, so the
+    comparison finishes, well within its claim timeout, with every row claimed once."""
+    if backend == "postgresql":
+        url = request.getfixturevalue("private_postgres").new_database()
+    else:
+        url = f"sqlite:///{tmp_path / 'shared.db'}"
+    entries, seeds, machine = ["cem"], 2, tmp_path / "m0"
+    args = compare_args(url, machine, entries, seeds, "3gen")
+    args[args.index("--claim-timeout") + 1] = "8"
+    log = tmp_path / "compare.log"
+    process = start(args, log, {PAUSE_AT: f"claim-reply:{tmp_path}"})
+    text = finish(process, log, timeout=120)
+    assert (tmp_path / "claim-reply").is_file()  # the reply was lost
+    assert f"{LOST} (" in text and "while trying to give work: retrying in" in text
+    assert "the claim of cem seeds 0, 1 was stored before the connection was lost: training it" in text
+    rows = check_finished_once(url, entries, seeds)
+    assert all(r.claims == 1 for r in rows)  # no row claimed again: the retry ran the stored claim
+
+
 def outage(cluster: Cluster, logs: Callable[[], str], timeout: float = 120) -> None:
     """Stop the server at once (connections cut), wait until a process says it lost its connection
     and is retrying, then start the server again."""

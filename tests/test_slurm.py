@@ -1,6 +1,7 @@
 """A comparison on a real Slurm cluster: the shipped docs/experiments/slurm-compare.sbatch submitted as a
 job array of 3 tasks that share one comparison in a real PostgreSQL server; one task is cancelled with
-scancel while it trains, and every (entry, seed) still finishes exactly once, with the results of a
+scancel while it trains (it hands its claims back on the SIGTERM: the claim timeout is 10 minutes, which
+no task waits out), and every (entry, seed) still finishes exactly once, with the results of a
 one-machine run of the same comparison.
 
 Needs a Slurm cluster whose node is this machine (SLURM_CONF; `.ci/slurm.sh` starts a throwaway one) and
@@ -34,7 +35,8 @@ ENTRIES = ["cem", "random-search"]
 SEEDS = 6
 TASKS = 3
 COMPARE_ARGS = [*ENTRIES, "--seeds", str(SEEDS), "--budget", "3gen"]
-SHARED_ARGS = ["--chunk", "2", "--claim-timeout", "5"]
+SHARED_ARGS = ["--chunk", "2", "--claim-timeout", "600"]
+"""A claim timeout no task waits out: the cancelled task hands its claims back on SIGTERM."""
 SAME = ("solved_in_training", "solve_steps", "env_steps", "stop_reason", "final_mean", "final_solved",
         "final_verdict")  # fmt: skip
 """What a run's record must hold alike on the cluster and on one machine."""
@@ -170,6 +172,8 @@ def test_a_job_array_shares_one_comparison_and_survives_a_scancel(tmp_path):
     logs = "\n".join(f"--- task {p.name}\n{p.read_text()}" for p in sorted(outputs.iterdir()))
     states = job_states(job)
     assert states == {t: "CANCELLED" if t == cancelled else "COMPLETED" for t in range(TASKS)}, logs
+    # scancel's SIGTERM: the task gave its claims back at once (no task waited out the claim timeout).
+    assert "stopping: gave back the claims of" in (outputs / f"task-{cancelled}.out").read_text(), logs
 
     # Every (entry, seed) finished exactly once; what the cancelled task held, another task claimed again.
     rows = shared.rows()

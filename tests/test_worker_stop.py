@@ -5,6 +5,7 @@ no SIGINT to another process, and re-parents no orphan: this path is the one it 
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -15,6 +16,8 @@ from pathlib import Path
 
 import psutil
 import pytest
+from platforms import stop_signal_to_a_process
+from polling import wait_for
 
 from cartpole.experiments import processes, worker
 
@@ -33,13 +36,6 @@ def worker_job(tmp_path: Path, budget: str = "30s") -> tuple[processes.Job, Path
     (tmp_path / "task.json").write_text(json.dumps(task.__dict__))
     args = processes.python_module("cartpole.experiments.worker", str(tmp_path / "task.json"))
     return processes.Job(args, tmp_path / "w.log"), record
-
-
-def wait_for(condition, seconds: float, what: str) -> None:
-    deadline = time.monotonic() + seconds
-    while not condition():
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        time.sleep(0.1)
 
 
 def latest_saved(tmp_path: Path) -> bool:
@@ -124,3 +120,92 @@ def test_the_workers_of_a_killed_compare_save_their_runs_and_stop(tmp_path):
     for status_file in folder.glob("runs/*/status.json"):
         status = json.loads(status_file.read_text())
         assert status["state"] == "interrupted" and status["stop_detail"] == "interrupted (SIGINT)"
+
+
+SLOW_SAVES = '''\
+"""A test's hook (tests/test_worker_stop.py): every save of a latest.pt after the first hangs for
+SECONDS, before its temp file is moved into place, where CARTPOLE_TEST_SLOW_SAVE=FOLDER:SECONDS;
+FOLDER/saving is created as one starts."""
+import os
+
+_spec = os.environ.get("CARTPOLE_TEST_SLOW_SAVE")
+if _spec:
+    import time
+
+    _folder, _, _seconds = _spec.rpartition(":")
+    _replace, _saves = os.replace, []
+
+    def _slow_replace(source, target, *args, **kwargs):
+        if str(target).endswith("latest.pt"):
+            _saves.append(target)
+            if len(_saves) > 1:
+                open(os.path.join(_folder, "saving"), "w").close()
+                time.sleep(float(_seconds))
+        return _replace(source, target, *args, **kwargs)
+
+    os.replace = _slow_replace
+'''
+
+
+def compare_workers(parent: psutil.Process) -> list[psutil.Process]:
+    return [
+        p for p in parent.children(recursive=True) if "cartpole.experiments.worker" in " ".join(p.cmdline())
+    ]
+
+
+@stop_signal_to_a_process
+@pytest.mark.slow
+@pytest.mark.parametrize("while_it", ["trains", "saves"])
+def test_sigterm_hands_the_claims_back_at_once_and_exits_within_slurms_grace(tmp_path, while_it):
+    """As Slurm stops a task (scancel, preemption, its time limit): SIGTERM to `cartpole compare` and
+    its worker, while the run trains or while it writes a checkpoint (here a save that hangs). The
+    claim is pending again at once, the command exits 130 within 20 s (a worker that cannot finish
+    its save is killed after the grace, its previous latest.pt kept), and the same command started
+    again finishes at once: it does not wait out the claim timeout (10 minutes here)."""
+    from cartpole.experiments.shared import RowState, SharedComparison
+
+    preset = tmp_path / "slow.toml"
+    preset.write_text(SLOW_PRESET)
+    hook = tmp_path / "hook"
+    hook.mkdir()
+    (hook / "sitecustomize.py").write_text(SLOW_SAVES)
+    url = f"sqlite:///{tmp_path / 'shared.db'}"
+    command = [sys.executable, "-m", "cartpole", "compare", f"hill-climbing:{preset}", "--seeds", "1",
+               "--budget", "15s", "--storage", url, "--name", "stop", "--claim-timeout", "600",
+               "--runs-dir", str(tmp_path / "m")]  # fmt: skip
+    env = dict(os.environ)
+    if while_it == "saves":
+        path = os.pathsep.join(p for p in (str(hook), env.get("PYTHONPATH", "")) if p)
+        env |= {"PYTHONPATH": path, "CARTPOLE_TEST_SLOW_SAVE": f"{tmp_path}:600"}
+    log = tmp_path / "first.log"
+    with open(log, "wb") as out:
+        process = subprocess.Popen(command, stdout=out, stderr=subprocess.STDOUT, env=env)
+    try:
+        if while_it == "saves":
+            wait_for((tmp_path / "saving").is_file, 180, "a run to hang in a save of its latest.pt")
+        else:
+            wait_for(lambda: latest_saved(tmp_path / "m" / "experiments" / "stop"), 180, "a first checkpoint")
+        workers = compare_workers(psutil.Process(process.pid))
+        assert len(workers) == 1, workers
+        sent = time.monotonic()
+        for target in [process, *workers]:  # Slurm signals every process of the task
+            target.send_signal(signal.SIGTERM)
+        shared = SharedComparison.open(url, "stop")
+        wait_for(lambda: all(r.state == RowState.PENDING for r in shared.rows()), 5, "the claim handed back")
+        process.wait(timeout=60)
+        took = time.monotonic() - sent
+    finally:
+        if process.poll() is None:
+            process.kill()
+    text = log.read_text(errors="replace")
+    assert process.returncode == 130, text
+    assert took < 20, f"exited {took:.1f} s after SIGTERM\n{text}"
+    assert "stopping: gave back the claims of 1 run(s) for other workers to take now" in text
+    assert not [w for w in workers if w.is_running() and w.status() != psutil.STATUS_ZOMBIE]
+    again = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr
+    (row,) = shared.rows()
+    assert row.state == RowState.FINISHED and row.claims == 2
+    runs = sorted((tmp_path / "m" / "experiments" / "stop" / "runs").glob("*__s0__*"))
+    if while_it == "trains":  # stopped cleanly: resumed from its folder, not trained again
+        assert [Path(row.record["run"])] == runs

@@ -30,9 +30,9 @@ from cartpole.core.file_names import is_portable_name
 from cartpole.experiments.entries import Entry, ExperimentError
 from cartpole.experiments.pause_points import pause_at
 from cartpole.experiments.processes import Job, python_module, run_job_source, run_jobs
-from cartpole.experiments.shared import SETUP_FLAGS, SharedComparison, new_owner
+from cartpole.experiments.shared import SETUP_FLAGS, Claim, RowState, SharedComparison, new_owner
 from cartpole.experiments.slots import Slot
-from cartpole.experiments.storage import StorageLost, lost_connection, retry_lost_connection
+from cartpole.experiments.storage import StorageLost, lost_connection, reason_of, retry_lost_connection
 from cartpole.experiments.worker import FINISHED, Task, read_record
 from cartpole.runs.atomic import write_json_atomic
 from cartpole.runs.run_dir import read_json
@@ -298,7 +298,9 @@ class Experiment:
         )
         runner = SharedRunner(self, shared, chunk, progress)
         runner.report("start")
-        run_job_source(runner.next_job, jobs, runner.on_done, runner.tick, runner.more)
+        run_job_source(
+            runner.next_job, jobs, runner.on_done, runner.tick, runner.more, on_stop=runner.hand_back
+        )
         return runner.problems
 
 
@@ -335,19 +337,26 @@ class SharedRunner:
         heartbeat is stale (the database out of reach for longer than the claim timeout)."""
         self.lost: list[Job] = []
         """Running jobs with a claim another worker took over: killed, their results not stored."""
+        self.stopping = False
+        """Set on Ctrl-C or SIGTERM (:meth:`hand_back`): every claim was given back at once."""
 
     def database(self, what: str, action: Callable[[], Any], default: Any) -> Any:
         """``action()``, tried again while the database connection is lost (a line each time, for a
         few minutes: :func:`~cartpole.experiments.storage.retry_lost_connection`), then StorageLost.
         Another failure gives ``default`` (it is retried later): a line is printed once per kind of
-        failure, and training goes on."""
+        failure, and training goes on. Once stopping (:meth:`hand_back`), one try, and ``default``
+        where the connection is lost: a stop does not wait for the database (a finished run's record
+        stays on disk, and the machine that claims it again stores it)."""
         import sys
 
         from sqlalchemy.exc import SQLAlchemyError
 
         try:
-            return retry_lost_connection(what, action)
+            return retry_lost_connection(what, action, () if self.stopping else None)
         except SQLAlchemyError as err:
+            if lost_connection(err) and self.stopping:
+                print(f"warning: could not {what} while stopping ({reason_of(err)})", file=sys.stderr)
+                return default
             if lost_connection(err):
                 raise StorageLost.of(err, what) from None
             reason = str(getattr(err, "orig", None) or err).strip().splitlines()
@@ -360,24 +369,45 @@ class SharedRunner:
     def next_job(self) -> Job | None:
         if time.monotonic() < self.next_look:
             return None
-        claim = self.database(
-            "give work",
-            lambda: self.shared.claim(
-                self.owner,
-                self.chunk,
-                self.batches,
-                self.failed | self.running_rows(),
-                self.labels,
-                self.experiment.seeds,
-            ),
-            None,
-        )
-        if claim is None:
+        tries = 0
+
+        def claim() -> Claim | None:
+            """A claim, or on a new try after a lost connection first the claim that try may have
+            made (the database committed it, and the reply was lost): rows this worker holds but runs
+            no job for."""
+            nonlocal tries
+            tries += 1
+            skip = self.failed | self.running_rows()
+            if tries > 1:
+                found = self.claim_cut_off(skip)
+                if found is not None:
+                    return found
+            return self.shared.claim(
+                self.owner, self.chunk, self.batches, skip, self.labels, self.experiment.seeds
+            )
+
+        found = self.database("give work", claim, None)
+        if found is None:
             self.next_look = time.monotonic() + self.look_period
             return None
-        job = self.experiment.job(claim.entry, claim.seeds, population=self.batches[claim.entry.label])
+        job = self.experiment.job(found.entry, found.seeds, population=self.batches[found.entry.label])
         self.running.append(job)
         return job
+
+    def claim_cut_off(self, skip: set[tuple[str, int]]) -> Claim | None:
+        """The claim whose reply a lost connection cut off, where the database had stored it: rows
+        held by this worker that none of its jobs runs (one entry's, up to a chunk), or None."""
+        import sys
+
+        rows = [row for row in self.shared.held(self.owner) if (row.entry, row.seed) not in skip]
+        if not rows:
+            return None
+        first = rows[0]
+        size = self.chunk if self.batches.get(first.entry, False) else 1
+        seeds = [row.seed for row in rows if row.entry == first.entry][:size]
+        print(f"the claim of {first.entry} {seeds_text(seeds)} was stored before the connection was lost: "
+              "training it", file=sys.stderr, flush=True)  # fmt: skip
+        return Claim(Entry(first.agent, first.preset), seeds)
 
     def running_rows(self) -> set[tuple[str, int]]:
         """The (entry, seed) rows of :attr:`running`."""
@@ -395,9 +425,10 @@ class SharedRunner:
         return bool(progress.finished + len(self.failed) < progress.total)
 
     def tick(self) -> list[Job]:
-        """Every heartbeat period: renew this worker's claims, and return the running jobs to kill, those
-        with a claim the database says is no longer this worker's (it was taken over while the heartbeats
-        were late: a long pause, a network cut)."""
+        """Every heartbeat period: renew this worker's claims, give back those it holds without a job
+        (a claim whose reply was lost, a release that failed), and return the running jobs to kill:
+        those with a claim the database says is no longer this worker's (another worker took it over
+        while the heartbeats were late, a long pause or a network cut, or finished the run first)."""
         if time.monotonic() - self.last_beat < self.period:
             return []
         self.last_beat = time.monotonic()
@@ -405,25 +436,87 @@ class SharedRunner:
         self.store(self.unstored)
         if held is None:
             return []
+        self.give_back_unrun(held - self.running_rows())
         lost = [job for job in self.running if job not in self.lost and not self.holds(job, held)]
-        for job in lost:
-            self.say_lost(job)
+        if lost:
+            rows = {(job.key[0].label, seed) for job in lost for seed in job.key[1]} - held
+            now = self.database("look up runs", lambda: self.shared.where_now(rows), {})
+            for job in lost:
+                self.say_lost(job, held, now)
         self.lost += lost
         return lost
+
+    def give_back_unrun(self, rows: set[tuple[str, int]]) -> None:
+        """Give back claims this worker holds but runs no job for, with a line: pending again."""
+        import sys
+
+        if not rows:
+            return
+        given = self.database(
+            "give back claims no job runs", lambda: self.shared.release_rows(self.owner, rows), set()
+        )
+        by_entry: dict[str, list[int]] = {}
+        for label, seed in sorted(given):
+            by_entry.setdefault(label, []).append(seed)
+        for label, seeds in by_entry.items():
+            line = f"warning: {label} {seeds_text(seeds)}: this worker held the claim but ran nothing for it "
+            print(line + "(its reply lost with the connection); gave it back, pending again", file=sys.stderr)
+        self.next_look = 0.0
+
+    def hand_back(self) -> None:
+        """On a stop (Ctrl-C, SIGTERM): every claim this worker holds back to pending at once, in one
+        statement, while its workers save their runs, so that other machines take them without waiting
+        out the claim timeout (one try: a stop does not wait for a database out of reach). A run that
+        ends meanwhile is still stored (only the first finish of a run is kept)."""
+        import sys
+
+        from sqlalchemy.exc import SQLAlchemyError
+
+        self.stopping = True
+        try:
+            given = retry_lost_connection(
+                "give its claims back", lambda: self.shared.release_rows(self.owner), waits=()
+            )
+        except SQLAlchemyError as err:
+            line = (
+                f"warning: could not give the claims back ({reason_of(err)}): other workers take them over "
+            )
+            print(line + f"after the claim timeout ({self.shared.claim_timeout:g} s)", file=sys.stderr)
+            return
+        if given:
+            print(f"stopping: gave back the claims of {len(given)} run(s) for other workers to take now; "
+                  "each run in training saves its latest.pt", file=sys.stderr, flush=True)  # fmt: skip
 
     @staticmethod
     def holds(job: Job, held: set[tuple[str, int]]) -> bool:
         entry, seeds = job.key
         return all((entry.label, seed) in held for seed in seeds)
 
-    @staticmethod
-    def say_lost(job: Job) -> None:
+    def say_lost(
+        self, job: Job, held: set[tuple[str, int]], now: dict[tuple[str, int], tuple[str, str | None]]
+    ) -> None:
+        """One line per way the job's claims were lost: finished by another worker, taken over by
+        another worker, or pending again."""
         import sys
 
         entry, seeds = job.key
-        which = f"seed {seeds[0]}" if len(seeds) == 1 else "seeds " + ", ".join(map(str, seeds))
-        print(f"warning: {entry.label} {which}: another worker took this claim over (this worker's "
-              "heartbeats were late); stopped its run here, saving nothing", file=sys.stderr)  # fmt: skip
+        reasons: dict[str, list[int]] = {}
+        for seed in seeds:
+            if (entry.label, seed) in held:
+                continue
+            state, owner = now.get((entry.label, seed), (None, None))
+            if state == RowState.FINISHED and owner != self.owner:
+                reason = "another worker finished this run first (its result is the one kept)"
+            elif state == RowState.CLAIMED and owner != self.owner:
+                reason = "another worker took this claim over (this worker's heartbeats were late)"
+            else:
+                reason = (
+                    "this worker no longer holds this claim (it is pending again: its heartbeats were late)"
+                )
+            reasons.setdefault(reason, []).append(seed)
+        for reason, lost in reasons.items():
+            line = f"warning: {entry.label} {seeds_text(lost)}: {reason}"
+            print(line + "; stopped its run here, saving nothing", file=sys.stderr)
 
     def store(self, finished: list[tuple[Entry, int, dict[str, Any], dict[str, Any]]]) -> None:
         """Put finished runs' results in the database; those it does not take wait in ``unstored``."""
@@ -454,7 +547,10 @@ class SharedRunner:
                     curve = {}
                 finished.append((entry, seed, record, curve))
                 continue
-            self.database("give a claim back", partial(self.shared.release, self.owner, entry, seed), None)
+            if not self.stopping:  # when stopping, every claim was given back at once
+                self.database(
+                    "give a claim back", partial(self.shared.release, self.owner, entry, seed), None
+                )
             if code not in (0, 130, -2) and not again:
                 self.failed.add((entry.label, seed))
                 self.problems.append(f"{entry.label} seed {seed} failed (exit {code}); see {job.log}")
@@ -497,3 +593,8 @@ class SharedRunner:
             )
             if progress is not None:
                 self.progress(kind, progress.finished, progress.solved, progress.total)
+
+
+def seeds_text(seeds: list[int]) -> str:
+    """``seed 3`` or ``seeds 3, 4, 5``, as the messages name them."""
+    return f"seed {seeds[0]}" if len(seeds) == 1 else "seeds " + ", ".join(map(str, seeds))

@@ -7,6 +7,13 @@ that reaches POINT create the file FOLDER/POINT and wait while that file exists.
   handed to a worker;
 - ``finish``: a run's record written by its worker, its results not yet stored in the database.
 
+One point is a fault rather than a pause:
+
+- ``claim-reply``: the first claim's statement that claims rows runs to its end (committed, as a
+  claim's one statement is), then its reply is lost: the connection is closed and the driver's error
+  raised, as a connection reset would have it; FOLDER/claim-reply is created then, and no later claim
+  of the process is touched.
+
 Unset (always, outside those tests), a point costs one look-up in ``os.environ``.
 """
 
@@ -32,16 +39,38 @@ def pause_at(point: str) -> None:
 
 
 def pause_in_claims(engine: Any) -> None:
-    """Have ``engine`` pause at ``claim`` after the statement that claims rows (set only where
-    ``CARTPOLE_PAUSE_AT`` is)."""
+    """Have ``engine`` pause at ``claim`` after the statement that claims rows, or lose that
+    statement's reply at ``claim-reply`` (set only where ``CARTPOLE_PAUSE_AT`` is)."""
     import sqlalchemy as sa
 
+    def claims(statement: str) -> bool:
+        return "UPDATE cartpole_comparison_runs" in statement and "claims=" in statement
+
     def after_execute(conn: Any, cursor: Any, statement: str, *rest: Any) -> None:
-        if "UPDATE cartpole_comparison_runs" in statement and "claims=" in statement:
+        if claims(statement):
             pause_at("claim")
 
-    if os.environ.get(PAUSE_AT, "").startswith("claim:"):
+    lost: list[Path] = []
+
+    def lose_reply(conn: Any, cursor: Any, statement: str, *rest: Any) -> None:
+        if not claims(statement) or lost:
+            return
+        rows = cursor.fetchall()  # the statement run to its end: its rows claimed, committed
+        if not rows:
+            return
+        lost.append(Path(os.environ[PAUSE_AT].partition(":")[2]) / "claim-reply")
+        lost[0].touch()
+        dbapi = conn.dialect.loaded_dbapi
+        conn.connection.dbapi_connection.close()
+        if conn.dialect.name == "sqlite":  # the error SQLAlchemy takes for a lost SQLite connection
+            raise dbapi.ProgrammingError("Cannot operate on a closed database.")
+        raise dbapi.OperationalError("server closed the connection unexpectedly (its reply lost)")
+
+    point = os.environ.get(PAUSE_AT, "")
+    if point.startswith("claim:"):
         sa.event.listen(engine, "after_cursor_execute", after_execute)
+    elif point.startswith("claim-reply:"):
+        sa.event.listen(engine, "after_cursor_execute", lose_reply)
 
 
 __all__ = ["PAUSE_AT", "pause_at", "pause_in_claims"]

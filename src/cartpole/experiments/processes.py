@@ -9,8 +9,8 @@ dies (SIGKILL, its machine lost) closes it too. Either way the worker's SIGINT h
 Ctrl-C would call it: training saves ``checkpoints/latest.pt`` and the worker exits with 130, so no
 orphan trains on for nobody. Signals could not do this everywhere: Windows cannot send SIGINT to
 another process (``os.kill`` terminates it) and does not re-parent an orphan, which therefore cannot
-notice. A second Ctrl-C, or a worker that has not exited within ``grace`` seconds of the request, is
-killed (its run resumes from its last checkpoint).
+notice. A second Ctrl-C, or a worker that has not exited within ``grace`` seconds of the request
+(:data:`GRACE_SECONDS`), is killed (its run resumes from its last checkpoint).
 """
 
 from __future__ import annotations
@@ -31,7 +31,11 @@ from typing import Any
 from cartpole.experiments.slots import CPU, Slot
 
 POLL_SECONDS = 0.2
-GRACE_SECONDS = 60.0
+GRACE_SECONDS = 10.0
+"""Seconds a worker asked to stop has to save its run before it is killed: short enough that a
+``cartpole compare`` sent SIGTERM by Slurm has stopped its workers, stored what finished, written its
+report and exited well within Slurm's KillWait (30 s by default) before the SIGKILL. A worker killed
+while it saves keeps its previous ``latest.pt`` (each checkpoint is written atomically)."""
 STOP_REQUEST = b"stop\n"
 """What the parent writes to a worker's stdin to ask it to stop (closing the pipe asks it too)."""
 FOLLOW_PARENT = "CARTPOLE_FOLLOW_PARENT"
@@ -105,13 +109,21 @@ def close_pipe(process: subprocess.Popen[bytes]) -> None:
             process.stdin.close()
 
 
-def stop_all(running: dict[subprocess.Popen[bytes], Job], grace: float = GRACE_SECONDS) -> None:
-    """Ask every worker to stop (:func:`request_stop`), then wait; kill what is still there after
-    ``grace`` seconds or a second Ctrl-C."""
+def stop_all(
+    running: dict[subprocess.Popen[bytes], Job],
+    grace: float = GRACE_SECONDS,
+    meanwhile: Callable[[], None] | None = None,
+) -> None:
+    """Ask every worker to stop (:func:`request_stop`), call ``meanwhile()`` (a shared comparison gives
+    its claims back), then wait; kill what is still there ``grace`` seconds after the request, or at a
+    second Ctrl-C (a worker killed while it saves keeps its previous checkpoint: each is written
+    atomically)."""
     for process in running:
         request_stop(process)
     deadline = time.monotonic() + grace
     try:
+        if meanwhile is not None:
+            meanwhile()
         for process in running:
             process.wait(timeout=max(0.1, deadline - time.monotonic()))
     except (subprocess.TimeoutExpired, KeyboardInterrupt):
@@ -146,10 +158,13 @@ def run_job_source(
     on_done: Callable[[Job, int], None],
     tick: Callable[[], Collection[Job] | None] | None = None,
     more: Callable[[], bool] = lambda: False,
+    on_stop: Callable[[], None] | None = None,
 ) -> None:
     """:func:`run_jobs` over jobs made as slots free up: ``next_job()`` gives the next one, or None when
     it has none now; the loop ends when nothing runs, ``next_job()`` has none and ``more()`` says none
-    will come (a shared comparison waits while other machines hold runs they may give up)."""
+    will come (a shared comparison waits while other machines hold runs they may give up).
+    ``on_stop()`` is called on Ctrl-C or SIGTERM as soon as every worker is asked to stop, before they
+    have saved (a shared comparison gives its claims back at once)."""
     free = [CPU] * workers if isinstance(workers, int) else list(workers)
     running: dict[subprocess.Popen[bytes], Job] = {}
     slots: dict[subprocess.Popen[bytes], Slot] = {}
@@ -175,7 +190,7 @@ def run_job_source(
                     free.append(slots.pop(process))
                     on_done(running.pop(process), int(process.returncode))
         except KeyboardInterrupt:
-            stop_all(running)
+            stop_all(running, meanwhile=on_stop)
             for process, job in running.items():
                 on_done(job, int(process.returncode))
             raise

@@ -17,6 +17,12 @@ learns from it which it still holds; a claim whose heartbeat is older than the c
 worker was killed, lost its machine or its network) is taken over by another worker, who resumes the
 run where it has the run's folder and trains it again where not, and the first worker, if it comes
 back, stops that run. Only the first finish of a row is kept.
+
+Joining holds no lock across round trips (:meth:`SharedComparison.join`), so that a hundred workers
+starting together each join in about one round trip. A worker never holds a row it does not run:
+:meth:`SharedComparison.held` finds a claim whose reply was lost after its commit (the worker's new try
+runs it), and :meth:`SharedComparison.release_rows` gives back what it holds without a job, and every
+claim at once when it is stopped (``cartpole.experiments.compare.SharedRunner``).
 """
 
 from __future__ import annotations
@@ -25,6 +31,7 @@ import os
 import socket
 import time
 import uuid
+from collections.abc import Iterator
 from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any
@@ -41,6 +48,12 @@ from cartpole.experiments.storage import (
 
 MIN_CLAIM_TIMEOUT = 2.0
 CREATE_ATTEMPTS = 5
+JOIN_ATTEMPTS = 50
+"""Reads of a comparison a join makes at most while other workers change its list of entries."""
+INSERT_BATCH = 1000
+"""Rows per INSERT statement where a join adds rows on SQLite."""
+PING_AFTER_IDLE = 10.0
+"""Seconds after which a pooled connection is checked before its next use (:func:`ping_when_idle`)."""
 
 
 class RowState(StrEnum):
@@ -137,14 +150,19 @@ class SharedComparison:
     @staticmethod
     def connect(url: str, create: bool = True) -> Any:
         """An engine on ``url`` with the tables created where missing (``create``; a reader that must
-        write nothing passes False). ExperimentError, one line, if it cannot be had."""
+        write nothing passes False). ExperimentError, one line, if it cannot be had. A connection
+        the pool hands out is checked first only where it has been idle (:func:`ping_when_idle`)."""
         import sqlalchemy as sa
         from sqlalchemy.exc import OperationalError, SQLAlchemyError
 
         try:
-            engine = sa.create_engine(driver_url(url), **engine_options(url))
+            options = engine_options(url) | {"pool_pre_ping": False}
+            if url.startswith("postgresql"):  # no look-up of hstore's type as it connects: a round trip
+                options["use_native_hstore"] = False
+            engine = sa.create_engine(driver_url(url), **options)
         except ImportError as err:
             raise missing_driver(url, err) from None
+        ping_when_idle(engine)
         pause_in_claims(engine)  # a test hook: nothing unless CARTPOLE_PAUSE_AT says so
         if not create:
             return engine
@@ -153,7 +171,9 @@ class SharedComparison:
                 METADATA.create_all(engine)
                 return engine
             except OperationalError as err:
-                raise unreachable(url, err) from None
+                if "already exists" not in str(err) or attempt == CREATE_ATTEMPTS - 1:
+                    raise unreachable(url, err) from None
+                time.sleep(0.5 + attempt)  # SQLite: two processes creating the tables at the same moment
             except SQLAlchemyError as err:  # two machines creating the tables at the same moment
                 if attempt == CREATE_ATTEMPTS - 1:
                     raise unreachable(url, err) from None
@@ -170,31 +190,183 @@ class SharedComparison:
         seeds: list[int],
         claim_timeout: float = DEFAULT_CLAIM_TIMEOUT,
     ) -> SharedComparison:
-        """Create the comparison or join it (the same env and budget), adding its missing rows."""
+        """Create the comparison or join it (the same env and budget), adding its missing rows.
+
+        Joining costs a worker about one round trip to the database however many join at the same
+        moment: no lock is held across round trips. One statement reads the comparison's row with the
+        count of the asked rows already there; a comparison with every entry and row asked for is
+        joined (the common case: the tasks of a job array after the first). Otherwise only what is
+        missing is written, each part a short transaction of its own:
+
+        - a comparison not there yet is made with its entries and every row asked for, in one
+          transaction (on PostgreSQL one statement, the rows made by the server); workers joining at
+          the same moment wait for that one transaction, not for one another (on PostgreSQL an
+          ``INSERT ... ON CONFLICT DO NOTHING`` waits for a conflicting uncommitted one; on SQLite for
+          the write lock), then read the comparison again;
+        - entries missing from the comparison's list are added by a compare-and-set of the list (an
+          ``UPDATE`` that matches only the list as read), read again where another worker changed it;
+        - missing rows (more seeds, another entry) are inserted in (entry, seed) order, ``ON CONFLICT
+          DO NOTHING``, so that workers adding the same rows wait only for one another's statement,
+          never in a cycle (on SQLite the rows there are read first).
+        """
         if claim_timeout < MIN_CLAIM_TIMEOUT:
             raise ExperimentError(
                 f"--claim-timeout must be >= {MIN_CLAIM_TIMEOUT:g} seconds, got {claim_timeout:g}"
             )
-        engine = cls.connect(url)
+        engine = cls.connect(url, create=False)
         check_returning(engine)
-        with engine.begin() as db:
-            _insert_missing(db, COMPARISONS, [{
-                "name": name, "setup": setup, "entries": [], "claim_timeout": claim_timeout,
-            }])  # fmt: skip
-            row = db.execute(COMPARISONS.select().where(COMPARISONS.c.name == name).with_for_update()).one()
-            check_setup(name, dict(row.setup), setup)
+        shared = cls(url, name, engine, claim_timeout, setup)
+        from sqlalchemy.exc import OperationalError
+
+        try:
+            stored = shared._join(entries, seeds, claim_timeout)
+        except OperationalError as err:  # no server there, a wrong user or database
+            raise unreachable(url, err) from None
+        shared.claim_timeout = float(stored.claim_timeout)
+        return shared
+
+    def _join(self, entries: list[Entry], seeds: list[int], claim_timeout: float) -> Any:
+        """The comparison's row (its claim timeout) once it holds ``entries`` x ``seeds``."""
+        from sqlalchemy.exc import SQLAlchemyError
+
+        labels = [e.label for e in entries]
+        created = False
+        for attempt in range(JOIN_ATTEMPTS):
+            try:
+                row = self._joined_row(labels, seeds)
+            except SQLAlchemyError as err:
+                if created or not missing_table(err):
+                    raise
+                self.connect(self.url).dispose()  # a database without the tables: made, then read again
+                created = True
+                continue
+            if row is None:
+                self._create(entries, seeds, claim_timeout)
+                continue  # made here, or by another worker meanwhile: read it
+            check_setup(self.name, dict(row.setup), self.setup)
             known = list(row.entries)
-            added = [e.label for e in entries if e.label not in known]
-            if added:
-                db.execute(
-                    COMPARISONS.update().where(COMPARISONS.c.name == name).values(entries=known + added)
+            added = [label for label in labels if label not in known]
+            if added and not self._add_entries(row.entries_text, known + added):
+                time.sleep(0.05 * attempt)  # another worker changed the list: read it again
+                continue
+            if row.present < len(set(labels)) * len(set(seeds)):
+                self._insert_missing_rows(entries, seeds)
+            return row
+        raise ExperimentError(
+            f"comparison {self.name}: could not join it in {JOIN_ATTEMPTS} tries (other workers kept "
+            "changing its entries); run the command again"
+        )
+
+    def _joined_row(self, labels: list[str], seeds: list[int]) -> Any:
+        """The comparison's row (its list of entries also as stored text) and ``present``, the count of
+        the rows of ``labels`` x ``seeds`` there: one statement. None where there is no comparison."""
+        import sqlalchemy as sa
+
+        present = sa.select(sa.func.count()).select_from(RUNS).where(self._asked(labels, seeds))
+        statement = sa.select(
+            COMPARISONS.c.setup,
+            COMPARISONS.c.entries,
+            sa.cast(COMPARISONS.c.entries, sa.Text).label("entries_text"),
+            COMPARISONS.c.claim_timeout,
+            present.scalar_subquery().label("present"),
+        ).where(COMPARISONS.c.name == self.name)
+        with self.statements.connect() as db:
+            return db.execute(statement).one_or_none()
+
+    def _create(self, entries: list[Entry], seeds: list[int], claim_timeout: float) -> None:
+        """Make the comparison with its entries and rows, in one transaction; nothing where another
+        worker made it first (this one waited for that worker's transaction). On PostgreSQL one
+        statement, the rows made by the server (a round trip, whatever the seeds)."""
+        labels = [e.label for e in entries]
+        row = {"name": self.name, "setup": self.setup, "entries": labels, "claim_timeout": claim_timeout}
+        if self.engine.dialect.name == "postgresql":
+            from sqlalchemy.dialects import postgresql
+
+            made = (
+                postgresql.insert(COMPARISONS)
+                .values(**row)
+                .on_conflict_do_nothing()
+                .returning(COMPARISONS.c.name)
+                .cte("made")
+            )
+            with self.statements.connect() as db:
+                db.execute(self._rows_made_by_the_server(entries, seeds, made).add_cte(made))
+            return
+        with self.engine.begin() as db:
+            if _insert_missing(db, COMPARISONS, [row], returning=COMPARISONS.c.name):
+                for batch in self._run_rows(entries, seeds):
+                    _insert_missing(db, RUNS, batch)
+
+    def _add_entries(self, stored_text: str, labels: list[str]) -> bool:
+        """Set the comparison's entries to ``labels`` where they are still ``stored_text`` (one
+        statement: a compare-and-set); False where another worker changed them meanwhile."""
+        import sqlalchemy as sa
+
+        with self.statements.connect() as db:
+            result = db.execute(
+                COMPARISONS.update()
+                .where(
+                    COMPARISONS.c.name == self.name, sa.cast(COMPARISONS.c.entries, sa.Text) == stored_text
                 )
-            _insert_missing(db, RUNS, [
-                {"comparison": name, "entry": e.label, "seed": s, "agent": e.agent, "preset": e.preset,
-                 "state": RowState.PENDING, "claims": 0}
-                for s in seeds for e in entries
-            ])  # fmt: skip
-        return cls(url, name, engine, float(row.claim_timeout), setup)
+                .values(entries=labels)
+            )
+        return bool(result.rowcount)
+
+    def _insert_missing_rows(self, entries: list[Entry], seeds: list[int]) -> None:
+        """Insert the rows of ``entries`` x ``seeds`` not there yet, in (entry, seed) order, each
+        statement a transaction of its own (on PostgreSQL one statement, the rows made by the server)."""
+        import sqlalchemy as sa
+
+        with self.statements.connect() as db:
+            if db.dialect.name == "postgresql":
+                db.execute(self._rows_made_by_the_server(entries, seeds))
+                return
+            labels = [e.label for e in entries]
+            asked = sa.select(RUNS.c.entry, RUNS.c.seed).where(self._asked(labels, seeds))
+            there = {(row.entry, row.seed) for row in db.execute(asked)}
+            for batch in self._run_rows(entries, seeds, there):
+                _insert_missing(db, RUNS, batch)
+
+    def _rows_made_by_the_server(self, entries: list[Entry], seeds: list[int], made: Any = None) -> Any:
+        """PostgreSQL's ``INSERT ... SELECT`` of the pending rows of ``entries`` x ``seeds`` (the seeds
+        as ranges, each a ``generate_series``), in (entry, seed) order, ON CONFLICT DO NOTHING; with
+        ``made`` (the CTE that makes the comparison) only where it made it."""
+        import sqlalchemy as sa
+        from sqlalchemy.dialects import postgresql
+
+        asked_entries = sa.values(
+            sa.column("entry", sa.String), sa.column("agent", sa.String), sa.column("preset", sa.String),
+            name="asked_entries",
+        ).data([(e.label, e.agent, e.preset) for e in dict.fromkeys(entries)])  # fmt: skip
+        ranges = sa.values(sa.column("low", sa.Integer), sa.column("high", sa.Integer), name="asked_ranges")
+        ranges = ranges.data(seed_ranges(seeds))
+        seed = sa.func.generate_series(ranges.c.low, ranges.c.high).table_valued("seed")
+        seed = seed.render_derived(name="asked_seeds")
+        rows = sa.select(
+            sa.literal(self.name), asked_entries.c.entry, seed.c.seed, asked_entries.c.agent,
+            asked_entries.c.preset, sa.literal(str(RowState.PENDING)), sa.literal(0),
+        )  # fmt: skip
+        if made is not None:
+            rows = rows.select_from(made).join(asked_entries, sa.true())
+        else:
+            rows = rows.select_from(asked_entries)
+        rows = rows.join(ranges, sa.true()).join(seed, sa.true()).order_by(asked_entries.c.entry, seed.c.seed)
+        columns = ["comparison", "entry", "seed", "agent", "preset", "state", "claims"]
+        return postgresql.insert(RUNS).from_select(columns, rows).on_conflict_do_nothing()
+
+    def _run_rows(
+        self, entries: list[Entry], seeds: list[int], there: set[tuple[str, int]] | None = None
+    ) -> Iterator[list[dict[str, Any]]]:
+        """The pending rows of ``entries`` x ``seeds`` not in ``there``, in (entry, seed) order, in
+        batches of :data:`INSERT_BATCH`."""
+        rows = [
+            {"comparison": self.name, "entry": e.label, "seed": s, "agent": e.agent, "preset": e.preset,
+             "state": RowState.PENDING, "claims": 0}
+            for e in sorted(dict.fromkeys(entries), key=lambda e: e.label) for s in sorted(set(seeds))
+            if there is None or (e.label, s) not in there
+        ]  # fmt: skip
+        for start in range(0, len(rows), INSERT_BATCH):
+            yield rows[start : start + INSERT_BATCH]
 
     @classmethod
     def open(cls, url: str, name: str, engine: Any = None) -> SharedComparison:
@@ -337,6 +509,50 @@ class SharedComparison:
                 .values(state=RowState.PENDING, owner=None, heartbeat=None)
             )
 
+    def held(self, owner: str) -> list[Any]:
+        """The rows ``owner`` holds claimed (entry, seed, agent, preset), in seed order: those of its
+        jobs, and any of a claim whose reply it never had (the connection lost after the commit)."""
+        import sqlalchemy as sa
+
+        statement = (
+            sa.select(RUNS.c.entry, RUNS.c.seed, RUNS.c.agent, RUNS.c.preset)
+            .where(RUNS.c.comparison == self.name, RUNS.c.owner == owner, RUNS.c.state == RowState.CLAIMED)
+            .order_by(RUNS.c.seed, RUNS.c.entry)
+        )
+        with self.statements.connect() as db:
+            return list(db.execute(statement).all())
+
+    def release_rows(self, owner: str, rows: set[tuple[str, int]] | None = None) -> set[tuple[str, int]]:
+        """Give back, in one statement, ``owner``'s claims of ``rows`` (entry label, seed), or every
+        claim it holds (None): pending again, for any worker. The rows given back."""
+        import sqlalchemy as sa
+
+        if rows is not None and not rows:
+            return set()
+        where = [RUNS.c.comparison == self.name, RUNS.c.owner == owner, RUNS.c.state == RowState.CLAIMED]
+        if rows is not None:
+            where.append(sa.tuple_(RUNS.c.entry, RUNS.c.seed).in_(sorted(rows)))
+        statement = (
+            RUNS.update()
+            .where(*where)
+            .values(state=RowState.PENDING, owner=None, heartbeat=None)
+            .returning(RUNS.c.entry, RUNS.c.seed)
+        )
+        with self.statements.connect() as db:
+            return {(row.entry, row.seed) for row in db.execute(statement)}
+
+    def where_now(self, rows: set[tuple[str, int]]) -> dict[tuple[str, int], tuple[str, str | None]]:
+        """(state, owner) of each of ``rows`` (entry label, seed) now."""
+        import sqlalchemy as sa
+
+        if not rows:
+            return {}
+        statement = sa.select(RUNS.c.entry, RUNS.c.seed, RUNS.c.state, RUNS.c.owner).where(
+            RUNS.c.comparison == self.name, sa.tuple_(RUNS.c.entry, RUNS.c.seed).in_(sorted(rows))
+        )
+        with self.statements.connect() as db:
+            return {(r.entry, r.seed): (r.state, r.owner) for r in db.execute(statement)}
+
     def _claimable(self, labels: list[str], seeds: list[int], skip: set[tuple[str, int]], now: Any) -> Any:
         """Rows of ``labels`` x ``seeds`` not in ``skip`` that a worker may claim at ``now`` (an SQL
         expression): pending, or claimed with a heartbeat older than the claim timeout."""
@@ -440,23 +656,62 @@ def check_returning(engine: Any) -> None:
         )
 
 
-def _insert_missing(db: Any, table: Any, rows: list[dict[str, Any]]) -> None:
-    """Insert the rows whose primary key is not there yet (ON CONFLICT DO NOTHING)."""
+def _insert_missing(db: Any, table: Any, rows: list[dict[str, Any]], returning: Any = None) -> list[Any]:
+    """Insert the rows whose primary key is not there yet (ON CONFLICT DO NOTHING); with ``returning``
+    (a column), that column of each row inserted."""
     if not rows:
-        return
+        return []
     from sqlalchemy.dialects import postgresql, sqlite
 
     dialects: dict[str, Any] = {"postgresql": postgresql.insert, "sqlite": sqlite.insert}
     insert = dialects.get(db.dialect.name)
     if insert is None:
         raise ExperimentError(f"a shared comparison needs PostgreSQL (or SQLite), not {db.dialect.name}")
-    db.execute(insert(table).on_conflict_do_nothing(), rows)
+    statement = insert(table).on_conflict_do_nothing()
+    if returning is None:
+        db.execute(statement, rows)
+        return []
+    return list(db.execute(statement.values(rows).returning(returning)).scalars())
+
+
+def missing_table(err: BaseException) -> bool:
+    """Whether ``err`` says a table is not there (a database the comparison tables were never made in)."""
+    orig = getattr(err, "orig", None)
+    return getattr(orig, "sqlstate", None) == "42P01" or "no such table" in str(orig or err)
+
+
+def ping_when_idle(engine: Any) -> None:
+    """Have ``engine``'s pool check a connection before handing it out only where it has been idle for
+    :data:`PING_AFTER_IDLE` seconds (SQLAlchemy's ``pool_pre_ping`` checks every time: a round trip
+    more for every claim). A connection lost since its last use fails its next statement, which a
+    worker's calls try again (:func:`~cartpole.experiments.storage.retry_lost_connection`)."""
+    import sqlalchemy as sa
+
+    def checkin(dbapi_connection: Any, record: Any) -> None:
+        record.info["idle_since"] = time.monotonic()
+
+    def checkout(dbapi_connection: Any, record: Any, proxy: Any) -> None:
+        since = record.info.get("idle_since")
+        if since is None or time.monotonic() - since < PING_AFTER_IDLE:
+            return
+        try:
+            alive = engine.dialect.do_ping(dbapi_connection)
+        except Exception:
+            alive = False
+        if not alive:  # the pool then opens a new connection
+            raise sa.exc.DisconnectionError("the connection was lost while it was idle")
+
+    sa.event.listen(engine, "checkin", checkin)
+    sa.event.listen(engine, "checkout", checkout)
 
 
 def seed_ranges(seeds: list[int]) -> list[tuple[int, int]]:
     """``seeds`` as (first, last) ranges of consecutive seeds, in order: [0, 1, 2, 5] -> [(0, 2), (5, 5)]."""
+    ordered = sorted(set(seeds))
+    if ordered and ordered[-1] - ordered[0] == len(ordered) - 1:  # one range (most requests): no loop
+        return [(ordered[0], ordered[-1])]
     ranges: list[tuple[int, int]] = []
-    for seed in sorted(set(seeds)):
+    for seed in ordered:
         if ranges and seed == ranges[-1][1] + 1:
             ranges[-1] = (ranges[-1][0], seed)
         else:

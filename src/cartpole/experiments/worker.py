@@ -8,14 +8,20 @@ whose run is ``finished`` means the work is done; an ``interrupted`` one names t
 later worker resumes. SIGINT and SIGTERM stop
 training at the next step with ``checkpoints/latest.pt`` saved (the training session's own handling),
 and so do the parent's stop request and the parent's end
-(:func:`~cartpole.experiments.processes.follow_parent`).
+(:func:`~cartpole.experiments.processes.follow_parent`). Stops that come together (Slurm signals every
+process of a task, and the parent asks too) stop the worker once: :class:`StopRequests`.
 """
 
 from __future__ import annotations
 
+import _thread
 import json
+import signal
 import sys
+import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -81,6 +87,64 @@ class Task:
         return cls(**fields)
 
 
+class StopRequests:
+    """A worker's stop requests (SIGINT: the parent's, through
+    :func:`~cartpole.experiments.processes.follow_parent`, or a Ctrl-C; SIGTERM: Slurm's, which signals
+    every process of a task, so that both come at once) outside a training session's own handling:
+    noted, never raised in the middle of a write.
+
+    Before training the worker checks them (:meth:`check`: exit 130, nothing written). While a session
+    runs (:meth:`session`), the engine takes them (it saves ``latest.pt`` and stops at the next step);
+    one that comes while the session sets up or ends, when the engine's handler is not in place (it
+    saves its runs after its loop, with the handlers before it back), is only noted, so that the
+    record of what it saved is still written, and delivered again every :data:`REDELIVER_SECONDS`
+    until the session returns, so that the engine hears it once its handler is there."""
+
+    REDELIVER_SECONDS = 0.2
+
+    def __init__(self) -> None:
+        self.noted: list[int] = []
+
+    @contextmanager
+    def installed(self) -> Iterator[StopRequests]:
+        """Note SIGINT and SIGTERM here (the handlers before are back after)."""
+        signals = (signal.SIGINT, signal.SIGTERM)
+        previous = {s: signal.signal(s, lambda signum, frame: self.noted.append(signum)) for s in signals}
+        try:
+            yield self
+        finally:
+            for s, handler in previous.items():
+                signal.signal(s, handler)
+
+    def check(self) -> None:
+        """KeyboardInterrupt where a stop was asked for (before anything is trained or written)."""
+        if self.noted:
+            raise KeyboardInterrupt
+
+    @contextmanager
+    def session(self) -> Iterator[None]:
+        """Around a training session: a stop noted meanwhile is delivered again (as SIGINT, to whatever
+        handler is in place) every :data:`REDELIVER_SECONDS` until the session returns."""
+        done = threading.Event()
+
+        def redeliver() -> None:
+            while not done.wait(self.REDELIVER_SECONDS):
+                if self.noted:
+                    _thread.interrupt_main(signal.SIGINT)
+
+        thread = threading.Thread(target=redeliver, name="stop-requests", daemon=True)
+        thread.start()
+        try:
+            yield
+        finally:
+            done.set()
+            thread.join()
+
+
+STOPS = StopRequests()
+"""This worker's stop requests (installed by :func:`main`; a task run in a test's process has none)."""
+
+
 def read_record(path: Path) -> dict[str, Any] | None:
     try:
         return json.loads(path.read_text(encoding="utf-8"))
@@ -121,26 +185,28 @@ def run_task(task: Task) -> dict[str, Any]:
     if record and record.get("state") == FINISHED:
         return record
     warm_up(task.env_id)
+    STOPS.check()
     previous = resumable(record)
-    if previous is not None and record is not None:
-        clock = SolveClock(record.get("cpu_seconds", 0.0), record.get("solve_cpu_seconds"))
-        outcome = resume(previous, quiet=True, device=task.device, callbacks=[clock])
-    else:
-        clock = SolveClock()
-        outcome = train(
-            task.agent,
-            task.env_id,
-            seed=task.seed,
-            preset=task.preset,
-            overrides=task.overrides,
-            budget=task.budget,
-            runs_dir=task.runs_dir,
-            device=task.device,
-            quiet=True,
-            command=task.command,
-            tensorboard=task.tensorboard,
-            callbacks=[clock],
-        )
+    with STOPS.session():
+        if previous is not None and record is not None:
+            clock = SolveClock(record.get("cpu_seconds", 0.0), record.get("solve_cpu_seconds"))
+            outcome = resume(previous, quiet=True, device=task.device, callbacks=[clock])
+        else:
+            clock = SolveClock()
+            outcome = train(
+                task.agent,
+                task.env_id,
+                seed=task.seed,
+                preset=task.preset,
+                overrides=task.overrides,
+                budget=task.budget,
+                runs_dir=task.runs_dir,
+                device=task.device,
+                quiet=True,
+                command=task.command,
+                tensorboard=task.tensorboard,
+                callbacks=[clock],
+            )
     record = make_record(task, outcome, clock)
     path.parent.mkdir(parents=True, exist_ok=True)
     write_json_atomic(path, record)
@@ -188,25 +254,27 @@ def run_population_task(task: Task, records: dict[int, str]) -> dict[str, Any]:
     if todo:
         warm_up(task.env_id)
     while todo:
+        STOPS.check()
         previous = {seed: resumable(found[seed]) for seed in sorted(todo)}
         interrupted = [run for run in previous.values() if run is not None]
         cpu_start = time.process_time()
-        if interrupted:
-            outcome = resume_population(interrupted[0], quiet=True, device=task.device)
-        else:
-            outcome = train_population(
-                task.agent,
-                sorted(todo),
-                task.env_id,
-                preset=task.preset,
-                overrides=task.overrides,
-                budget=task.budget,
-                runs_dir=task.runs_dir,
-                device=task.device,
-                quiet=True,
-                command=task.command,
-                tensorboard=task.tensorboard,
-            )
+        with STOPS.session():
+            if interrupted:
+                outcome = resume_population(interrupted[0], quiet=True, device=task.device)
+            else:
+                outcome = train_population(
+                    task.agent,
+                    sorted(todo),
+                    task.env_id,
+                    preset=task.preset,
+                    overrides=task.overrides,
+                    budget=task.budget,
+                    runs_dir=task.runs_dir,
+                    device=task.device,
+                    quiet=True,
+                    command=task.command,
+                    tensorboard=task.tensorboard,
+                )
         cpu_share = (time.process_time() - cpu_start) / len(outcome.runs)
         owned = [seed for seed in outcome.runs if seed in todo]  # a resumed population may hold others
         if not owned:
@@ -217,7 +285,7 @@ def run_population_task(task: Task, records: dict[int, str]) -> dict[str, Any]:
             write_json_atomic(paths[seed], record)
             written[seed] = record
             todo.discard(seed)
-        if outcome.signal is not None:
+        if outcome.signal is not None or STOPS.noted:
             break
     return written[min(written)] if written else {"state": INTERRUPTED}
 
@@ -259,11 +327,12 @@ def main(argv: list[str]) -> int:
 
     try:
         follow_parent()  # inside: a stop asked for already interrupts as soon as it returns
-        task = Task.load(Path(argv[0]))
-        if "--device" in argv:
-            task = replace(task, device=argv[argv.index("--device") + 1])
-        with torch_threads(default_torch_threads(task.env_id)):
-            record = run_task(task)
+        with STOPS.installed():
+            task = Task.load(Path(argv[0]))
+            if "--device" in argv:
+                task = replace(task, device=argv[argv.index("--device") + 1])
+            with torch_threads(default_torch_threads(task.env_id)):
+                record = run_task(task)
         return 0 if record["state"] == FINISHED else 130
     except InputError as err:
         print(f"error: {err}", file=sys.stderr)

@@ -146,7 +146,10 @@ def train(
     does (``train("dqn", lr=1e-3)``); ``budget`` as ``--budget`` ("50k" env steps, "300ep", "20gen",
     "90s"). ``progress``: a progress bar in a notebook, plain lines elsewhere. ``tensorboard`` as
     ``--tensorboard``: the metrics, the settings as hyperparameters (the final verdict their metric)
-    and the command in ``<run>/tensorboard/`` (needs the tensorboard extra). torch computes with
+    and the command in ``<run>/tensorboard/`` (needs the tensorboard extra). The run's config.json
+    records the ``cartpole train`` command that starts the same run (``train("dqn", seed=2, lr=1e-3)``:
+    ``cartpole train dqn --seed 2 --set lr=0.001``), not the notebook kernel's command line: TensorBoard's
+    command text and a hub card's "How it was trained" show it. torch computes with
     ``cartpole train``'s default thread count while it trains (one thread on state observations),
     and with the caller's again after.
     """

@@ -170,6 +170,10 @@ def start(
     agent."""
     if tensorboard:
         require_tensorboard()  # before a run folder is made
+    command = command or python_command(
+        agent, seeds, env_id, preset, overrides, budget, runs_dir, device, stop_when_solved, tensorboard,
+        population,
+    )  # fmt: skip
     plan = plan_training(
         agent, env_id, len(seeds), preset=preset, overrides=overrides, budget=budget,
         stop_when_solved=stop_when_solved,
@@ -201,6 +205,70 @@ def start(
         if announce is not None:
             announce({setup.seed: setup.run for setup in setups})
         return run_members(learner, setups, {}, quiet, stream, callbacks)
+
+
+def python_command(
+    agent: str,
+    seeds: list[int],
+    env_id: str,
+    preset: str | None,
+    overrides: dict[str, Any] | None,
+    budget: Budget | str | None,
+    runs_dir: Path | str,
+    device: str,
+    stop_when_solved: bool | None,
+    tensorboard: bool,
+    population: bool,
+) -> list[str]:
+    """The ``cartpole train`` command line that starts the same training as this call from Python (a
+    notebook's ``cartpole.train``, a script), as the CLI would write it, for the run's config.json (and
+    so TensorBoard's command text and a hub card's "How it was trained"): not the Python process's
+    own command line. A budget of several limits, which only Python can give, is written as its first."""
+    from cartpole.core.seeding import describe_seeds
+    from cartpole.training.request import TrainRequest, train_command
+
+    settings = dict(overrides or {})
+    env_kwargs = settings.pop("env_kwargs", None) or {}
+    if stop_when_solved is True:
+        settings["stop_when_solved"] = True
+    text = budget if isinstance(budget, str) or budget is None else budget_text(budget)
+    request = TrainRequest(agent, env_id, preset, tuple(seeds), text, settings, str(runs_dir))
+    argv = train_command(request)
+    for flag in ("--seed", "--seeds"):  # the seeds just after the agent, always named
+        if flag in argv:
+            del argv[argv.index(flag) : argv.index(flag) + 2]
+    if not population:
+        argv[3:3] = ["--seed", str(seeds[0])]
+    else:  # --seeds N alone is a count: a population of one seed is N-N
+        argv[3:3] = ["--seeds", describe_seeds(seeds) if len(seeds) > 1 else f"{seeds[0]}-{seeds[0]}"]
+    if device != "auto":
+        argv += ["--device", device]
+    if stop_when_solved is False:
+        argv.append("--no-stop-when-solved")
+    if tensorboard:
+        argv.append("--tensorboard")
+    if env_kwargs:  # last: --env-kwargs takes every KEY=VALUE after it
+        argv += ["--env-kwargs", *(f"{key}={env_kwarg_text(value)}" for key, value in env_kwargs.items())]
+    return argv
+
+
+def budget_text(budget: Budget) -> str | None:
+    """``budget`` as ``--budget`` takes it (its first limit), or None where it has none."""
+    for limit, value in budget.to_dict().items():
+        return {"env_steps": f"{value}", "episodes": f"{value}ep", "iterations": f"{value}gen"}.get(
+            limit, f"{value:g}s"
+        )
+    return None
+
+
+def env_kwarg_text(value: Any) -> str:
+    """A value as ``--env-kwargs KEY=VALUE`` reads it back: quoted where the bare text reads as another."""
+    import json
+
+    from cartpole.core.config import plain_value, setting_text
+
+    text = setting_text(value)
+    return text if plain_value(text) == value else json.dumps(value)
 
 
 # ----------------------------------------------------------------------------------------------
