@@ -51,6 +51,23 @@ def _zeros(m: int) -> np.ndarray:
     return zeros
 
 
+NARROW = 8
+"""Fewer output columns than this (a policy or value head's) are computed the other way round."""
+
+
+def _narrow_matmul(a: torch.Tensor, b: torch.Tensor, c: torch.Tensor | None) -> torch.Tensor:
+    """:func:`matmul` of a product with few columns and many rows, as ``(b^T a^T)^T``: the same sums in
+    the same order (a product of two floats is the same either way round), with the many rows as
+    the kernel's vectorized columns, several times faster. A transposed view [S, n, m]."""
+    seeds, n, _ = a.shape
+    m = b.shape[2]
+    start = _zeros(1) if c is None else _array(c).transpose(0, 2, 1)
+    result = np.empty((seeds, m, n), dtype=np.float32)
+    columns = np.ascontiguousarray(_array(a).transpose(0, 2, 1))
+    kernels().matmul_into(_array(b).transpose(0, 2, 1), columns, start, result)
+    return torch.from_numpy(result).transpose(1, 2)
+
+
 def matmul(
     a: torch.Tensor, b: torch.Tensor, c: torch.Tensor | None = None, out: torch.Tensor | None = None
 ) -> torch.Tensor:
@@ -64,6 +81,8 @@ def matmul(
         return product if out is None else out.copy_(product)
     seeds, n, _ = a.shape
     m = b.shape[2]
+    if m < NARROW <= n and out is None:
+        return _narrow_matmul(a, b, c)
     start = _zeros(m) if c is None else _array(c)
     if out is not None and out.is_contiguous():
         kernels().matmul_into(_array(a), _array(b.contiguous()), start, _array(out))
