@@ -23,7 +23,7 @@ a database in use (autovacuum analyzes a table within a minute of its rows being
 never analyzed a claim costs the database about 4x more).
 
 ``--join current`` is :meth:`~cartpole.experiments.shared.SharedComparison.join`; ``--join legacy`` is the
-join before it (commit 4b09e8f), kept here only for contrast: it holds the comparison's row locked
+join before it (commit 09036a6), kept here only for contrast: it holds the comparison's row locked
 (``SELECT ... FOR UPDATE``) while it inserts every row, so that the workers join one after the other.
 ``--claim current`` is :meth:`~cartpole.experiments.shared.SharedComparison.claim`; ``--claim legacy``
 is the claim before it (commit 4df9b38), also for contrast: it locks every claimable row of the
@@ -158,7 +158,7 @@ def through(url: str, port: int) -> str:
 def legacy_join(
     url: str, name: str, setup: dict[str, Any], entries: list[Entry], seeds: list[int], claim_timeout: float
 ) -> SharedComparison:
-    """``SharedComparison.join`` at commit 4b09e8f: the comparison's row locked while every row is
+    """``SharedComparison.join`` at commit 09036a6: the comparison's row locked while every row is
     inserted, so that joins queue."""
     engine = SharedComparison.connect(url)
     check_returning(engine)
@@ -598,7 +598,7 @@ def main(argv: list[str] | None = None) -> int:
         help="postgresql://USER@HOST:PORT/DB (default: $CARTPOLE_TEST_POSTGRES_URL, which "
         ".ci/postgres.sh sets)",
     )
-    parser.add_argument("--join", default="current", help="current, legacy (the join at 4b09e8f), or both")
+    parser.add_argument("--join", default="current", help="current, legacy (the join at 09036a6), or both")
     parser.add_argument("--claim", default="current", help="current, legacy (the claim at 4df9b38), or both")
     parser.add_argument("--chunk", type=int, default=1, help="--chunk of cartpole compare")
     parser.add_argument("--rows-per-worker", type=int, default=40, help="rows per worker (>= 20)")
