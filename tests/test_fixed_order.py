@@ -317,3 +317,19 @@ def test_on_cuda_the_products_are_torch_s() -> None:
     a, b = torch.randn(2, 5, 3, device="cuda"), torch.randn(2, 3, 4, device="cuda")
     assert not fixed_order.is_fixed_order(a)
     torch.testing.assert_close(matmul(a, b), torch.bmm(a, b))
+
+
+def test_shapes_that_do_not_multiply_are_a_value_error_not_a_kernel_s() -> None:
+    """The kernels check no bounds: a damaged checkpoint's weights must be refused before them (as
+    ``np.matmul`` refused them), so that loading it says so in one line (tests/test_bad_input.py)."""
+    x = np.zeros((1, 5, 4), np.float32)
+    for weight, bias in [
+        (np.zeros((1, 3, 2), np.float32), None),
+        (np.zeros((1, 4, 2, 1), np.float32), None),
+        (np.zeros((1, 4, 2), np.float32), np.zeros((1, 1, 3), np.float32)),
+        (np.zeros((2, 4, 2), np.float32), np.zeros((3, 1, 2), np.float32)),
+    ]:
+        with pytest.raises(ValueError, match="cannot multiply"):
+            matmul_arrays(x, weight, bias)
+    with pytest.raises(ValueError, match="cannot multiply"):
+        matmul(torch.zeros(2, 5, 4), torch.zeros(3, 4, 2))

@@ -51,6 +51,16 @@ def _zeros(m: int) -> np.ndarray:
     return zeros
 
 
+def check_shapes(a: tuple[int, ...], b: tuple[int, ...], c: tuple[int, ...]) -> None:
+    """ValueError unless ``a`` [S, n, k] times ``b`` [S, k, m] plus ``c`` [S or 1, n or 1, m or 1] is a
+    product (S may be 1 on one side): the kernels check no bounds."""
+    fits = len(a) == len(b) == len(c) == 3 and a[2] == b[1]
+    fits = fits and (a[0] == b[0] or 1 in (a[0], b[0]))
+    seeds = max(a[0], b[0]) if fits else 0
+    if not (fits and c[0] in (1, seeds) and c[1] in (1, a[1]) and c[2] in (1, b[2])):
+        raise ValueError(f"cannot multiply {a} by {b} and add {c}")
+
+
 NARROW = 8
 """Fewer output columns than this (a policy or value head's) are computed the other way round."""
 
@@ -79,6 +89,9 @@ def matmul(
     if not is_fixed_order(a):
         product = torch.bmm(a, b) if c is None else torch.baddbmm(c, a, b)
         return product if out is None else out.copy_(product)
+    check_shapes(tuple(a.shape), tuple(b.shape), (1, 1, 1) if c is None else tuple(c.shape))
+    if a.shape[0] != b.shape[0]:
+        raise ValueError(f"cannot multiply {tuple(a.shape)} by {tuple(b.shape)}: one network a seed")
     seeds, n, _ = a.shape
     m = b.shape[2]
     if m < NARROW <= n and out is None:
@@ -105,9 +118,12 @@ def matmul_arrays(x: np.ndarray, weight: np.ndarray, bias: np.ndarray | None = N
         c = np.zeros((1, 1, 1), dtype=dtype)
     else:
         c = (bias if bias.ndim == 3 else bias.reshape(1, 1, -1)).astype(dtype, copy=False)
+    check_shapes(a.shape, b.shape, c.shape)
     out = np.empty((max(a.shape[0], b.shape[0]), a.shape[1], b.shape[2]), dtype=dtype)
     if a.shape[0] != out.shape[0]:  # one input for every network
         a = np.broadcast_to(a, (out.shape[0], *a.shape[1:]))
+    if b.shape[0] != out.shape[0]:  # one network for every input
+        b = np.broadcast_to(b, (out.shape[0], *b.shape[1:]))
     kernels().matmul_into(a, b, c, out)
     return out if stacked or out.shape[0] > 1 else out[0]
 
