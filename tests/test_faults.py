@@ -308,6 +308,33 @@ def test_a_lost_connection_is_retried_with_a_line_each_time_then_given_up(capsys
     assert len(capsys.readouterr().err.splitlines()) == 2  # bounded: two waits, three tries
 
 
+def test_a_query_after_the_lost_one_in_the_same_session_is_retried_too(capsys):
+    """Optuna's _get_trials catches the lost query's OperationalError and queries again in the same
+    session: SQLAlchemy's PendingRollbackError, raised while handling the first, wrapped by Optuna
+    in a StorageInternalError (as CI met while PostgreSQL restarted)."""
+    from optuna.exceptions import StorageInternalError
+    from sqlalchemy.exc import PendingRollbackError
+
+    from cartpole.experiments.storage import retry_lost_connection
+
+    calls: list[int] = []
+
+    def session_after_a_restart() -> str:
+        calls.append(1)
+        if len(calls) > 1:
+            return "trials"
+        try:
+            try:
+                raise connection_refused()
+            except Exception:  # noqa: BLE001 -- Optuna's fallback to a second query
+                raise PendingRollbackError("Can't reconnect until invalid transaction is rolled back")
+        except PendingRollbackError as err:
+            raise StorageInternalError("An exception is raised during the commit.") from err
+
+    assert retry_lost_connection("get trials", session_after_a_restart, waits=(0.0,)) == "trials"
+    assert "(connection refused)" in capsys.readouterr().err
+
+
 def test_other_database_errors_are_not_retried(capsys):
     from sqlalchemy.exc import IntegrityError
 

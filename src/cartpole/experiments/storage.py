@@ -89,21 +89,32 @@ def unreachable(url: str, err: Exception) -> ExperimentError:
 
 
 def lost_connection(err: BaseException) -> bool:
-    """Whether ``err`` (or what it was raised from: Optuna wraps SQLAlchemy's errors) is a lost or
-    refused connection, or a server that is not ready (starting up, shutting down): worth a new try."""
+    """Whether ``err``, or an error it was raised from or while handling, is a lost or refused
+    connection, or a server that is not ready (starting up, shutting down): worth a new try."""
+    return connection_error_in(err) is not None
+
+
+def connection_error_in(err: BaseException) -> BaseException | None:
+    """The lost-connection error in ``err``'s chain, or None. The chain follows ``__cause__`` (Optuna
+    wraps SQLAlchemy's errors in its own) and ``__context__``: after a lost connection, the next query
+    in the same session fails with SQLAlchemy's PendingRollbackError, which Optuna then wraps."""
     from sqlalchemy.exc import DBAPIError, InterfaceError, OperationalError
 
-    while err is not None:
-        if isinstance(err, (OperationalError, InterfaceError)) or (
-            isinstance(err, DBAPIError) and err.connection_invalidated
+    seen: set[int] = set()
+    link: BaseException | None = err
+    while link is not None and id(link) not in seen:
+        seen.add(id(link))
+        if isinstance(link, (OperationalError, InterfaceError)) or (
+            isinstance(link, DBAPIError) and link.connection_invalidated
         ):
-            return True
-        err = err.__cause__  # type: ignore[assignment]
-    return False
+            return link
+        link = link.__cause__ or (None if link.__suppress_context__ else link.__context__)
+    return None
 
 
 def reason_of(err: BaseException) -> str:
     """The first line of what the database driver said."""
+    err = connection_error_in(err) or err
     while err.__cause__ is not None and not hasattr(err, "orig"):
         err = err.__cause__
     lines = str(getattr(err, "orig", None) or err).strip().splitlines()
