@@ -326,8 +326,9 @@ def test_a_query_after_the_lost_one_in_the_same_session_is_retried_too(capsys):
         try:
             try:
                 raise connection_refused()
-            except Exception:  # noqa: BLE001 -- Optuna's fallback to a second query
-                raise PendingRollbackError("Can't reconnect until invalid transaction is rolled back")
+            except Exception as lost:  # Optuna's fallback: a second query in the same session
+                said = "Can't reconnect until invalid transaction is rolled back"
+                raise PendingRollbackError(said) from lost
         except PendingRollbackError as err:
             raise StorageInternalError("An exception is raised during the commit.") from err
 

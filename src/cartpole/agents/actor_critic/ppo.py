@@ -27,6 +27,7 @@ import dataclasses
 import math
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from cartpole.agents.actor_critic.policy_gradient import PolicyGradientConfig
@@ -37,7 +38,7 @@ from cartpole.agents.actor_critic.population import (
 )
 from cartpole.agents.actor_critic.rollout import Rollout
 from cartpole.agents.learner import LearnResult
-from cartpole.agents.nn.fixed_order import seed_sums
+from cartpole.agents.nn.fixed_order import is_fixed_order, seed_sums
 from cartpole.agents.nn.masked import log_probs_and_entropy, masked_mean, masked_normalize
 from cartpole.agents.nn.schedules import SCHEDULES, schedule_value
 from cartpole.core.config import require
@@ -169,7 +170,12 @@ def ppo_loss_gradients(
     autograd splits a tie), ``-A`` times whether ``r`` lies inside the clip range where the clipped
     side is; ``d r / d logits = r (onehot(action) - softmax)``; the mean entropy's ``-p (log p +
     H)``; the value loss's ``values - returns``; each over the seed's masked rows. Equal to
-    autograd's gradients to within float32 rounding (tests/test_population.py)."""
+    autograd's gradients to within float32 rounding (tests/test_population.py).
+
+    On the CPU, one compiled pass computes them (:func:`ppo_loss_gradients_compiled`); elsewhere
+    (CUDA) these tensor operations do."""
+    if is_fixed_order(logits):
+        return ppo_loss_gradients_compiled(logits, values, batch, clip, mask, count, ent_coef, vf_coef)
     log_probs_all = torch.log_softmax(logits, dim=-1)
     probs = log_probs_all.exp()
     log_ratio = log_probs_all.gather(-1, batch.actions.unsqueeze(-1)).squeeze(-1) - batch.old_log_probs
@@ -201,6 +207,36 @@ def ppo_loss_gradients(
             (ent_coef * per_row).unsqueeze(-1) * probs * (log_probs_all + row_entropy.unsqueeze(-1))
         )
     return logits_grad, vf_coef * per_row * error, metrics
+
+
+def ppo_loss_gradients_compiled(
+    logits: torch.Tensor,
+    values: torch.Tensor,
+    batch: PPOBatch,
+    clip: torch.Tensor,
+    mask: torch.Tensor,
+    count: torch.Tensor,
+    ent_coef: float,
+    vf_coef: float,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:func:`ppo_loss_gradients` on the CPU, in one compiled pass over each seed's rows
+    (:mod:`._ppo_loss_kernels`: the same formulas, a seed's bits its own)."""
+    from cartpole.agents.actor_critic import _ppo_loss_kernels
+
+    seeds, rows, n_actions = logits.shape
+    logits_grad = np.empty((seeds, rows, n_actions), dtype=np.float32)
+    values_grad = np.empty((seeds, rows), dtype=np.float32)
+    metrics = np.empty((seeds, len(ROW_METRICS)), dtype=np.float32)
+
+    def array(t: torch.Tensor, dtype: type = np.float32) -> np.ndarray:
+        return np.ascontiguousarray(t.detach().numpy(), dtype=dtype)
+
+    _ppo_loss_kernels.ppo_loss_gradients_into(
+        array(logits), array(values), array(batch.actions, np.int64), array(batch.old_log_probs),
+        array(batch.advantages), array(batch.returns), array(mask), array(count.reshape(seeds)),
+        array(clip.reshape(seeds)), float(ent_coef), float(vf_coef), logits_grad, values_grad, metrics,
+    )  # fmt: skip
+    return torch.from_numpy(logits_grad), torch.from_numpy(values_grad), torch.from_numpy(metrics)
 
 
 ROW_METRICS = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction")

@@ -26,6 +26,7 @@ import torch
 from torch import nn
 
 from cartpole.agents.actor_critic.network import ActorCritic, ScalePixels, scale_pixels
+from cartpole.agents.nn import fused_mlp
 from cartpole.agents.nn.fast_tanh import tanh_gradient
 from cartpole.agents.nn.flat_parameters import FlatParameters
 from cartpole.agents.nn.numpy_mlp import NUMPY_ACTIVATIONS, StackedNumpyMLP, Step
@@ -70,6 +71,47 @@ def forward_plan(model: ActorCritic, trunk_name: str, head_name: str) -> list[La
         else:
             plan.append(type(layer))
     return [*plan, (f"{head_name}.weight", f"{head_name}.bias")]
+
+
+def tanh_mlp_layers(plan: list[Layer]) -> list[tuple[str, str]] | None:
+    """The linear layers of ``plan`` when it is a tanh MLP of a hidden layer or more (the
+    observations' standardization first, if any), what :mod:`~cartpole.agents.nn.fused_mlp` runs in
+    one call; None for any other network."""
+    steps = plan[1:] if plan and isinstance(plan[0], StandardizeObservations) else plan
+    linear, between = steps[0::2], steps[1::2]
+    if len(steps) < 3 or len(steps) % 2 == 0 or any(step is not nn.Tanh for step in between):
+        return None
+    layers = [step for step in linear if isinstance(step, tuple)]
+    return layers if len(layers) == len(linear) else None
+
+
+_TANH_MLPS: dict[int, tuple[list[Layer], list[tuple[str, str]] | None]] = {}
+""":func:`tanh_mlp_layers` of each plan met, by the plan's id (the plan kept with it, so that the id
+stays its own)."""
+
+
+def run_fused(
+    plan: list[Layer], params: dict[str, torch.Tensor], x: torch.Tensor, inputs: list[torch.Tensor] | None
+) -> torch.Tensor | None:
+    """:meth:`StackedActorCritic.run` of a tanh MLP in one compiled call
+    (:mod:`~cartpole.agents.nn.fused_mlp`, the same bits), or None where that does not apply: another
+    network, another dtype or device, or a pass autograd records."""
+    if id(plan) not in _TANH_MLPS:
+        _TANH_MLPS[id(plan)] = (plan, tanh_mlp_layers(plan))
+    names = _TANH_MLPS[id(plan)][1]
+    if names is None:
+        return None
+    layers = [(params[weight], params[bias]) for weight, bias in names]
+    tensors = [x, *(t for pair in layers for t in pair)]
+    recorded = torch.is_grad_enabled() and any(t.requires_grad for t in tensors)
+    if recorded or not fused_mlp.fusable(x, layers):
+        return None
+    if isinstance(plan[0], StandardizeObservations):
+        x = plan[0].forward(x)
+    out, kept = fused_mlp.forward(x, layers)
+    if inputs is not None:
+        inputs.extend(kept)
+    return out
 
 
 def flatten_images(x: torch.Tensor) -> torch.Tensor:
@@ -164,6 +206,9 @@ class StackedActorCritic(FlatParameters[ActorCritic]):
         """``x`` [S, B, *obs_shape] through ``plan``: one product per linear layer for all seeds, one
         conv2d per seed and convolutional layer; pixels scaled by ``scale``. ``inputs``, when given,
         receives each linear layer's input, in order."""
+        fused = run_fused(plan, params, x, inputs)
+        if fused is not None:
+            return fused
         image_shape: torch.Size | None = None
         """[C, H, W] of the images the last flatten took, until the linear layer after it."""
         for step in plan:
@@ -273,6 +318,11 @@ class StackedActorCritic(FlatParameters[ActorCritic]):
             if hand is None or grad is None:  # None: the loss has no value term (REINFORCE alone)
                 continue
             layers = [(update.params[weight], update.params[bias]) for weight, bias in hand.layers]
+            fused = hand.activation is tanh_gradient and fused_mlp.fusable(inputs[0], layers)
+            if update.rows is None and fused:
+                into = [(self.params[weight].grad, self.params[bias].grad) for weight, bias in hand.layers]
+                fused_mlp.gradients(layers, inputs, grad, into)  # type: ignore[arg-type]
+                continue
             gradients = mlp_gradients(layers, inputs, grad, hand.activation)
             for names, pair in zip(hand.layers, gradients, strict=True):
                 for name, gradient in zip(names, pair, strict=True):

@@ -12,7 +12,9 @@ module, with the benchmark table that measures it):
    (:mod:`~cartpole.agents.nn.stacked_linear`, :mod:`~cartpole.agents.nn.stacked_conv`): what a
    population trains;
 3. an MLP's gradients by hand (:func:`~cartpole.agents.nn.stacked_linear.mlp_gradients`): what an
-   update of a stacked MLP backpropagates with;
+   update of a stacked MLP backpropagates with; for a tanh MLP, forward and backward each one
+   compiled call of the same kernels in the same order (:mod:`~cartpole.agents.nn.fused_mlp`, the
+   same bits without the Python between a small network's dozen calls);
 4. a NumPy twin (:mod:`~cartpole.agents.nn.numpy_mlp`, with :mod:`~cartpole.agents.nn.fast_tanh`):
    what a rollout and DQN's batched env step act through;
 5. a greedy policy's compiled forward pass (:mod:`~cartpole.agents.nn.greedy_play`): what every

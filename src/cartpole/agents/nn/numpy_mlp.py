@@ -22,6 +22,7 @@ from torch import nn
 
 from cartpole.agents.nn.fast_tanh import tanh_array
 from cartpole.agents.nn.fixed_order import matmul_arrays
+from cartpole.agents.nn.fused_mlp import forward_arrays
 from cartpole.agents.nn.greedy_play import RELU, TANH, CompiledMLP
 from cartpole.agents.nn.standardize import StandardizeObservations
 from cartpole.envs.params import CartPoleParams
@@ -76,6 +77,21 @@ def run_steps(plan: list[Step], features: np.ndarray) -> np.ndarray:
     return features
 
 
+def fused_tanh_layers(plan: list[Step]) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]] | None:
+    """A stacked plan's weights ``[S, in, out]`` and biases ``[S, 1, out]`` when it is a tanh MLP of a
+    hidden layer or more with C-contiguous float32 parameters; None otherwise."""
+    linear, between = plan[0::2], plan[1::2]
+    if len(plan) < 3 or len(plan) % 2 == 0 or any(step is not _tanh for step in between):
+        return None
+    steps = [step for step in linear if isinstance(step, tuple)]
+    if len(steps) != len(linear):
+        return None
+    arrays = [array for step in steps for array in step]
+    if not all(a.dtype == np.float32 and a.ndim == 3 and a.flags.c_contiguous for a in arrays):
+        return None
+    return tuple(w for w, _ in steps), tuple(b for _, b in steps)
+
+
 def is_dropout(layer: nn.Module) -> bool:
     """Dropout of any kind (torch's or a hand-written one): the identity when a policy acts."""
     return "dropout" in type(layer).__name__.lower()
@@ -127,6 +143,9 @@ class StackedNumpyMLP:
     def __init__(self, plan: list[Step]):
         self.plan = plan
         """Weights ``[S, in, out]`` and biases ``[S, 1, out]``, and the activations."""
+        self.fused = fused_tanh_layers(plan)
+        """The weights and biases of a tanh MLP of a hidden layer or more, which runs in one compiled
+        call (:func:`~cartpole.agents.nn.fused_mlp.forward_arrays`, the same bits); else None."""
 
     @classmethod
     def stack(cls, mlps: list[NumpyMLP]) -> StackedNumpyMLP | None:
@@ -161,7 +180,10 @@ class StackedNumpyMLP:
         return StackedNumpyMLP(plan)
 
     def __call__(self, inputs: np.ndarray) -> np.ndarray:
-        return run_steps(self.plan, np.asarray(inputs, dtype=np.float32))
+        features = np.asarray(inputs, dtype=np.float32)
+        if self.fused is not None and features.ndim == 3 and features.shape[0] == self.count:
+            return forward_arrays(features, *self.fused)
+        return run_steps(self.plan, features)
 
     def then(self, other: StackedNumpyMLP) -> StackedNumpyMLP:
         """This stack followed by ``other`` (network b's outputs into network b), as one."""
