@@ -25,9 +25,32 @@ def cpu_model_and_avx512() -> tuple[str, bool]:
     return model, avx512
 
 
-AVX2_SETTINGS = {"NUMBA_CPU_NAME": "haswell", "ATEN_CPU_CAPABILITY": "avx2", "MKL_CBWR": "AVX2"}
+AVX2_SETTINGS = {
+    "NUMBA_CPU_NAME": "haswell",
+    "ATEN_CPU_CAPABILITY": "avx2",
+    "MKL_CBWR": "AVX2",
+    "NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR",
+}
 """The settings under which an AVX-512 CPU runs the float code of an AVX2 one: numba compiles for
-Haswell, torch takes its AVX2 kernels and MKL its AVX2 path (docs/DEVELOPMENT.md)."""
+Haswell, torch takes its AVX2 kernels, MKL its AVX2 path and NumPy's own loops dispatch to AVX2
+(X86_V3) at most (docs/DEVELOPMENT.md). What none of them reaches stays the host's: the CPU's
+caches, its clock, and any library outside these four."""
+
+
+def numpy_simd() -> str:
+    """The widest SIMD target that NumPy's own loops dispatch to in this process (``X86_V4``: AVX-512,
+    ``X86_V3``: AVX2, ...), from ``numpy.lib.introspect.opt_func_info``."""
+    from numpy.lib.introspect import opt_func_info
+
+    targets = {
+        signature["current"].split("(")[-1].rstrip(")")
+        for signatures in opt_func_info().values()
+        for signature in signatures.values()
+    }
+    for target in ("X86_V4", "X86_V3", "X86_V2"):
+        if any(t == target or (target == "X86_V4" and t.startswith("AVX512")) for t in targets):
+            return target
+    return ", ".join(sorted(targets)) or "baseline"
 
 
 def float_path_settings() -> dict[str, str]:
@@ -36,13 +59,13 @@ def float_path_settings() -> dict[str, str]:
 
 
 def emulated_isa(avx512: bool) -> str | None:
-    """``AVX2`` where an AVX-512 CPU runs with all of :data:`AVX2_SETTINGS` (a table made so is an
-    emulated AVX2 one, and says so); None on a CPU measured as it is."""
+    """``AVX2`` where an AVX-512 CPU runs with all of :data:`AVX2_SETTINGS` and NumPy's loops took
+    them (a table made so is an emulated AVX2 one, and says so); None on a CPU measured as it is."""
     settings = float_path_settings()
     if avx512 and all(
         settings.get(name, "").lower() == value.lower() for name, value in AVX2_SETTINGS.items()
     ):
-        return "AVX2"
+        return "AVX2" if numpy_simd() != "X86_V4" else None
     return None
 
 
@@ -50,7 +73,9 @@ def describe_cpu() -> str:
     """``model name, N CPUs, AVX-512: yes|no``, or ``..., emulated AVX2 on an AVX-512 CPU``."""
     model, avx512 = cpu_model_and_avx512()
     emulated = emulated_isa(avx512)
-    isa = f"emulated {emulated} on an AVX-512 CPU" if emulated else f"AVX-512: {'yes' if avx512 else 'no'}"
+    isa = f"AVX-512: {'yes' if avx512 else 'no'}"
+    if emulated:
+        isa = f"emulated {emulated} on an AVX-512 CPU (numba, torch, MKL and NumPy kernels)"
     return f"{model}, {os.cpu_count()} CPUs, {isa}"
 
 
@@ -74,6 +99,7 @@ def machine() -> dict[str, Any]:
         "avx512": avx512,
         "emulated": emulated_isa(avx512),
         "float_paths": float_path_settings(),
+        "numpy_simd": numpy_simd(),
         "cpus": os.cpu_count(),
         "load_average": load_average(),
         "python": platform.python_version(),

@@ -101,10 +101,15 @@ def commit() -> str | None:
 
 
 def describe_machine(found: dict[str, Any]) -> str:
-    """``AMD EPYC, AVX-512, 2 CPUs`` (or ``..., emulated AVX2 on AVX-512, ...`` where the table ran under
-    the AVX2 settings of ``cpu.AVX2_SETTINGS``): what a table's machine line and the README's rows say."""
+    """``AMD EPYC, AVX-512, 2 CPUs`` (or ``..., emulated AVX2 on AVX-512 (what), ...`` where the table ran
+    under the AVX2 settings of ``cpu.AVX2_SETTINGS``, saying which kernels took them: a table made
+    before NumPy's dispatch was among them says that NumPy's stayed on AVX-512): what a table's
+    machine line and the README's rows say."""
     if found.get("emulated"):
-        avx = f"emulated {found['emulated']} on AVX-512"
+        took = "numba, torch, MKL and NumPy kernels"
+        if found.get("numpy_simd") in (None, "X86_V4"):
+            took = "numba, torch and MKL kernels; NumPy's own on AVX-512"
+        avx = f"emulated {found['emulated']} on AVX-512 ({took})"
     else:
         avx = "AVX-512" if found.get("avx512") else "no AVX-512"
     return f"{found.get('cpu', '?')}, {avx}, {found.get('cpus', '?')} CPUs"

@@ -69,7 +69,12 @@ def test_how_fast_puts_ours_beside_the_peer_of_the_same_run(tmp_path):
     assert "not run yet: `python benchmarks/run.py population`" in table
 
 
-AVX2_SETTINGS = {"NUMBA_CPU_NAME": "haswell", "ATEN_CPU_CAPABILITY": "avx2", "MKL_CBWR": "AVX2"}
+AVX2_SETTINGS = {
+    "NUMBA_CPU_NAME": "haswell",
+    "ATEN_CPU_CAPABILITY": "avx2",
+    "MKL_CBWR": "AVX2",
+    "NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR",
+}
 
 
 def machine_under(env: dict[str, str]) -> dict:
@@ -90,8 +95,12 @@ def test_a_table_made_under_the_avx2_settings_on_an_avx512_cpu_says_emulated_avx
     emulated = machine_under(AVX2_SETTINGS)
     assert emulated["float_paths"] == AVX2_SETTINGS
     assert emulated["emulated"] == ("AVX2" if emulated["avx512"] else None)  # an AVX2 CPU emulates nothing
+    assert emulated["numpy_simd"] != "X86_V4"  # NumPy's own loops too, not only numba's, torch's, MKL's
     partly = machine_under({"ATEN_CPU_CAPABILITY": "avx2"})  # torch's kernels alone: not an AVX2 CPU
     assert partly["emulated"] is None and partly["float_paths"] == {"ATEN_CPU_CAPABILITY": "avx2"}
+    without_numpy = machine_under({k: v for k, v in AVX2_SETTINGS.items() if k != "NPY_DISABLE_CPU_FEATURES"})
+    assert without_numpy["emulated"] is None  # NumPy's loops left on AVX-512: not called emulated AVX2
+    assert without_numpy["numpy_simd"] == ("X86_V4" if plain["avx512"] else plain["numpy_simd"])
 
 
 def test_the_machine_line_of_an_emulated_avx2_table_says_so(tmp_path):
@@ -105,7 +114,13 @@ def test_the_machine_line_of_an_emulated_avx2_table_says_so(tmp_path):
     (tmp_path / "time-to-solve.json").write_text(json.dumps(record))
     done = run("--assemble", "--results-dir", str(tmp_path))
     assert done.returncode == 0, done.stdout + done.stderr
-    assert "Some CPU, emulated AVX2 on AVX-512, 2 CPUs" in how_fast((tmp_path / "README.md").read_text())
+    said = "Some CPU, emulated AVX2 on AVX-512 (numba, torch and MKL kernels; NumPy's own on AVX-512), 2 CPUs"
+    assert said in how_fast((tmp_path / "README.md").read_text())  # a table from before NumPy's was set
+    record["machine"]["numpy_simd"] = "X86_V3"
+    (tmp_path / "time-to-solve.json").write_text(json.dumps(record))
+    assert run("--assemble", "--results-dir", str(tmp_path)).returncode == 0
+    said = "Some CPU, emulated AVX2 on AVX-512 (numba, torch, MKL and NumPy kernels), 2 CPUs"
+    assert said in how_fast((tmp_path / "README.md").read_text())
 
 
 def test_the_simulator_rows_name_the_dtype_and_show_the_default_float64_first(tmp_path):
