@@ -97,6 +97,8 @@ def run_fused(
     (:mod:`~cartpole.agents.nn.fused_mlp`, the same bits), or None where that does not apply: another
     network, another dtype or device, or a pass autograd records."""
     if id(plan) not in _TANH_MLPS:
+        if len(_TANH_MLPS) >= 64:  # a long process builds many models: keep the recent plans only
+            _TANH_MLPS.clear()
         _TANH_MLPS[id(plan)] = (plan, tanh_mlp_layers(plan))
     names = _TANH_MLPS[id(plan)][1]
     if names is None:
